@@ -1,0 +1,60 @@
+# tripod: two commands on a fresh Debian machine.
+#   make demo   set everything up, then run the main job on the bundled defaults
+#   make test   set everything up, then run all tests
+# Both are fast when nothing changed (stamps under .venv/).
+SHELL := /bin/bash
+.SHELLFLAGS := -eo pipefail -c
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+PIP := $(PY) -m pip --disable-pip-version-check -q
+# this machine's pip config names index folders that may not exist: hide that noise only
+QUIET := 2> >(grep -v 'is ignored: it is neither a file nor a directory' >&2)
+SHARED_DATA ?= ../shared/data
+DEMO_DIR ?= demo-output
+
+SYSTEM_STAMP := $(VENV)/.stamp-system
+DEPS_STAMP := $(VENV)/.stamp-deps
+INSTALL_STAMP := $(VENV)/.stamp-install
+PYPROJECTS := shared/pyproject.toml daemon/pyproject.toml processor/pyproject.toml
+
+.PHONY: all setup test demo bench clean distclean
+
+all: setup
+
+$(SYSTEM_STAMP): scripts/ensure-system-deps.sh
+	@PYTHON=$(PYTHON) scripts/ensure-system-deps.sh
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	@touch $@
+
+# Heavy third-party wheels first (torch from the provided CPU wheel), then our packages.
+$(DEPS_STAMP): $(SYSTEM_STAMP) requirements-dev.txt
+	@echo "tripod: installing Python dependencies into $(VENV) (first run takes a few minutes)"
+	$(PIP) install --upgrade pip setuptools wheel $(QUIET)
+	$(PIP) install "torch==2.13.0" $(QUIET)
+	$(PIP) install -r requirements-dev.txt $(QUIET)
+	@touch $@
+
+$(INSTALL_STAMP): $(DEPS_STAMP) $(PYPROJECTS)
+	@echo "tripod: installing shared, daemon and processor (building the C++ extension)"
+	$(PIP) install -e shared -e daemon $(QUIET)
+	$(PIP) install --no-build-isolation -e processor $(QUIET)
+	@touch $@
+
+setup: $(INSTALL_STAMP)
+
+test: setup
+	$(PY) -m pytest
+
+demo: setup
+	$(VENV)/bin/tripod demo -o $(DEMO_DIR)
+
+bench: setup
+	$(PIP) install -e "processor[bench]" --no-build-isolation
+	@for b in bench/*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
+
+clean:
+	rm -rf processor/build $(DEMO_DIR) .pytest_cache
+
+distclean: clean
+	rm -rf $(VENV)

@@ -1,0 +1,33 @@
+// SPDX-License-Identifier: BSD-3-Clause
+// Conversions shared by the binding files: numpy (N,3) float32 <-> Eigen, arrays owned by capsules.
+#pragma once
+
+#include <nanobind/nanobind.h>
+#include <nanobind/ndarray.h>
+
+#include <cstring>
+#include <stdexcept>
+
+#include "tripod_core/voxel_grid.hpp"
+
+namespace tripod_bind {
+namespace nb = nanobind;
+
+using CloudIn = nb::ndarray<const float, nb::shape<-1, 3>, nb::c_contig, nb::device::cpu>;
+using CloudOut = nb::ndarray<nb::numpy, float, nb::shape<-1, 3>>;
+
+/// Copy an (N,3) float32 numpy array into an Eigen row-major matrix (one copy per cloud).
+inline tripod::PointsXYZ to_eigen(const CloudIn& a) {
+    tripod::PointsXYZ m(static_cast<Eigen::Index>(a.shape(0)), 3);
+    if (a.shape(0)) std::memcpy(m.data(), a.data(), sizeof(float) * 3 * a.shape(0));
+    return m;
+}
+
+/// Move an Eigen cloud into a numpy array owned by a capsule (no copy).
+inline CloudOut to_numpy(tripod::PointsXYZ&& m) {
+    auto* heap = new tripod::PointsXYZ(std::move(m));
+    nb::capsule owner(heap, [](void* p) noexcept { delete static_cast<tripod::PointsXYZ*>(p); });
+    return CloudOut(heap->data(), {static_cast<size_t>(heap->rows()), 3}, owner);
+}
+
+}  // namespace tripod_bind

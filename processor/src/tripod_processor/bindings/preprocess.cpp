@@ -1,0 +1,23 @@
+// SPDX-License-Identifier: BSD-3-Clause
+// Bindings: preprocessing (voxel grid, ...). Conversions and docstrings only.
+#include "common.hpp"
+#include "tripod_core/voxel_grid.hpp"
+
+namespace nb = nanobind;
+using namespace tripod_bind;
+
+void bind_preprocess(nb::module_& m) {
+    m.def(
+        "voxel_downsample",
+        [](CloudIn points, double voxel_size, int num_threads) {
+            tripod::PointsXYZ in = to_eigen(points);
+            tripod::PointsXYZ out;
+            {
+                nb::gil_scoped_release release;
+                out = tripod::voxel_downsample(in, voxel_size, num_threads);
+            }
+            return to_numpy(std::move(out));
+        },
+        nb::arg("points"), nb::arg("voxel_size"), nb::arg("num_threads") = 0,
+        "Voxel-grid downsampling with centroids. points: (N,3) float32 [m]; returns (M,3).");
+}

@@ -1,0 +1,40 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""``tripod``: the processor's command line. One module per subcommand, registered below.
+
+Heavy imports (open3d, torch) happen inside the commands, so ``tripod --help`` is instant.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+import typer
+
+app = typer.Typer(
+    name="tripod",
+    help="Process VLP-16 + IMU tripod recordings into registered indoor models.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+# Each module defines its command(s) on `app` when imported.
+COMMAND_MODULES: list[str] = [
+]
+
+for _mod in COMMAND_MODULES:
+    importlib.import_module(_mod)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``tripod``; returns the exit code (2 for bad input, one line, no trace)."""
+    try:
+        app(args=argv, standalone_mode=True)
+    except SystemExit as exc:
+        return int(exc.code or 0)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,223 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""MCAP recordings of tripod: the one writer and reader of the layout.
+
+Layout (document of record: ``shared/README.md``):
+
+==================  ======================================  ========  ============
+topic               schema                                  encoding  log_time
+==================  ======================================  ========  ============
+/velodyne/packets   velodyne_msgs/msg/VelodynePacket        cdr       host receive
+/velodyne/position  tripod_msgs/msg/VelodynePositionPacket  cdr       host receive
+/imu/quaternion     tripod_msgs/msg/ImuQuaternion           cdr       host read
+/tripod/status      tripod.Status (JSON Schema)             json      host
+/tripod/events      tripod.Event (JSON Schema)              json      host
+==================  ======================================  ========  ============
+
+``log_time`` and ``publish_time`` are host_realtime ns (publish_time = log_time). MCAP metadata
+record ``tripod`` holds the format version and the writer; the daemon adds its config.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from typing import IO, BinaryIO
+
+from mcap.exceptions import McapError
+from mcap.records import Channel, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType, Writer
+
+from . import messages as m
+from . import topics as t
+
+FORMAT_VERSION = "1"
+PROFILE = ""  # mixed ros2msg/cdr and json channels: no single profile applies
+
+_SCHEMAS = {
+    t.TOPIC_LIDAR_PACKETS: (m.VELODYNE_PACKET_TYPE, "ros2msg", m.VELODYNE_PACKET_MSGDEF, "cdr"),
+    t.TOPIC_LIDAR_POSITION: (m.POSITION_PACKET_TYPE, "ros2msg", m.POSITION_PACKET_MSGDEF, "cdr"),
+    t.TOPIC_IMU: (m.IMU_QUATERNION_TYPE, "ros2msg", m.IMU_QUATERNION_MSGDEF, "cdr"),
+    t.TOPIC_STATUS: (m.STATUS_SCHEMA_NAME, "jsonschema", json.dumps(m.STATUS_JSON_SCHEMA), "json"),
+    t.TOPIC_EVENTS: (m.EVENT_SCHEMA_NAME, "jsonschema", json.dumps(m.EVENT_JSON_SCHEMA), "json"),
+}
+
+
+class RecordingWriter:
+    """Write a tripod recording. Not thread-safe: one writer thread owns it.
+
+    Parameters
+    ----------
+    output : path or binary file object
+    chunk_size : int
+        Uncompressed bytes per chunk before it is compressed and written. The daemon also
+        calls :meth:`flush_chunk` on a timer so at most that much time is ever unwritten.
+    compression : "zstd" | "lz4" | "none"
+    metadata : dict[str, str], optional
+        Extra entries of the ``tripod`` metadata record.
+    """
+
+    def __init__(
+        self,
+        output: str | os.PathLike | BinaryIO,
+        *,
+        chunk_size: int = 1 << 20,
+        compression: str = "zstd",
+        metadata: dict[str, str] | None = None,
+        library: str = "tripod",
+    ):
+        comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
+        if compression not in comp:
+            raise ValueError(f"unknown compression {compression!r} (zstd, lz4, none)")
+        self._own = not hasattr(output, "write")
+        self._fh: IO[bytes] = open(output, "wb") if self._own else output  # type: ignore[arg-type]
+        self._writer = Writer(self._fh, chunk_size=chunk_size, compression=comp[compression])
+        self._writer.start(profile=PROFILE, library=library)
+        self._channels: dict[str, int] = {}
+        meta = {"format_version": FORMAT_VERSION, "library": library}
+        meta.update(metadata or {})
+        self._writer.add_metadata("tripod", {k: str(v) for k, v in meta.items()})
+        self._seq: dict[str, int] = {}
+        self.messages_written = 0
+        self._closed = False
+
+    def _channel(self, topic: str) -> int:
+        cid = self._channels.get(topic)
+        if cid is None:
+            name, sch_enc, text, msg_enc = _SCHEMAS[topic]
+            sid = self._writer.register_schema(name, sch_enc, text.encode())
+            cid = self._writer.register_channel(topic, msg_enc, sid)
+            self._channels[topic] = cid
+        return cid
+
+    def write_encoded(self, topic: str, log_time_ns: int, data: bytes) -> None:
+        """Write already-encoded message bytes (the same bytes published over Zenoh)."""
+        cid = self._channel(topic)
+        seq = self._seq.get(topic, 0)
+        self._seq[topic] = seq + 1
+        self._writer.add_message(cid, log_time_ns, data, log_time_ns, seq)
+        self.messages_written += 1
+
+    def write_lidar_packet(self, host_ns: int, payload: bytes) -> None:
+        self.write_encoded(t.TOPIC_LIDAR_PACKETS, host_ns, m.encode_velodyne_packet(host_ns, payload))
+
+    def write_position_packet(self, host_ns: int, payload: bytes) -> None:
+        self.write_encoded(t.TOPIC_LIDAR_POSITION, host_ns, m.encode_position_packet(host_ns, payload))
+
+    def write_imu(self, sample: m.ImuSample) -> None:
+        self.write_encoded(t.TOPIC_IMU, sample.host_ns, m.encode_imu(sample))
+
+    def write_status(self, status: m.Status) -> None:
+        self.write_encoded(t.TOPIC_STATUS, status.host_ns, m.encode_status(status))
+
+    def write_event(self, event: m.Event) -> None:
+        self.write_encoded(t.TOPIC_EVENTS, event.host_ns, m.encode_event(event))
+
+    def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        self._writer.add_metadata(name, {k: str(v) for k, v in data.items()})
+
+    def flush_chunk(self) -> None:
+        """Close the open chunk and write it out now (bounded loss if the process is killed)."""
+        # mcap's Writer has no public chunk flush; its private finaliser does exactly this.
+        fin = getattr(self._writer, "_Writer__finalize_chunk", None)
+        if fin is not None:
+            fin()
+        self._fh.flush()
+
+    def fileno(self) -> int:
+        return self._fh.fileno()
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        self._writer.finish()
+        self._fh.flush()
+        if self._own:
+            self._fh.close()
+
+    def __enter__(self) -> "RecordingWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+@dataclass(slots=True)
+class RecordedMessage:
+    topic: str
+    log_time_ns: int  # host_realtime
+    data: bytes
+    sequence: int = 0
+
+
+@dataclass
+class ReadReport:
+    """What reading a recording met: message counts per topic and whether it ended early."""
+
+    messages: dict[str, int] = field(default_factory=dict)
+    truncated: bool = False
+    error: str = ""
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+
+
+class RecordingReader:
+    """Stream a tripod recording in file order; tolerant of files cut off mid-write.
+
+    Reading never seeks, so constant memory however long the file. A file that ends early
+    (writer killed) yields every whole message before the cut and sets ``report.truncated``.
+    """
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = os.fspath(path)
+        if not os.path.exists(self.path):
+            raise FileNotFoundError(f"no such recording: {self.path}")
+        self.report = ReadReport()
+
+    def messages(self, topics: Iterable[str] | None = None) -> Iterator[RecordedMessage]:
+        want = set(topics) if topics is not None else None
+        channels: dict[int, Channel] = {}
+        report = self.report = ReadReport()
+        with open(self.path, "rb") as fh:
+            try:
+                reader = StreamReader(fh, skip_magic=False, emit_chunks=False)
+                for rec in reader.records:
+                    if isinstance(rec, Channel):
+                        channels[rec.id] = rec
+                    elif isinstance(rec, Message):
+                        ch = channels.get(rec.channel_id)
+                        if ch is None:
+                            continue
+                        report.messages[ch.topic] = report.messages.get(ch.topic, 0) + 1
+                        if want is None or ch.topic in want:
+                            yield RecordedMessage(ch.topic, rec.log_time, rec.data, rec.sequence)
+                    elif isinstance(rec, Metadata):
+                        report.metadata[rec.name] = dict(rec.metadata)
+            except (McapError, EOFError, ValueError, OSError, Exception) as exc:  # noqa: BLE001
+                # mcap raises several types at a cut (EndOfFile, struct.error, zstd errors)
+                report.truncated = True
+                report.error = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+
+    def lidar_packets(self) -> Iterator[tuple[int, bytes]]:
+        """(host_ns, 1206-byte payload) of every data packet, in recording order."""
+        for msg in self.messages([t.TOPIC_LIDAR_PACKETS]):
+            yield m.decode_velodyne_packet(msg.data)
+
+    def position_packets(self) -> Iterator[tuple[int, bytes]]:
+        for msg in self.messages([t.TOPIC_LIDAR_POSITION]):
+            yield m.decode_position_packet(msg.data)
+
+    def imu_samples(self) -> Iterator[m.ImuSample]:
+        for msg in self.messages([t.TOPIC_IMU]):
+            yield m.decode_imu(msg.data)
+
+    def events(self) -> Iterator[m.Event]:
+        for msg in self.messages([t.TOPIC_EVENTS]):
+            yield m.decode_event(msg.data)
+
+
+def is_mcap(path: str | os.PathLike) -> bool:
+    with open(path, "rb") as fh:
+        return fh.read(8) == b"\x89MCAP0\r\n"

@@ -1,0 +1,208 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""Tinkerforge TFP framing and the IMU Brick 2.0 quaternion callback.
+
+Every TFP packet is an 8-byte little-endian header then the payload::
+
+    uint32 uid | uint8 length (header+payload) | uint8 function_id
+    | uint8 (seq << 4 | response_expected << 3 | options) | uint8 flags (error code in bits 6-7)
+
+IMU Brick 2.0 (device identifier 18): CALLBACK_QUATERNION (fid 39) carries int16 w, x, y, z
+scaled by 1/16383 (bindings) or 1/16384 (firmware): we divide and normalise. Callbacks use
+sequence number 0 and carry no device timestamp; the host stamps them at the read.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+HEADER = struct.Struct("<IBBBB")
+HEADER_SIZE = 8
+MAX_PACKET_SIZE = 80
+BRICKD_PORT = 4223
+
+DEVICE_IDENTIFIER_IMU_V2 = 18
+FID_GET_QUATERNION = 8
+FID_SET_QUATERNION_PERIOD = 28
+FID_GET_QUATERNION_PERIOD = 29
+FID_CALLBACK_QUATERNION = 39
+FID_ENUMERATE = 254
+FID_CALLBACK_ENUMERATE = 253
+QUATERNION_SCALE = 16383.0
+QUATERNION_PACKET_SIZE = HEADER_SIZE + 8
+ENUMERATE_CALLBACK_SIZE = HEADER_SIZE + 26
+
+_Q = struct.Struct("<hhhh")
+_U32 = struct.Struct("<I")
+_ENUM = struct.Struct("<8s8sc3B3BHB")
+
+BASE58_ALPHABET = "123456789abcdefghijkmnopqrstuvwxyzABCDEFGHJKLMNPQRSTUVWXYZ"
+
+
+def base58_encode(value: int) -> str:
+    if value == 0:
+        return BASE58_ALPHABET[0]
+    out = ""
+    while value:
+        value, r = divmod(value, 58)
+        out = BASE58_ALPHABET[r] + out
+    return out
+
+
+def base58_decode(text: str) -> int:
+    value = 0
+    for ch in text:
+        idx = BASE58_ALPHABET.find(ch)
+        if idx < 0:
+            raise ValueError(f"not a Tinkerforge UID: {text!r}")
+        value = value * 58 + idx
+    return value
+
+
+@dataclass(frozen=True, slots=True)
+class TfpPacket:
+    uid: int
+    function_id: int
+    sequence: int
+    response_expected: bool
+    error_code: int
+    payload: bytes
+
+    @property
+    def raw(self) -> bytes:
+        return encode_packet(
+            self.uid, self.function_id, self.payload, self.sequence, self.response_expected,
+            self.error_code,
+        )
+
+
+def encode_packet(
+    uid: int, function_id: int, payload: bytes = b"", sequence: int = 0,
+    response_expected: bool = False, error_code: int = 0,
+) -> bytes:
+    length = HEADER_SIZE + len(payload)
+    if length > MAX_PACKET_SIZE:
+        raise ValueError(f"TFP packet too long: {length} > {MAX_PACKET_SIZE}")
+    opts = ((sequence & 0x0F) << 4) | (0x08 if response_expected else 0)
+    return HEADER.pack(uid, length, function_id, opts, (error_code & 0x03) << 6) + bytes(payload)
+
+
+def encode_quaternion_callback(uid: int, w: float, x: float, y: float, z: float) -> bytes:
+    """A CALLBACK_QUATERNION packet as the brick sends it (int16, scale 16383)."""
+    vals = [max(-32768, min(32767, int(round(c * QUATERNION_SCALE)))) for c in (w, x, y, z)]
+    return encode_packet(uid, FID_CALLBACK_QUATERNION, _Q.pack(*vals))
+
+
+def encode_set_quaternion_period(uid: int, period_ms: int, sequence: int = 1) -> bytes:
+    return encode_packet(uid, FID_SET_QUATERNION_PERIOD, _U32.pack(period_ms), sequence, True)
+
+
+def encode_enumerate(sequence: int = 1) -> bytes:
+    return encode_packet(0, FID_ENUMERATE, b"", sequence, False)
+
+
+def encode_enumerate_callback(
+    uid: int, device_identifier: int = DEVICE_IDENTIFIER_IMU_V2, connected_uid: str = "0",
+    position: bytes = b"0", enumeration_type: int = 0,
+) -> bytes:
+    payload = _ENUM.pack(
+        base58_encode(uid).encode(), connected_uid.encode(), position, 1, 0, 0, 2, 0, 10,
+        device_identifier, enumeration_type,
+    )
+    return encode_packet(uid, FID_CALLBACK_ENUMERATE, payload)
+
+
+def decode_enumerate_callback(payload: bytes) -> tuple[int, int]:
+    """(uid, device_identifier) of a CALLBACK_ENUMERATE payload."""
+    uid_s, _c, _p, *_hwfw, dev_id, _t = _ENUM.unpack_from(payload)
+    return base58_decode(uid_s.split(b"\x00", 1)[0].decode("ascii")), dev_id
+
+
+def decode_quaternion(payload: bytes) -> tuple[float, float, float, float]:
+    """(w, x, y, z) of a quaternion payload, normalised (q_world_imu)."""
+    w, x, y, z = _Q.unpack_from(payload)
+    n = (w * w + x * x + y * y + z * z) ** 0.5
+    if n == 0:
+        raise ValueError("zero quaternion")
+    return (w / n, x / n, y / n, z / n)
+
+
+# (function_id -> expected total length) of packets we accept from an IMU Brick 2.0
+_KNOWN_LENGTHS = {
+    FID_CALLBACK_QUATERNION: QUATERNION_PACKET_SIZE,
+    FID_GET_QUATERNION: QUATERNION_PACKET_SIZE,
+    FID_CALLBACK_ENUMERATE: ENUMERATE_CALLBACK_SIZE,
+    FID_SET_QUATERNION_PERIOD: HEADER_SIZE,
+    FID_GET_QUATERNION_PERIOD: HEADER_SIZE + 4,
+}
+
+
+def _plausible_quaternion(payload: bytes) -> bool:
+    w, x, y, z = _Q.unpack_from(payload)
+    n2 = (w * w + x * x + y * y + z * z) / (QUATERNION_SCALE * QUATERNION_SCALE)
+    return 0.9 < n2 < 1.1
+
+
+class TfpStreamParser:
+    """Incremental TFP parser for a byte stream (serial line or brickd TCP) with resync.
+
+    ``feed(data)`` returns the whole packets found. A candidate header is accepted only when its
+    (function id, length) pair is one an IMU Brick 2.0 sends, the flag bits are sane, the UID
+    matches (when one is set) and, for quaternions, the norm is about 1; otherwise one byte is
+    skipped and counted as garbage. Bytes are never silently lost: ``garbage_bytes`` counts them.
+    """
+
+    def __init__(self, uid: int | None = None):
+        self.uid = uid
+        self._buf = bytearray()
+        self.packets = 0
+        self.garbage_bytes = 0
+
+    def _valid_at(self, i: int) -> int:
+        """Length of a valid packet starting at i, 0 if none, -1 if more bytes needed."""
+        buf = self._buf
+        if len(buf) - i < HEADER_SIZE:
+            return -1
+        uid, length, fid, opts, flags = HEADER.unpack_from(buf, i)
+        if self.uid is not None and uid != self.uid:
+            return 0
+        if _KNOWN_LENGTHS.get(fid) != length or (opts & 0x07) or (flags & 0x3F):
+            return 0
+        if len(buf) - i < length:
+            return -1
+        if fid in (FID_CALLBACK_QUATERNION, FID_GET_QUATERNION):
+            if not _plausible_quaternion(bytes(buf[i + HEADER_SIZE : i + length])):
+                return 0
+        return length
+
+    def feed(self, data: bytes) -> list[TfpPacket]:
+        self._buf += data
+        out: list[TfpPacket] = []
+        i = 0
+        buf = self._buf
+        while True:
+            n = self._valid_at(i)
+            if n < 0:
+                break
+            if n == 0:
+                i += 1
+                self.garbage_bytes += 1
+                continue
+            uid, length, fid, opts, flags = HEADER.unpack_from(buf, i)
+            out.append(
+                TfpPacket(uid, fid, opts >> 4, bool(opts & 0x08), flags >> 6,
+                          bytes(buf[i + HEADER_SIZE : i + length]))
+            )
+            self.packets += 1
+            i += n
+        # keep at most one partial packet's worth of tail
+        if len(buf) - i > MAX_PACKET_SIZE:
+            drop = len(buf) - i - MAX_PACKET_SIZE
+            self.garbage_bytes += drop
+            i += drop
+        del buf[:i]
+        return out
+
+    @property
+    def pending(self) -> int:
+        return len(self._buf)
