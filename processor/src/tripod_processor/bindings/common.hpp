@@ -1,5 +1,5 @@
 // SPDX-License-Identifier: BSD-3-Clause
-// Conversions shared by the binding files: numpy (N,3) float32 <-> Eigen, arrays owned by capsules.
+// Conversions shared by the binding files, and the registry that assembles them into one module.
 #pragma once
 
 #include <nanobind/nanobind.h>
@@ -7,12 +7,26 @@
 
 #include <cstring>
 #include <stdexcept>
+#include <string>
+#include <utility>
+#include <vector>
 
 #include "tripod_core/voxel_grid.hpp"
 
 namespace tripod_bind {
 namespace nb = nanobind;
 
+// ---- registry: each binding file registers itself with TRIPOD_BINDING(topic) { ... } ----------
+using BindFn = void (*)(nb::module_&);
+inline std::vector<std::pair<std::string, BindFn>>& binding_registry() {
+    static std::vector<std::pair<std::string, BindFn>> fns;
+    return fns;
+}
+struct AutoBind {
+    AutoBind(const char* name, BindFn fn) { binding_registry().emplace_back(name, fn); }
+};
+
+// ---- numpy <-> Eigen ------------------------------------------------------------------------
 using CloudIn = nb::ndarray<const float, nb::shape<-1, 3>, nb::c_contig, nb::device::cpu>;
 using CloudOut = nb::ndarray<nb::numpy, float, nb::shape<-1, 3>>;
 
@@ -31,3 +45,9 @@ inline CloudOut to_numpy(tripod::PointsXYZ&& m) {
 }
 
 }  // namespace tripod_bind
+
+/// Define the binding function of one topic; it is called when the module is initialised.
+#define TRIPOD_BINDING(topic)                                                          \
+    static void tripod_bind_##topic(nanobind::module_& m);                             \
+    static const tripod_bind::AutoBind tripod_autobind_##topic(#topic, tripod_bind_##topic); \
+    static void tripod_bind_##topic(nanobind::module_& m)

@@ -6,7 +6,7 @@
 namespace nb = nanobind;
 using namespace tripod_bind;
 
-void bind_preprocess(nb::module_& m) {
+TRIPOD_BINDING(preprocess) {
     m.def(
         "voxel_downsample",
         [](CloudIn points, double voxel_size, int num_threads) {

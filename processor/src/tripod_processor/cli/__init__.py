@@ -7,6 +7,7 @@ Heavy imports (open3d, torch) happen inside the commands, so ``tripod --help`` i
 from __future__ import annotations
 
 import importlib
+import pkgutil
 import sys
 
 import typer
@@ -19,12 +20,10 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 
-# Each module defines its command(s) on `app` when imported.
-COMMAND_MODULES: list[str] = [
-]
-
-for _mod in COMMAND_MODULES:
-    importlib.import_module(_mod)
+# Every module ``cli/<name>_cmd.py`` defines its command(s) on ``app`` when imported.
+for _info in sorted(pkgutil.iter_modules(__path__), key=lambda i: i.name):
+    if _info.name.endswith("_cmd"):
+        importlib.import_module(f"{__name__}.{_info.name}")
 
 
 def main(argv: list[str] | None = None) -> int:
