@@ -20,6 +20,24 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 
+
+
+def _version(value: bool) -> None:
+    if value:
+        from .. import __version__, _ext  # noqa: F401  (fails loudly if the extension is missing)
+
+        print(f"tripod {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: bool = typer.Option(False, "--version", callback=_version, is_eager=True,
+                                 help="Print the version (and check the C++ extension loads)."),
+) -> None:
+    """Process VLP-16 + IMU tripod recordings into registered indoor models."""
+
+
 # Every module ``cli/<name>_cmd.py`` defines its command(s) on ``app`` when imported.
 for _info in sorted(pkgutil.iter_modules(__path__), key=lambda i: i.name):
     if _info.name.endswith("_cmd"):
