@@ -1,0 +1,101 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""Typed configuration of ``tripod reconstruct`` (one section per stage).
+
+Every run writes its effective config (``config.yaml``) beside its outputs; ``tripod reconstruct
+--print-default-config`` prints the commented defaults. Unknown keys are an error naming the key.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field
+
+from tripod_shared.config_io import StrictModel
+
+
+class ExtrinsicConfig(StrictModel):
+    """The lidar's mounting on the IMU / tripod head (calibrated from the data when not given)."""
+
+    #: rotation R_imu_lidar as a quaternion w, x, y, z; null: calibrate from the data
+    q_imu_lidar: list[float] | None = Field(default=None, min_length=4, max_length=4)
+    #: lever arm [m] from the head's pivot to the lidar origin, in the IMU frame; null: calibrate
+    lever_arm_m: list[float] | None = Field(default=None, min_length=3, max_length=3)
+
+
+class PlacementConfig(StrictModel):
+    extrinsic: ExtrinsicConfig = ExtrinsicConfig()
+    #: IMU-to-lidar time offset [s] added to the IMU's lidar-clock stamps; null: estimate it
+    imu_time_offset_s: float | None = None
+    #: search range of the time-offset estimate [s] (± this)
+    time_offset_search_s: float = Field(default=0.08, gt=0)
+    min_range_m: float = Field(default=0.4, ge=0)
+    max_range_m: float = Field(default=100.0, gt=0)
+
+
+class StationConfig(StrictModel):
+    #: lidar stationarity test: a 0.1 s window of points, rotated by the IMU about the head's
+    #: pivot, is "still" when its median nearest-neighbour distance to the window
+    #: ``still_gap_s`` earlier, divided by the range, is below this (a ratio)
+    still_threshold: float = Field(default=0.02, gt=0)
+    still_gap_s: float = Field(default=1.0, gt=0)
+    #: shortest station [s]; shorter still periods are merged into the carry
+    min_station_s: float = Field(default=3.0, gt=0)
+    #: seconds trimmed from both ends of a station (the tripod settling)
+    trim_s: float = Field(default=0.3, ge=0)
+    #: use the daemon's ``mark`` events when present (each station is matched to its mark)
+    use_marks: bool = True
+
+
+class FragmentConfig(StrictModel):
+    #: voxel [m] of a fragment as kept for registration and output
+    voxel_m: float = Field(default=0.02, gt=0)
+
+
+class OdometryConfig(StrictModel):
+    #: registration method of the core (gicp, plane, icp, symmetric)
+    method: str = "gicp"
+    #: coarse-to-fine voxels [m]; the max correspondence distance is 3x the voxel
+    voxels_m: list[float] = Field(default_factory=lambda: [0.5, 0.25, 0.1], min_length=1)
+    #: hold z of the translation at the prior (the original system's z-lock); off by default
+    lock_z: bool = False
+    #: grid cell [m] of the top-down correlation that seeds the translation
+    seed_cell_m: float = Field(default=0.1, gt=0)
+    #: floor of the edge standard deviations [m], [deg] (registration information is capped)
+    sigma_floor_m: float = Field(default=0.003, gt=0)
+    sigma_floor_deg: float = Field(default=0.03, gt=0)
+    #: below this overlap (fitness) a pair is taken as not registered
+    min_fitness: float = Field(default=0.3, ge=0, le=1)
+
+
+class SlamConfig(StrictModel):
+    enabled: bool = True
+    #: loop candidates: station pairs closer than this [m] (after odometry), not consecutive
+    loop_radius_m: float = Field(default=8.0, gt=0)
+    max_loops_per_station: int = Field(default=4, ge=0)
+    loss: Literal["none", "huber", "cauchy", "soft_l1"] = "cauchy"
+    loss_scale: float = Field(default=4.74, gt=0)
+    outlier_chi2: float = Field(default=22.46, gt=0)
+    #: tilt sigma of the IMU's gravity priors [deg]
+    gravity_sigma_deg: float = Field(default=0.1, gt=0)
+
+
+class OutputConfig(StrictModel):
+    map_voxel_m: float = Field(default=0.02, gt=0)
+    write_pcd: bool = True
+    write_fragments: bool = True
+    write_mcap: bool = True
+    trajectory_hz: float = Field(default=20.0, ge=10.0)
+    report: bool = True
+
+
+class ReconstructConfig(StrictModel):
+    """Root config of ``tripod reconstruct``."""
+
+    num_threads: int = Field(default=0, ge=0)  # 0 = all cores
+    placement: PlacementConfig = PlacementConfig()
+    stations: StationConfig = StationConfig()
+    fragments: FragmentConfig = FragmentConfig()
+    odometry: OdometryConfig = OdometryConfig()
+    slam: SlamConfig = SlamConfig()
+    output: OutputConfig = OutputConfig()

@@ -1,0 +1,130 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""Accuracy against ground truth: station ATE, odometry drift, map-to-mesh distance, and the
+thesis' fragment plane-fit errors (which need no truth)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+
+def interpolate_poses(t_ref: np.ndarray, T_ref: np.ndarray, t_query: np.ndarray) -> np.ndarray:
+    """Poses (Q, 4, 4) at ``t_query`` from a trajectory (slerp + linear; clamped at the ends)."""
+    t_ref = np.asarray(t_ref, dtype=np.int64)
+    tq = np.clip(np.asarray(t_query, dtype=np.int64), t_ref[0], t_ref[-1])
+    x = (t_ref - t_ref[0]).astype(np.float64)
+    xq = (tq - t_ref[0]).astype(np.float64)
+    R = Slerp(x, Rotation.from_matrix(T_ref[:, :3, :3]))(xq).as_matrix()
+    out = np.tile(np.eye(4), (len(tq), 1, 1))
+    out[:, :3, :3] = R
+    for i in range(3):
+        out[:, i, 3] = np.interp(xq, x, T_ref[:, i, 3])
+    return out
+
+
+def umeyama_rigid(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """Rigid T (4, 4) minimising Σ|dst − T·src|² (no scale), points (N, 3)."""
+    ms, md = src.mean(0), dst.mean(0)
+    H = (src - ms).T @ (dst - md)
+    U, _, Vt = np.linalg.svd(H)
+    D = np.eye(3)
+    D[2, 2] = np.sign(np.linalg.det(Vt.T @ U.T))
+    R = Vt.T @ D @ U.T
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = md - R @ ms
+    return T
+
+
+@dataclass
+class PoseErrors:
+    ate_m: float  # RMSE of position after rigid alignment [m]
+    ate_deg: float  # RMSE of orientation after the same alignment [deg]
+    max_m: float
+    max_deg: float
+    per_station_m: np.ndarray
+    per_station_deg: np.ndarray
+
+
+def pose_errors(T_est: np.ndarray, T_true: np.ndarray, align: str = "umeyama") -> PoseErrors:
+    """Absolute trajectory error of station poses (N, 4, 4) against truth.
+
+    ``align``: ``umeyama`` (rigid fit of positions, as evo's ``-a``; needs N ≥ 3) or ``first``
+    (the first station's pose mapped onto the truth, as for drift).
+    """
+    if align == "umeyama" and len(T_est) >= 3:
+        A = umeyama_rigid(T_est[:, :3, 3], T_true[:, :3, 3])
+    else:
+        A = T_true[0] @ np.linalg.inv(T_est[0])
+    E = np.linalg.inv(T_true) @ (A @ T_est)
+    dt = np.linalg.norm(T_true[:, :3, 3] - (A @ T_est)[:, :3, 3], axis=1)
+    dr = np.degrees(Rotation.from_matrix(E[:, :3, :3]).magnitude())
+    return PoseErrors(float(np.sqrt(np.mean(dt**2))), float(np.sqrt(np.mean(dr**2))),
+                      float(dt.max()), float(dr.max()), dt, dr)
+
+
+def odometry_drift(T_odom: np.ndarray, T_true: np.ndarray) -> tuple[float, float]:
+    """(drift in % of path length, path length [m]): the end station's position error of the
+    odometry chain, started on the truth at the first station, over the true path length."""
+    path = float(np.sum(np.linalg.norm(np.diff(T_true[:, :3, 3], axis=0), axis=1)))
+    e = pose_errors(T_odom, T_true, align="first")
+    return (100.0 * float(e.per_station_m[-1]) / path if path > 0 else float("nan")), path
+
+
+def map_to_mesh(points: np.ndarray, mesh_path: str, T_mesh_map: np.ndarray | None = None,
+                max_points: int = 200_000) -> np.ndarray:
+    """Unsigned distances [m] from (a sample of) map points to a triangle mesh (PLY/OBJ/...)."""
+    import open3d as o3d
+
+    mesh = o3d.io.read_triangle_mesh(str(mesh_path))
+    if len(mesh.triangles) == 0:
+        raise ValueError(f"{mesh_path}: no triangles")
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+    p = np.asarray(points, dtype=np.float64)
+    if len(p) > max_points:
+        p = p[np.random.default_rng(0).choice(len(p), max_points, replace=False)]
+    if T_mesh_map is not None:
+        p = p @ T_mesh_map[:3, :3].T + T_mesh_map[:3, 3]
+    d = scene.compute_distance(o3d.core.Tensor(p.astype(np.float32))).numpy()
+    return d.astype(np.float64)
+
+
+# ---- plane-fit errors of a fragment (the thesis' error analysis) --------------------------------
+def plane_fit_errors(points: np.ndarray, up: np.ndarray, *, distance_m: float = 0.05,
+                     min_inliers: int = 500, max_planes: int = 8, seed: int = 0
+                     ) -> dict[str, np.ndarray]:
+    """Signed point-to-plane residuals [m] of the large planes of a fragment, split into
+    horizontal (floor, ceiling: normal within 10° of ``up``) and vertical (walls: normal within
+    10° of horizontal) planes. Planes by RANSAC (Open3D), largest first."""
+    import open3d as o3d
+
+    up = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
+    pc = o3d.geometry.PointCloud()
+    pc.points = o3d.utility.Vector3dVector(np.asarray(points, dtype=np.float64))
+    o3d.utility.random.seed(seed)
+    out = {"horizontal": [], "vertical": []}
+    for _ in range(max_planes):
+        if len(pc.points) < min_inliers:
+            break
+        model, idx = pc.segment_plane(distance_m, 3, 200)
+        if len(idx) < min_inliers:
+            break
+        n = np.asarray(model[:3])
+        nn = np.linalg.norm(n)
+        n, d = n / nn, model[3] / nn
+        inl = np.asarray(pc.select_by_index(idx).points)
+        # least-squares refit on the inliers, then residuals
+        c = inl.mean(0)
+        w, V = np.linalg.eigh(np.cov((inl - c).T))
+        n = V[:, 0]
+        res = (inl - c) @ n
+        cosang = abs(float(n @ up))
+        if cosang > np.cos(np.radians(10)):
+            out["horizontal"].append(res)
+        elif cosang < np.sin(np.radians(10)):
+            out["vertical"].append(res)
+        pc = pc.select_by_index(idx, invert=True)
+    return {k: (np.concatenate(v) if v else np.zeros(0)) for k, v in out.items()}

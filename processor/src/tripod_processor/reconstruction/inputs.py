@@ -1,0 +1,318 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""Read what a reconstruction needs from a recording: lidar packets on the lidar's time line, IMU
+orientation samples and the operator's station marks.
+
+Inputs: our MCAP recordings (``tripod_shared.recording``), or a pcap/pcapng of the lidar plus an
+IMU log (see :func:`read_imu_log`). Lidar time follows the README's convention: the packets' own
+µs-past-the-hour, with the hour from GPRMC when the position packets carry one, else from the
+host receive clock.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from tripod_shared import velodyne as vl
+from tripod_shared.recording import RecordingReader, is_mcap
+from tripod_shared.timebase import HOUR_NS, NS_PER_US
+
+import velodyne_decoder as vd
+
+
+class RecordingError(ValueError):
+    """The input cannot be reconstructed (one-line message for the CLI)."""
+
+
+@dataclass
+class LidarPackets:
+    """Data packets in recording order.
+
+    Attributes
+    ----------
+    host_ns : (P,) int64, host_realtime at receive
+    lidar_ns : (P,) int64, lidar time on the UNIX time line [ns]
+    payload : (P, 1206) uint8, verbatim packets
+    """
+
+    host_ns: np.ndarray
+    lidar_ns: np.ndarray
+    payload: np.ndarray
+    return_mode: str = "strongest"
+
+    def __len__(self) -> int:
+        return len(self.host_ns)
+
+
+@dataclass
+class ImuTrack:
+    """IMU orientation samples: host_ns (K,) int64 at the read, q_world_imu (K, 4) w, x, y, z."""
+
+    host_ns: np.ndarray
+    q_wxyz: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.host_ns)
+
+
+@dataclass
+class Recording:
+    """Everything read from one input, plus what was met on the way."""
+
+    source: str
+    lidar: LidarPackets
+    imu: ImuTrack | None
+    marks: list[tuple[int, str]] = field(default_factory=list)  # (host_ns, label)
+    hour_source: str = "host"  # "gprmc" or "host"
+    truncated: bool = False
+    notes: list[str] = field(default_factory=list)
+    skipped: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def duration_s(self) -> float:
+        if len(self.lidar) < 2:
+            return 0.0
+        return float(self.lidar.lidar_ns[-1] - self.lidar.lidar_ns[0]) * 1e-9
+
+
+# ---- GPRMC ---------------------------------------------------------------------------------
+def gprmc_unix_ns(payload: bytes) -> int | None:
+    """UNIX time [ns] of a position packet's GPRMC sentence (whole seconds), or None."""
+    raw = bytes(payload[vl.POS_NMEA_OFFSET : vl.POS_NMEA_OFFSET + vl.POS_NMEA_SIZE])
+    text = raw.split(b"\x00", 1)[0].decode("ascii", "replace")
+    if "RMC" not in text[:6]:
+        return None
+    f = text.split(",")
+    try:
+        if len(f) < 10 or len(f[1]) < 6 or len(f[9]) != 6:
+            return None
+        hh, mm, ss = int(f[1][0:2]), int(f[1][2:4]), int(float(f[1][4:]))
+        d, mo, y = int(f[9][0:2]), int(f[9][2:4]), 2000 + int(f[9][4:6])
+        t = _dt.datetime(y, mo, d, hh, mm, ss, tzinfo=_dt.timezone.utc)
+    except ValueError:
+        return None
+    return int(t.timestamp()) * 1_000_000_000
+
+
+def _toh_to_unix_ns(toh_us: np.ndarray, reference_ns: np.ndarray) -> np.ndarray:
+    """Vectorised ``timebase.toh_us_to_unix_ns``: the hour nearest each reference."""
+    ref = reference_ns.astype(np.int64)
+    t = ref - ref % HOUR_NS + toh_us.astype(np.int64) * NS_PER_US
+    t = np.where(t - ref > HOUR_NS // 2, t - HOUR_NS, t)
+    t = np.where(ref - t > HOUR_NS // 2, t + HOUR_NS, t)
+    return t
+
+
+def _lidar_time(host_ns: np.ndarray, toh_us: np.ndarray, gprmc: list[tuple[int, int]]):
+    """Lidar time of each packet; the hour from GPRMC (position packets) when present."""
+    if gprmc:
+        # offset between the host clock and GPS time, from the position packets (robust median)
+        offs = np.array([g - h for h, g in gprmc], dtype=np.int64)
+        ref = host_ns + int(np.median(offs))
+        return _toh_to_unix_ns(toh_us, ref), "gprmc"
+    # one reference for the whole file, unwrapped, so jitter never flips an hour mid-recording
+    t0 = _toh_to_unix_ns(toh_us[:1], host_ns[:1])[0]
+    d = np.diff(toh_us.astype(np.int64))
+    d = np.where(d < -1800 * 10**6, d + 3600 * 10**6, d)
+    d = np.where(d > 1800 * 10**6, d - 3600 * 10**6, d)
+    return t0 + np.concatenate([[0], np.cumsum(d)]) * NS_PER_US, "host"
+
+
+def _finish_lidar(host, payloads, gprmc, rec: Recording | None = None) -> tuple[LidarPackets, str]:
+    if not payloads:
+        raise RecordingError("no lidar data packets in the input")
+    host_ns = np.asarray(host, dtype=np.int64)
+    pay = np.frombuffer(b"".join(payloads), dtype=np.uint8).reshape(-1, vl.DATA_PACKET_SIZE)
+    toh = pay[:, vl.TIMESTAMP_OFFSET : vl.TIMESTAMP_OFFSET + 4].copy().view("<u4").ravel()
+    lidar_ns, hour_source = _lidar_time(host_ns, toh, gprmc)
+    modes = np.unique(pay[:, vl.RETURN_MODE_OFFSET])
+    mode = vl.RETURN_MODES.get(int(modes[0]), "strongest") if len(modes) == 1 else "mixed"
+    return LidarPackets(host_ns, lidar_ns, pay, mode), hour_source
+
+
+def read_recording(path: str | os.PathLike, imu_log: str | os.PathLike | None = None) -> Recording:
+    """Read a recording (MCAP, or pcap/pcapng with an optional IMU log).
+
+    Raises
+    ------
+    RecordingError
+        Missing or unreadable file, no lidar packets, no usable data.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise RecordingError(f"no such recording: {path}")
+    if path.stat().st_size == 0:
+        raise RecordingError(f"{path}: empty file")
+    if is_mcap(path):
+        rec = _read_mcap(path)
+    else:
+        rec = _read_pcap(path)
+    if imu_log is not None:
+        rec.imu = read_imu_log(imu_log)
+    return rec
+
+
+def _read_mcap(path: Path) -> Recording:
+    from tripod_shared import messages as msg
+    from tripod_shared import topics as t
+
+    reader = RecordingReader(path)
+    host, payloads, gprmc = [], [], []
+    imu_t, imu_q, marks = [], [], []
+    skipped: dict[str, int] = {}
+    for m in reader.messages([t.TOPIC_LIDAR_PACKETS, t.TOPIC_LIDAR_POSITION, t.TOPIC_IMU,
+                              t.TOPIC_EVENTS]):
+        try:
+            if m.topic == t.TOPIC_LIDAR_PACKETS:
+                h, p = msg.decode_velodyne_packet(m.data)
+                if vl.check_data_packet(p) != vl.PacketKind.DATA:
+                    skipped["bad_lidar_packet"] = skipped.get("bad_lidar_packet", 0) + 1
+                    continue
+                host.append(h)
+                payloads.append(p)
+            elif m.topic == t.TOPIC_LIDAR_POSITION:
+                h, p = msg.decode_position_packet(m.data)
+                g = gprmc_unix_ns(p)
+                if g is not None:
+                    gprmc.append((h, g))
+            elif m.topic == t.TOPIC_IMU:
+                s = msg.decode_imu(m.data)
+                imu_t.append(s.host_ns)
+                imu_q.append((s.w, s.x, s.y, s.z))
+            elif m.topic == t.TOPIC_EVENTS:
+                e = msg.decode_event(m.data)
+                if e.kind == "mark":
+                    marks.append((e.host_ns, e.label))
+        except (ValueError, KeyError, IndexError):
+            key = f"bad_message:{m.topic}"
+            skipped[key] = skipped.get(key, 0) + 1
+    lidar, hour_source = _finish_lidar(host, payloads, gprmc)
+    rec = Recording(str(path), lidar, _imu_track(imu_t, imu_q), marks, hour_source,
+                    reader.report.truncated, skipped=skipped)
+    if reader.report.truncated:
+        rec.notes.append(f"recording is cut off ({reader.report.error}); every whole message "
+                         "before the cut was used")
+    return rec
+
+
+def _read_pcap(path: Path) -> Recording:
+    from ..pcap import PcapFormatError, PcapReader
+
+    try:
+        reader = PcapReader(path)
+    except PcapFormatError as exc:
+        raise RecordingError(str(exc)) from None
+    host, payloads, gprmc = [], [], []
+    skipped: dict[str, int] = {}
+    for d in reader:
+        if d.dst_port == vl.POSITION_PORT and len(d.payload) == vl.POSITION_PACKET_SIZE:
+            g = gprmc_unix_ns(d.payload)
+            if g is not None:
+                gprmc.append((d.t_ns, g))
+        elif len(d.payload) == vl.DATA_PACKET_SIZE and \
+                vl.check_data_packet(d.payload) == vl.PacketKind.DATA:
+            host.append(d.t_ns)
+            payloads.append(d.payload)
+        else:
+            skipped["other_datagram"] = skipped.get("other_datagram", 0) + 1
+    lidar, hour_source = _finish_lidar(host, payloads, gprmc)
+    rec = Recording(str(path), lidar, None, [], hour_source, reader.stats.truncated,
+                    skipped=skipped)
+    if reader.stats.truncated:
+        rec.notes.append("pcap is cut off mid-record; every whole packet before the cut was used")
+    return rec
+
+
+def _imu_track(t, q) -> ImuTrack | None:
+    if not t:
+        return None
+    host = np.asarray(t, dtype=np.int64)
+    quat = np.asarray(q, dtype=np.float64).reshape(-1, 4)
+    norm = np.linalg.norm(quat, axis=1)
+    ok = np.isfinite(norm) & (norm > 0.5)
+    host, quat = host[ok], quat[ok] / norm[ok, None]
+    order = np.argsort(host, kind="stable")
+    host, quat = host[order], quat[order]
+    keep = np.concatenate([[True], np.diff(host) > 0])  # drop duplicate stamps
+    return ImuTrack(host[keep], quat[keep]) if keep.sum() >= 2 else None
+
+
+def read_imu_log(path: str | os.PathLike) -> ImuTrack:
+    """Read an IMU log beside a pcap: text lines ``host_time_s w x y z`` (or ``host_ns,w,x,y,z``).
+
+    Lines starting with ``#`` and blank lines are ignored; times are host_realtime, like the pcap's
+    capture stamps.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise RecordingError(f"no such IMU log: {path}")
+    rows = []
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        for ln in fh:
+            ln = ln.strip()
+            if not ln or ln.startswith("#"):
+                continue
+            parts = ln.replace(",", " ").split()
+            if len(parts) < 5:
+                continue
+            try:
+                rows.append([float(x) for x in parts[:5]])
+            except ValueError:
+                continue
+    if len(rows) < 2:
+        raise RecordingError(f"{path}: no IMU samples (expected lines 'time w x y z')")
+    a = np.asarray(rows)
+    t = a[:, 0]
+    host = (t * 1e9).astype(np.int64) if np.median(t) < 1e11 else t.astype(np.int64)
+    track = _imu_track(list(host), a[:, 1:5])
+    if track is None:
+        raise RecordingError(f"{path}: no valid IMU quaternions")
+    return track
+
+
+# ---- decoding --------------------------------------------------------------------------------
+POINT_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4"),
+                        ("ring", "u1"), ("return_type", "u1"), ("time_ns", "<i8")])
+
+
+def decode_points(lidar: LidarPackets, start: int, stop: int, *, min_range: float = 0.0,
+                  max_range: float = 200.0, chunk: int = 1500) -> np.ndarray:
+    """Decode packets ``[start, stop)`` into points in the lidar frame with per-point lidar time.
+
+    Decoding is velodyne-decoder's; one call per chunk of packets (never per point). A product
+    byte 0x21 from early VLP-16 firmware is taken as a VLP-16 (packet period checked on read).
+
+    Returns
+    -------
+    structured ndarray (N,) of POINT_DTYPE: x, y, z [m] (float32, lidar frame), intensity,
+    ring, return_type, time_ns (int64, lidar time, UNIX ns).
+    """
+    out = []
+    cfg = vd.Config(model=vd.Model.VLP16, timestamp_first_packet=True,
+                    min_range=float(max(min_range, 0.0)), max_range=float(max_range))
+    for s in range(start, stop, chunk):
+        e = min(stop, s + chunk)
+        pay = lidar.payload[s:e]
+        if (pay[:, vl.PRODUCT_ID_OFFSET] == vl.PRODUCT_HDL32E).any():
+            pay = pay.copy()
+            pay[:, vl.PRODUCT_ID_OFFSET] = vl.PRODUCT_VLP16
+        pv = vd.PacketVector()
+        for k in range(len(pay)):
+            pv.append(vd.VelodynePacket(float(lidar.host_ns[s + k]) * 1e-9, pay[k].tobytes()))
+        dec = vd.ScanDecoder(cfg)
+        _, pts = dec.decode(pv, as_pcl_structs=True)
+        if len(pts) == 0:
+            continue
+        c = np.empty(len(pts), dtype=POINT_DTYPE)
+        for f in ("x", "y", "z", "intensity", "ring", "return_type"):
+            c[f] = pts[f]
+        c["time_ns"] = lidar.lidar_ns[s] + np.round(pts["time"].astype(np.float64) * 1e9).astype(
+            np.int64)
+        out.append(c)
+    if not out:
+        return np.empty(0, dtype=POINT_DTYPE)
+    return np.concatenate(out)

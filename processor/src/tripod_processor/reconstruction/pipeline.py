@@ -1,0 +1,283 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""``tripod reconstruct``: a recording in, a registered indoor model out.
+
+Stages: read → clocks → stations → IMU time offset → fragments → odometry → loop closures and
+pose graph → outputs (map, fragments, pose graph, TUM, Foxglove MCAP, config) → report.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from tripod_shared.config_io import dump_config
+
+from .. import cloud_io
+from ..preprocess import voxel_downsample
+from . import outputs
+from .calibration import estimate_time_offset
+from .config import ReconstructConfig
+from .fragments import Fragment, build_fragment
+from .inputs import Recording, RecordingError, read_recording
+from .placement import Extrinsic, ImuOrientation, host_to_lidar_offset_ns, pose_world_lidar
+from .slam import SlamResult, inv, run_odometry, run_slam
+from .stations import Segmentation, segment_stations
+
+
+@dataclass
+class ReconstructResult:
+    outdir: Path
+    recording: Recording
+    segmentation: Segmentation
+    fragments: list[Fragment]
+    slam: SlamResult
+    extrinsic: Extrinsic
+    time_offset_ns: int
+    host_minus_lidar_ns: int
+    stage_s: dict[str, float] = field(default_factory=dict)
+    map_points: int = 0
+    files: dict[str, str] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    time_offset_info: dict = field(default_factory=dict)
+
+    @property
+    def station_t_ns(self) -> np.ndarray:
+        return np.array([f.station.mid_ns for f in self.fragments], dtype=np.int64)
+
+    @property
+    def processing_s(self) -> float:
+        return float(sum(self.stage_s.values()))
+
+
+class _Stage:
+    """Times a stage into ``stage_s`` and gives it a progress bar."""
+
+    def __init__(self, res_times: dict, name: str, total: int | None, quiet: bool):
+        self.times, self.name, self.total, self.quiet = res_times, name, total, quiet
+
+    def __enter__(self):
+        self.t0 = time.perf_counter()
+        self.bar = tqdm(total=self.total, desc=f"{self.name:>12}", unit="", leave=True,
+                        disable=self.quiet, dynamic_ncols=True)
+        return self.bar
+
+    def __exit__(self, *exc):
+        self.bar.close()
+        self.times[self.name] = self.times.get(self.name, 0.0) + time.perf_counter() - self.t0
+
+
+def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
+                cfg: ReconstructConfig | None = None, *, imu_log=None, quiet: bool = False
+                ) -> ReconstructResult:
+    """Run the whole reconstruction; see the module docstring. Raises RecordingError on input
+    that cannot be reconstructed (one-line message)."""
+    cfg = cfg or ReconstructConfig()
+    out = Path(outdir)
+    out.mkdir(parents=True, exist_ok=True)
+    times: dict[str, float] = {}
+    threads = cfg.num_threads
+
+    # 1. read
+    with _Stage(times, "read", None, quiet):
+        rec = read_recording(recording_path, imu_log)
+    if rec.imu is None:
+        raise RecordingError(
+            f"{recording_path}: the recording has no IMU samples; placement needs the IMU "
+            "orientation (record with the IMU connected, or pass an IMU log with --imu)")
+    if len(rec.lidar) < 100:
+        raise RecordingError(f"{recording_path}: only {len(rec.lidar)} lidar packets")
+
+    # 2. clocks and placement model
+    delta = host_to_lidar_offset_ns(rec.lidar)
+    pc = cfg.placement
+    ext = Extrinsic.from_config(pc.extrinsic.q_imu_lidar, pc.extrinsic.lever_arm_m)
+    notes = list(rec.notes)
+    if pc.extrinsic.q_imu_lidar is None:
+        ext.source = "default"
+        notes.append("no lidar–IMU mount rotation given: identity assumed (calibration of the "
+                     "mount from data is not implemented; pass placement.extrinsic)")
+    orient = ImuOrientation(rec.imu, delta, int(round((pc.imu_time_offset_s or 0.0) * 1e9)))
+    imu_t = orient.t_ns
+    if imu_t[0] > rec.lidar.lidar_ns[0] + 1e9 or imu_t[-1] < rec.lidar.lidar_ns[-1] - 1e9:
+        notes.append("IMU samples do not cover the whole lidar recording; orientation is held "
+                     "at the ends")
+
+    # 3. stations
+    n_windows = int((rec.lidar.lidar_ns[-1] - rec.lidar.lidar_ns[0]) / 0.25e9)
+    marks = [(h - delta, label) for h, label in rec.marks]
+    with _Stage(times, "stations", n_windows, quiet) as bar:
+        seg = segment_stations(rec.lidar, orient, ext, cfg.stations, marks, progress=bar)
+    notes += seg.notes
+    if not seg.stations:
+        raise RecordingError(f"{recording_path}: no station found (no period where the tripod "
+                             f"stands for {cfg.stations.min_station_s:g} s)")
+
+    # 4. IMU time offset (from the data unless configured)
+    info: dict = {}
+    if pc.imu_time_offset_s is None:
+        with _Stage(times, "time offset", None, quiet):
+            off, info = estimate_time_offset(rec.lidar, seg.stations, orient, ext,
+                                             pc.time_offset_search_s)
+        orient = orient.with_offset(off)
+
+    # 5. fragments
+    frags: list[Fragment] = []
+    with _Stage(times, "fragments", len(seg.stations), quiet) as bar:
+        for st in seg.stations:
+            frags.append(build_fragment(rec.lidar, st, orient, ext, cfg.fragments.voxel_m,
+                                        pc.min_range_m, pc.max_range_m, threads))
+            bar.update(1)
+
+    # 6. odometry
+    with _Stage(times, "odometry", max(len(frags) - 1, 0), quiet) as bar:
+        T_odom, odom_edges, comp, odom_notes = run_odometry(frags, cfg.odometry, threads, bar)
+    notes += odom_notes
+
+    # 7. loops and pose graph
+    with _Stage(times, "slam", None, quiet) as bar:
+        slam = run_slam(frags, T_odom, odom_edges, comp, cfg.odometry, cfg.slam, threads, bar)
+    notes += slam.notes
+
+    res = ReconstructResult(out, rec, seg, frags, slam, ext, orient.time_offset_ns, delta,
+                            times, notes=notes, time_offset_info=info)
+
+    # 8. outputs
+    with _Stage(times, "outputs", None, quiet):
+        _write_outputs(res, cfg, orient)
+    if cfg.output.report:
+        from .report import write_report
+
+        with _Stage(times, "report", None, quiet):
+            res.files["report"] = str(write_report(res, cfg))
+    outputs.write_json(out / "result.json", summary(res))
+    res.files["result"] = str(out / "result.json")
+    return res
+
+
+def trajectory(res: ReconstructResult, orient: ImuOrientation, hz: float
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """T_map_lidar at ``hz`` over the whole recording.
+
+    Within a station: the optimised station pose moved by the IMU's rotation about the head's
+    pivot. Between stations (carry): the IMU attitude, with the map correction (yaw drift and
+    position) interpolated between the neighbouring stations; the carry's position is therefore
+    interpolated, not measured.
+    """
+    lidar_ns = res.recording.lidar.lidar_ns
+    t = np.arange(lidar_ns[0], lidar_ns[-1], int(1e9 / hz), dtype=np.int64)
+    T_imu = pose_world_lidar(orient, res.extrinsic, t)
+    main = [k for k in range(len(res.fragments)) if res.slam.component[k] == 0]
+    if not main:
+        return t[:0], T_imu[:0]
+    mids = np.array([res.fragments[k].station.mid_ns for k in main])
+    T_mid = pose_world_lidar(orient, res.extrinsic, mids)
+    # correction C_k with T_map_lidar(t) = C_k · T_imu(t) inside station k
+    C = np.array([res.slam.T_optimized[k] @ inv(T_mid[i]) for i, k in enumerate(main)])
+    from scipy.spatial.transform import Rotation, Slerp
+
+    starts = np.array([res.fragments[k].station.start_ns for k in main])
+    ends = np.array([res.fragments[k].station.end_ns for k in main])
+    out = np.empty_like(T_imu)
+    key_t = np.concatenate([[s, e] for s, e in zip(starts, ends)]).astype(np.float64)
+    key_C = np.concatenate([[c, c] for c in C])
+    # strictly increasing keys for Slerp
+    key_t = key_t + np.arange(len(key_t)) * 1e-3
+    slerp = Slerp(key_t, Rotation.from_matrix(key_C[:, :3, :3]))
+    tc = np.clip(t.astype(np.float64), key_t[0], key_t[-1])
+    R = slerp(tc).as_matrix()
+    p = np.stack([np.interp(tc, key_t, key_C[:, i, 3]) for i in range(3)], axis=1)
+    Cs = np.tile(np.eye(4), (len(t), 1, 1))
+    Cs[:, :3, :3] = R
+    Cs[:, :3, 3] = p
+    out = Cs @ T_imu
+    return t, out
+
+
+def _write_outputs(res: ReconstructResult, cfg: ReconstructConfig, orient: ImuOrientation) -> None:
+    out, oc = res.outdir, cfg.output
+    slam = res.slam
+    main = [k for k in range(len(res.fragments)) if slam.component[k] == 0]
+    # merged map in the map frame (z up)
+    parts, labels = [], []
+    for k in main:
+        T = slam.T_optimized[k]
+        p = res.fragments[k].points.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+        parts.append(p)
+        labels.append(np.full(len(p), k, dtype=np.uint16))
+    allp = np.concatenate(parts) if parts else np.zeros((0, 3))
+    merged = voxel_downsample(allp, oc.map_voxel_m, cfg.num_threads) if len(allp) else allp
+    res.map_points = len(merged)
+    cloud = cloud_io.make_cloud(merged)
+    cloud_io.write_ply(out / "map.ply", cloud)
+    res.files["map_ply"] = str(out / "map.ply")
+    if oc.write_pcd:
+        cloud_io.write_pcd(out / "map.pcd", cloud)
+        res.files["map_pcd"] = str(out / "map.pcd")
+    if oc.write_fragments:
+        fdir = out / "fragments"
+        fdir.mkdir(exist_ok=True)
+        for f in res.fragments:
+            name = f"station_{f.station.index:03d}.ply"
+            cloud_io.write_ply(fdir / name, cloud_io.make_cloud(f.points))
+        res.files["fragments"] = str(fdir)
+    # poses
+    t_st = res.station_t_ns
+    hdr = ("tripod stations: T_map_lidar at each station's middle time; lidar time, UNIX s; "
+           "map frame z up")
+    outputs.write_tum(out / "stations.tum", t_st[main], slam.T_optimized[main], hdr)
+    outputs.write_tum(out / "stations_odometry.tum", t_st[main], slam.T_odometry[main],
+                      "odometry only (before the pose graph)")
+    traj = trajectory(res, orient, oc.trajectory_hz)
+    outputs.write_tum(out / "trajectory.tum", traj[0], traj[1],
+                      f"tripod trajectory: T_map_lidar at {oc.trajectory_hz:g} Hz; lidar time, "
+                      "UNIX s; carry positions interpolated between stations")
+    res.files.update(stations=str(out / "stations.tum"), trajectory=str(out / "trajectory.tum"))
+    slam.graph.save_g2o(out / "pose_graph.g2o",
+                        slam.graph_result.T_world_node if slam.graph_result else None)
+    res.files["pose_graph"] = str(out / "pose_graph.g2o")
+    dump_config(cfg, out / "config.yaml")
+    res.files["config"] = str(out / "config.yaml")
+    if oc.write_mcap:
+        frags_out = [res.fragments[k].points for k in main]
+        outputs.write_foxglove_mcap(out / "reconstruction.mcap", merged, int(t_st[-1]),
+                                    list(t_st[main]), slam.T_optimized[main], frags_out, traj)
+        res.files["mcap"] = str(out / "reconstruction.mcap")
+
+
+def summary(res: ReconstructResult) -> dict:
+    """Numbers of a run (result.json and the results table)."""
+    slam = res.slam
+    loops = [e for e in slam.edges if e.kind == "loop"]
+    g = slam.graph_result
+    rejected = int(g.rejected) if g else 0
+    return {
+        "recording": res.recording.source,
+        "recording_s": res.recording.duration_s,
+        "processing_s": res.processing_s,
+        "stage_s": res.stage_s,
+        "lidar_packets": len(res.recording.lidar),
+        "imu_samples": len(res.recording.imu) if res.recording.imu else 0,
+        "hour_source": res.recording.hour_source,
+        "stations": len(res.fragments),
+        "disconnected_stations": slam.disconnected,
+        "marks": len(res.recording.marks),
+        "imu_time_offset_ms": res.time_offset_ns * 1e-6,
+        "host_minus_lidar_ms": res.host_minus_lidar_ns * 1e-6,
+        "extrinsic": {"q_imu_lidar": res.extrinsic.q_imu_lidar_wxyz,
+                      "lever_arm_m": res.extrinsic.lever_arm_m.tolist(),
+                      "source": res.extrinsic.source},
+        "odometry_edges": sum(e.kind == "odometry" for e in slam.edges),
+        "loop_candidates": slam.loop_candidates,
+        "loop_edges": len(loops),
+        "loop_edges_rejected": rejected,
+        "graph_converged": bool(g.converged) if g else None,
+        "map_points": res.map_points,
+        "truncated": res.recording.truncated,
+        "notes": res.notes,
+        "files": res.files,
+    }

@@ -1,0 +1,180 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""Odometry chain, loop closures and the pose graph over station fragments.
+
+Node k is T_world_lidar of station k at its middle time. Odometry edges join consecutive
+stations; loop candidates are station pairs close in the odometry map, registered from that map's
+guess (the top-down seeds when it fails) and kept when verified; the pose graph (IMU gravity
+priors on every node, Cauchy loss on loops) rejects the loops that disagree with the rest.
+Stations no registration reaches are reported as disconnected, never merged.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .. import pose_graph as pg
+from .config import OdometryConfig, SlamConfig
+from .fragments import Fragment
+from .odometry import PairResult, register_fragments
+
+
+def inv(T: np.ndarray) -> np.ndarray:
+    out = np.eye(4)
+    out[:3, :3] = T[:3, :3].T
+    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+    return out
+
+
+@dataclass
+class SlamResult:
+    T_odometry: np.ndarray  # (N, 4, 4) chained odometry, T_world_lidar per station
+    T_optimized: np.ndarray  # (N, 4, 4) after the pose graph
+    edges: list[pg.Edge]
+    graph: pg.PoseGraph
+    graph_result: pg.GraphResult | None
+    component: np.ndarray  # (N,) int, connected-component id; 0 is the map
+    disconnected: list[int] = field(default_factory=list)
+    loop_candidates: int = 0
+    notes: list[str] = field(default_factory=list)
+
+
+def _edge(i: int, j: int, r: PairResult, kind: str) -> pg.Edge:
+    return pg.Edge(i, j, r.T_target_source, r.information, kind, r.fitness, r.rmse)
+
+
+def run_odometry(frags: list[Fragment], cfg: OdometryConfig, num_threads: int = 0,
+                 progress=None) -> tuple[np.ndarray, list[pg.Edge], np.ndarray, list[str]]:
+    """Chain consecutive registrations. Returns T_world_lidar (N,4,4), edges, component ids,
+    notes. A failed pair is retried against the two stations before; if those fail too a new
+    component starts there."""
+    n = len(frags)
+    T = np.tile(np.eye(4), (n, 1, 1))
+    if n:
+        T[0, :3, :3] = frags[0].R_world_lidar  # gravity-aligned world, yaw from the IMU
+    comp = np.zeros(n, dtype=int)
+    edges: list[pg.Edge] = []
+    notes: list[str] = []
+    for k in range(1, n):
+        done = False
+        for back in (1, 2, 3):
+            i = k - back
+            if i < 0:
+                break
+            r = register_fragments(frags[k].points, frags[i].points, frags[k].R_world_lidar,
+                                   frags[i].R_world_lidar, cfg, num_threads)
+            if r.ok:
+                T[k] = T[i] @ r.T_target_source
+                comp[k] = comp[i]
+                edges.append(_edge(i, k, r, "odometry"))
+                if back > 1:
+                    notes.append(f"station {k}: registered to station {i} (not {k - 1})")
+                done = True
+                break
+        if not done:
+            comp[k] = comp[:k].max() + 1
+            T[k] = np.eye(4)
+            T[k, :3, :3] = frags[k].R_world_lidar
+            notes.append(f"station {k}: no overlap with the stations before it")
+        if progress is not None:
+            progress.update(1)
+    return T, edges, comp, notes
+
+
+def _merge_components(comp: np.ndarray, i: int, j: int) -> None:
+    a, b = comp[i], comp[j]
+    if a != b:
+        lo, hi = min(a, b), max(a, b)
+        comp[comp == hi] = lo
+
+
+def run_slam(frags: list[Fragment], T_odom: np.ndarray, odom_edges: list[pg.Edge],
+             comp: np.ndarray, ocfg: OdometryConfig, scfg: SlamConfig, num_threads: int = 0,
+             progress=None) -> SlamResult:
+    """Loop closures and pose-graph optimisation (see the module docstring)."""
+    n = len(frags)
+    comp = comp.copy()
+    edges = list(odom_edges)
+    notes: list[str] = []
+    connected = {(e.i, e.j) for e in edges}
+    # 1. loop candidates: close in the odometry map (same component), not already joined
+    cands = []
+    if scfg.enabled:
+        pos = T_odom[:, :3, 3]
+        for i in range(n):
+            near = []
+            for j in range(i + 2, n):
+                if (i, j) in connected:
+                    continue
+                same = comp[i] == comp[j]
+                d = float(np.linalg.norm(pos[i] - pos[j])) if same else np.inf
+                if d < scfg.loop_radius_m or not same:
+                    near.append((d, j))
+            near.sort()
+            cands += [(i, j) for _, j in near[: scfg.max_loops_per_station]]
+    for i, j in cands:
+        guess = inv(T_odom[i]) @ T_odom[j] if comp[i] == comp[j] else None
+        r = register_fragments(frags[j].points, frags[i].points, frags[j].R_world_lidar,
+                               frags[i].R_world_lidar, ocfg, num_threads, T_guess=guess)
+        if r.ok:
+            edges.append(_edge(i, j, r, "loop"))
+            if comp[i] != comp[j]:
+                notes.append(f"stations {i} and {j} joined by a loop closure")
+                _merge_components(comp, i, j)
+        if progress is not None:
+            progress.update(1)
+    # components joined by loops start where those loops put them
+    T_init = _chain_initial(n, edges, T_odom, frags)
+
+    # 2. pose graph over the main component (that of station 0, or the largest)
+    ids, counts = np.unique(comp, return_counts=True)
+    main = comp[0] if counts[list(ids).index(comp[0])] * 2 >= n else ids[np.argmax(counts)]
+    members = [k for k in range(n) if comp[k] == main]
+    index = {k: m for m, k in enumerate(members)}
+    graph = pg.PoseGraph()
+    for k in members:
+        graph.add_node(T_init[k])
+    for e in edges:
+        if e.i in index and e.j in index:
+            graph.add_edge(pg.Edge(index[e.i], index[e.j], e.T_i_j, e.information, e.kind,
+                                   e.fitness, e.rmse))
+    sigma = np.radians(scfg.gravity_sigma_deg)
+    for k in members:
+        graph.add_gravity(index[k], frags[k].up_in_lidar, sigma)
+    T_opt = T_init.copy()
+    gres = None
+    if graph.edges:
+        gres = graph.optimize(loss=scfg.loss, loss_scale=scfg.loss_scale,
+                              outlier_chi2=scfg.outlier_chi2, num_threads=num_threads,
+                              fixed_node=0)
+        for k in members:
+            T_opt[k] = gres.T_world_node[index[k]]
+    disconnected = [k for k in range(n) if comp[k] != main]
+    for k in disconnected:
+        notes.append(f"station {k} is disconnected from the map (no registration reaches it): "
+                     "its fragment is written alone, not merged")
+    comp_out = np.where(comp == main, 0, comp + 1)
+    return SlamResult(T_odom, T_opt, edges, graph, gres, comp_out, disconnected, len(cands), notes)
+
+
+def _chain_initial(n: int, edges: list[pg.Edge], T_odom: np.ndarray,
+                   frags: list[Fragment]) -> np.ndarray:
+    """Initial poses: a breadth-first chain over all edges from station 0 (odometry first), so
+    components joined only by loops start in the right place."""
+    T = T_odom.copy()
+    seen = {0}
+    order = sorted(edges, key=lambda e: (e.kind != "odometry", e.i, e.j))
+    changed = True
+    while changed:
+        changed = False
+        for e in order:
+            if e.i in seen and e.j not in seen:
+                T[e.j] = T[e.i] @ e.T_i_j
+                seen.add(e.j)
+                changed = True
+            elif e.j in seen and e.i not in seen:
+                T[e.i] = T[e.j] @ inv(e.T_i_j)
+                seen.add(e.i)
+                changed = True
+    return T
