@@ -207,7 +207,28 @@ GlobalResult register_global(const PointsXYZ& source_in, const PointsXYZ& target
         T = fit(matches, sel, gravity);
         return true;
     };
-    int64_t best = -1, best_k = -1;
+    // Hypotheses that agree with more than the minimal sample are scored on the clouds
+    // themselves (source points, at most 2000, with a target point within the inlier distance),
+    // as Open3D does: sparse or repetitive scenes give few feature inliers, but the right pose
+    // explains the geometry.
+    const KdTree<3> tgt_tree(tgt.data(), tgt.rows());
+    std::vector<Eigen::Vector3d> probe;
+    {
+        const int64_t step = std::max<int64_t>(1, src.rows() / 2000);
+        for (int64_t i = 0; i < src.rows(); i += step)
+            probe.push_back(Ls * src.row(i).transpose().cast<double>());
+    }
+    const Eigen::Matrix3d LtT = Lt.transpose();
+    auto geometric_score = [&](const Eigen::Isometry3d& T) {
+        int64_t c = 0;
+        for (const Eigen::Vector3d& p : probe) {
+            const Eigen::Vector3f x = (LtT * (T * p)).cast<float>();
+            float d;
+            c += tgt_tree.nearest(x.data(), static_cast<float>(thr2), &d) >= 0;
+        }
+        return c;
+    };
+    int64_t best = -1, best_k = -1, best_inl = 0;
     Eigen::Isometry3d best_T = Eigen::Isometry3d::Identity();
     int64_t needed = opt.max_iterations;
     int64_t done = 0;
@@ -216,17 +237,20 @@ GlobalResult register_global(const PointsXYZ& source_in, const PointsXYZ& target
         const int64_t end = std::min({done + batch, opt.max_iterations});
 #pragma omp parallel num_threads(nt)
         {
-            int64_t lb = -1, lk = -1;
+            int64_t lb = -1, lk = -1, linl = 0;
             Eigen::Isometry3d lT = Eigen::Isometry3d::Identity();
 #pragma omp for schedule(static)
             for (int64_t k = done; k < end; ++k) {
                 Eigen::Isometry3d T;
                 if (!hypothesis(k, T)) continue;
-                const int64_t c = count_inliers(T);
+                const int64_t inl = count_inliers(T);
+                if (inl <= sample) continue;
+                const int64_t c = geometric_score(T);
                 if (c > lb || (c == lb && k < lk)) {
                     lb = c;
                     lk = k;
                     lT = T;
+                    linl = inl;
                 }
             }
 #pragma omp critical
@@ -234,11 +258,12 @@ GlobalResult register_global(const PointsXYZ& source_in, const PointsXYZ& target
                 best = lb;
                 best_k = lk;
                 best_T = lT;
+                best_inl = linl;
             }
         }
         done = end;
-        if (best >= sample) {
-            const double w = static_cast<double>(best) / M;
+        if (best_inl > sample) {
+            const double w = static_cast<double>(best_inl) / M;
             const double denom = std::log(1 - std::pow(w, sample));
             if (denom < 0)
                 needed = static_cast<int64_t>(std::ceil(std::log(1 - opt.confidence) / denom));
@@ -246,11 +271,12 @@ GlobalResult register_global(const PointsXYZ& source_in, const PointsXYZ& target
         }
     }
     res.iterations = done;
-    if (best < sample) {
+    if (best < 0) {
         res.status = "no_consensus";
         return res;
     }
-    // 4. refit on the inliers (twice: the refit can gain inliers)
+    // 4. refit on the inliers (twice: the refit can gain inliers), kept if it explains the
+    //    geometry at least as well
     Eigen::Isometry3d T = best_T;
     for (int r = 0; r < 2; ++r) {
         std::vector<int> sel;
@@ -258,7 +284,7 @@ GlobalResult register_global(const PointsXYZ& source_in, const PointsXYZ& target
             if ((T * matches[i].p - matches[i].q).squaredNorm() < thr2) sel.push_back(static_cast<int>(i));
         if (static_cast<int>(sel.size()) < sample) break;
         const Eigen::Isometry3d T2 = fit(matches, sel, gravity);
-        if (count_inliers(T2) >= count_inliers(T)) T = T2;
+        if (geometric_score(T2) >= geometric_score(T)) T = T2;
     }
     res.num_inlier_correspondences = count_inliers(T);
     // back from the levelled frames: T_target_source = Lt^T T Ls

@@ -18,7 +18,7 @@ struct GlobalOptions {
     int max_neighbors = 100;          ///< cap per neighbourhood
     double inlier_distance = 0.15;    ///< RANSAC inlier threshold [m] (about 1.5 voxels)
     double edge_length_ratio = 0.9;   ///< pairwise-distance similarity check (Open3D's 0.9)
-    bool mutual_filter = true;        ///< keep only mutual nearest features
+    bool mutual_filter = false;       ///< keep only mutual nearest features
     int64_t max_iterations = 100000;  ///< RANSAC hypotheses at most
     double confidence = 0.999;        ///< early stop when this confidence is reached
     /// Gravity: "up" unit vectors in the source and target frames (from the IMU); when both are
@@ -34,7 +34,7 @@ struct GlobalOptions {
 /// Result of register_global().
 struct GlobalResult {
     Eigen::Matrix4d T_target_source = Eigen::Matrix4d::Identity();
-    bool success = false;          ///< a hypothesis with >= 3 inlier correspondences was found
+    bool success = false;  ///< a hypothesis agreeing with more matches than its own sample was found
     std::string status;            ///< "success", "no_correspondences", "no_consensus"
     int64_t num_correspondences = 0;        ///< feature matches
     int64_t num_inlier_correspondences = 0; ///< of the best hypothesis

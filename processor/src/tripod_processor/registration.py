@@ -339,7 +339,7 @@ def register_global(
     feature_radius: float | None = None,
     inlier_distance: float | None = None,
     max_neighbors: int = 100,
-    mutual_filter: bool = True,
+    mutual_filter: bool = False,
     edge_length_ratio: float = 0.9,
     max_iterations: int = 100_000,
     confidence: float = 0.999,
@@ -367,7 +367,8 @@ def register_global(
     max_neighbors : int
         Cap on a neighbourhood's size.
     mutual_filter : bool
-        Keep only mutually nearest feature matches.
+        Keep only mutually nearest feature matches (off by default: on sparse or repetitive
+        scenes it throws away the few right matches; hypotheses are scored on the geometry).
     edge_length_ratio : float
         Reject samples whose pairwise distances differ by more than this ratio.
     max_iterations : int
