@@ -77,7 +77,7 @@ def simulate_cmd(
         s = simulate(cfg, output, nthreads=threads, progress=progress)
     except (ValueError, OSError) as exc:
         bar.close()
-        fail(str(exc).splitlines()(default 0) if str(exc) else type(exc).__name__)
+        fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
     bar.close()
     t = Table(title=f"tripod simulate → {output}")
     t.add_column("quantity")
