@@ -8,7 +8,8 @@ later. A data packet holds 12 blocks of 2 sequences each (single return: 24 sequ
 each reported twice: even block = last return, odd block = strongest (or second strongest
 when the strongest is also the last): 663.552 us per packet, 1507 packets/s.
 
-Each firing is a ray from the lidar origin at its true pose (evaluated at the middle of the
+Each firing is a ray from its laser's origin (the lidar origin raised by the laser's vertical
+offset, as the decoder assumes) at its true pose (evaluated at the middle of the
 sequence: 18 us of head motion is < 0.1 mm) along the laser's elevation and the azimuth of the
 motor at the exact firing time. Two rays sample the beam footprint (centre and leading edge,
 ``beam_divergence_mrad`` apart): their hits form the firing's returns (separate when further
@@ -35,6 +36,10 @@ from .scenes import NO_RETURN, Scene
 #: laser elevation [deg] by laser id (firing order), VLP-16 manual table 9-1
 LASER_ELEVATION_DEG = np.array([-15, 1, -13, 3, -11, 5, -9, 7, -7, 9, -5, 11, -3, 13, -1, 15],
                                dtype=np.float64)
+#: vertical offset of each laser's origin along the lidar z axis [m] (VLP-16 manual table 9-1,
+#: "vertical correction"; velodyne-decoder applies it: point = range * direction + (0, 0, offset))
+LASER_VERT_OFFSET_M = np.array([11.2, -0.7, 9.7, -2.2, 8.1, -3.7, 6.6, -5.1, 5.1, -6.6, 3.7, -8.1,
+                                2.2, -9.7, 0.7, -11.2], dtype=np.float64) * 1e-3
 #: ring (rank of elevation, the decoder's ``ring`` field) of each laser id
 LASER_RING = np.argsort(np.argsort(LASER_ELEVATION_DEG)).astype(np.uint8)
 
@@ -157,7 +162,8 @@ class Vlp16:
         d_edge = beam_directions(az + half)
         d1 = np.einsum("sij,slj->sli", R, d_lidar).reshape(-1, 3)
         d2 = np.einsum("sij,slj->sli", R, d_edge).reshape(-1, 3)
-        o = np.repeat(p, 16, axis=0)
+        # each laser's own origin: lidar origin + its vertical offset along the lidar z axis
+        o = (p[:, None, :] + R[:, None, :, 2] * LASER_VERT_OFFSET_M[None, :, None]).reshape(-1, 3)
         t1, prim1, c1 = self._cast(o, d1)
         t2, prim2, c2 = self._cast(o, d2)
 
