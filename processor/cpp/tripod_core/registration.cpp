@@ -311,6 +311,10 @@ void finish_result(const PreparedCloud& src, const PreparedCloud& tgt, Method re
     res.information = A.transpose() * nl.H * A;
     res.information = 0.5 * (res.information + res.information.transpose()).eval();
     // Conditioning of the free components, rotations scaled by the source's extent to metres.
+    // Judged on the surfaces (point-to-plane information) whatever the method: point-to-point
+    // and GICP also "see" in-plane sample positions, which do not constrain a real surface.
+    Normal geo = linearize(Method::kPointToPlane, src, tgt, T, corr, opt, true, num_threads);
+    if (geo.count > 0) nl.H = geo.H;
     double extent = 0;
     const Eigen::Vector3d c = src.points.cast<double>().colwise().mean().transpose();
     for (int64_t i = 0; i < src.points.rows(); ++i)
@@ -421,7 +425,10 @@ RegistrationResult register_local(const PreparedCloud& src, const PreparedCloud&
                     T_new = T;
                     for (int inner = 0; inner < 10; ++inner) {
                         Mat6 Hd = nl.H;
-                        Hd.diagonal() += lambda * nl.H.diagonal().cwiseMax(1e-12);
+                        // Marquardt scaling, plus a floor so that directions the geometry
+                        // does not constrain (a plane, a corridor) stay put instead of drifting
+                        Hd.diagonal() += lambda * nl.H.diagonal() +
+                                         Vec6::Constant(1e-9 * nl.H.diagonal().maxCoeff() + 1e-12);
                         const Vec6 delta = Hd.ldlt().solve(-nl.b);
                         if (!delta.allFinite()) {
                             lambda *= 10;
@@ -457,7 +464,7 @@ RegistrationResult register_local(const PreparedCloud& src, const PreparedCloud&
     // quality and information with the method's own residual model (Ceres: point-to-plane)
     const Method model = opt.method == Method::kCeresLM ? Method::kPointToPlane : opt.method;
     detail::finish_result(src, tgt, model, opt, res, nt);
-    if (res.status != "too_few_correspondences" && res.condition < 1e-6) {
+    if (res.status != "too_few_correspondences" && res.condition < 1e-4) {
         res.status = "degenerate";
         res.converged = false;
     }

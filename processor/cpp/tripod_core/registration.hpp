@@ -78,7 +78,7 @@ struct RegistrationResult {
     /// perturbation T = (exp(w) R, t + v) in the target frame [1/rad^2, 1/m^2]; assumes
     /// `point_sigma`. Locked components get zero rows/columns.
     Eigen::Matrix<double, 6, 6> information = Eigen::Matrix<double, 6, 6>::Zero();
-    double condition = 0;     ///< smallest / largest eigenvalue of the scaled information
+    double condition = 0;  ///< smallest / largest eigenvalue of the surfaces' (point-to-plane) scaled information; < 1e-4: "degenerate"
 };
 
 /// Register `source` onto `target`: find T_target_source with target ~ T * source.

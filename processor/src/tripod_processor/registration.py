@@ -55,10 +55,12 @@ class RegistrationResult:
     information : (6, 6) float64 ndarray
         Inverse covariance of the pose for a right perturbation ``T @ exp(xi)``, ``xi = (rx, ry,
         rz, tx, ty, tz)`` in the source frame [1/rad^2, 1/m^2] (the convention of GTSAM/g2o
-        pose-graph edges), assuming range noise ``point_sigma``. Locked components are 0.
+        pose-graph edges), assuming range noise ``point_sigma``. Locked directions (fixed
+        rotation, target-frame z) lie in its null space.
     condition : float
-        Smallest / largest eigenvalue of the information, rotations scaled by the cloud's extent
-        (1 = equally constrained in every direction, < 1e-6 = degenerate).
+        Smallest / largest eigenvalue of the surfaces' (point-to-plane) information, rotations
+        scaled by the cloud's extent (1 = equally constrained in every direction; below 1e-4 the
+        status is "degenerate"; a corridor is about 5e-3, a furnished room about 4e-2).
     """
 
     T_target_source: np.ndarray
