@@ -250,7 +250,7 @@ def _write_meta(out: Path, cfg: SimConfig, scene: Scene, traj: Trajectory, lidar
             "packet_period_ns": packet_period_ns(cfg.lidar.return_mode),
             "packets_per_s": 1e9 / packet_period_ns(cfg.lidar.return_mode),
             "azimuth0_deg": lidar.azimuth0_deg,
-            "station_period_s": traj.station_period_s,
+            "transit_s": [round(float(x), 6) for x in traj.transit_s],
             "stations": [{"index": st.index, "pan_start_s": st.t_pan_start_s,
                           "pan_end_s": st.t_pan_end_s} for st in traj.stations],
         },

@@ -19,7 +19,10 @@ class MotionConfig(StrictModel):
     pan_s: float = Field(10.0, gt=0.5, description="duration of one station's pan [s]")
     pan_ramp_s: float = Field(0.8, ge=0.0, description="raised-cosine speed ramp of the pan [s]")
     pan_overlap_deg: float = Field(10.0, ge=0.0, description="pan beyond one full turn [deg]")
-    transit_s: float = Field(4.0, gt=0.0, description="carrying time between stations [s]")
+    transit_s: float = Field(4.0, gt=0.0,
+                             description="carrying time between stations, at least [s]")
+    max_carry_speed_m_s: float = Field(1.2, gt=0.0,
+                                       description="peak walking speed; longer walks take longer")
     tilt_deg: float = Field(60.0, ge=0.0, le=90.0,
                             description="tilt of the lidar spin axis from the pan axis [deg]")
     lever_arm_m: Vec3 = Field((0.06, 0.0, 0.12),

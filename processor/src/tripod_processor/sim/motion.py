@@ -16,8 +16,8 @@ Frames (all right-handed, metres):
 
 Timeline (seconds from the capture start): at every station the head rests ``settle_s``,
 pans one full turn plus ``pan_overlap_deg`` in ``pan_s`` (raised-cosine speed ramps), rests
-``settle_s`` again; between stations the tripod is carried for ``transit_s`` along the scene's
-route (minimum-jerk progress, sway in roll/pitch/height/sideways, heading change up to
+``settle_s`` again; between stations the tripod is carried for ``transit_s`` (longer for long
+walks: peak speed ``max_carry_speed_m_s``) along the scene's route (minimum-jerk progress, sway in roll/pitch/height/sideways, heading change up to
 ``max_yaw_change_deg``). The lidar and IMU stream the whole time.
 """
 
@@ -177,15 +177,20 @@ class Trajectory:
         level = np.radians(cfg.level_error_deg)
         roll, pitch = rng.normal(0, level, n), rng.normal(0, level, n)
         height = rng.uniform(cfg.tripod_height_m[0], cfg.tripod_height_m[1], n)
-        self.station_period_s = 2 * cfg.settle_s + cfg.pan_s + cfg.transit_s
-        self.duration_s = n * (2 * cfg.settle_s + cfg.pan_s) + (n - 1) * cfg.transit_s
+        # carrying time: at least transit_s, longer when the walk would exceed the peak speed
+        # (minimum-jerk progress peaks at 1.875 x the mean speed)
+        walk = np.abs(np.diff(s)) if n > 1 else np.zeros(0)
+        self.transit_s = np.maximum(cfg.transit_s, 1.875 * walk / cfg.max_carry_speed_m_s)
+        dwell = 2 * cfg.settle_s + cfg.pan_s
+        self.period_start_s = np.concatenate([[0.0], np.cumsum(dwell + self.transit_s)])[:n]
+        self.duration_s = float(self.period_start_s[-1] + dwell)
         self.pan_total_rad = np.radians(360.0 + cfg.pan_overlap_deg)
         self.stations: list[Station] = []
         for k in range(n):
             p2, tan = self.route.at(np.array([s[k]]))
             normal = np.array([-tan[0, 1], tan[0, 0]])
             xy = p2[0] + lateral[k] * normal
-            t0 = k * self.station_period_s + cfg.settle_s
+            t0 = self.period_start_s[k] + cfg.settle_s
             self.stations.append(Station(k, t0, t0 + cfg.pan_s, np.array([xy[0], xy[1], height[k]]),
                                          float(yaw[k]), float(roll[k]), float(pitch[k]),
                                          float(s[k]), float(lateral[k])))
@@ -200,9 +205,8 @@ class Trajectory:
         """Base position (N, 3), yaw, roll, pitch (N,) [rad] and pan angle phi (N,) [rad]."""
         cfg = self.cfg
         t = np.asarray(t, dtype=np.float64)
-        P = self.station_period_s
-        k = np.clip(np.floor(t / P).astype(np.int64), 0, self.n - 1)
-        local = t - k * P  # time since this station's period began
+        k = np.clip(np.searchsorted(self.period_start_s, t, side="right") - 1, 0, self.n - 1)
+        local = t - self.period_start_s[k]  # time since this station's period began
         st = self.stations
         pos = np.array([s.position for s in st])
         yaw = np.array([s.yaw_rad for s in st])
@@ -222,7 +226,7 @@ class Trajectory:
         if np.any(moving):
             i = np.nonzero(moving)[0]
             kk = k[i]
-            u = np.clip(t_transit[i] / cfg.transit_s, 0.0, 1.0)
+            u = np.clip(t_transit[i] / self.transit_s[kk], 0.0, 1.0)
             g = _min_jerk(u)
             win = np.sin(np.pi * u)  # sway only while carried
             a0, a1 = arc[kk], arc[kk + 1]
@@ -262,7 +266,7 @@ class Trajectory:
     def station_of(self, t: np.ndarray) -> np.ndarray:
         """Index of the station whose pan contains t, -1 outside pans (N,) int."""
         t = np.asarray(t, dtype=np.float64)
-        k = np.clip(np.floor(t / self.station_period_s).astype(np.int64), 0, self.n - 1)
-        local = t - k * self.station_period_s
+        k = np.clip(np.searchsorted(self.period_start_s, t, side="right") - 1, 0, self.n - 1)
+        local = t - self.period_start_s[k]
         inside = (local >= self.cfg.settle_s) & (local <= self.cfg.settle_s + self.cfg.pan_s)
         return np.where(inside, k, -1)
