@@ -172,6 +172,7 @@ class DecodeReport:
     return_mode: str = ""
     packet_period_us: float | None = None
     packets: int = 0  # data packets decoded
+    rotations: int = 0  # azimuth wraps seen = frames closed by a wrap (MRPT's scan count)
     points: int = 0
     points_per_frame: list[int] = field(default_factory=list)
     skipped: dict[str, int] = field(default_factory=dict)
@@ -208,6 +209,7 @@ class DecodeReport:
             "return_mode": self.return_mode,
             "packets": self.packets,
             "skipped": dict(sorted(self.skipped.items())),
+            "rotations": self.rotations,
             "points": self.points,
             "product_id": f"0x{self.product_id:02x}" if self.product_id is not None else None,
             "packet_period_us": (round(self.packet_period_us, 3)
@@ -507,6 +509,7 @@ class FrameDecoder:
         prev_az[1:] = az_flat[:-1]
         split = az_flat < prev_az  # block starts a new frame
         split[0] = split[0] and self._prev_az >= 0
+        rep.rotations += int(split.sum())
         long_gap = np.flatnonzero(dt > cfg.max_gap_in_frame_s * 1e9)
         split[long_gap * 12] = True  # (a no-op at the stream start: no frame is open)
         self._prev_az = int(az_flat[-1])
