@@ -62,6 +62,8 @@ POINT_DTYPE = np.dtype([
 HOUR_NS = 3_600_000_000_000
 _I32_MAX = 2**31 - 1
 _BLOCK_NS = 110_592  # one VLP-16 data block: two firing sequences of 55.296 µs
+_SEQUENCE_NS = 55_296  # one firing sequence: 16 lasers 2.304 µs apart, then recharge
+_LASER_NS = 2_304
 _MODELS = {"VLP-16": vd.Model.VLP16, "Puck Hi-Res": vd.Model.PuckHiRes}
 _PRODUCT_OF = {"VLP-16": vl.PRODUCT_VLP16, "Puck Hi-Res": vl.PRODUCT_PUCK_HIRES}
 
@@ -532,8 +534,14 @@ class FrameDecoder:
         if pk_of_point is None:
             pk_of_point = np.searchsorted(rel_ns, t_rel_ns + 1000, side="right") - 1
             np.clip(pk_of_point, 0, k - 1, out=pk_of_point)
-        within = t_rel_ns - rel_ns[pk_of_point] + 1000
-        unit = within // _BLOCK_NS
+        # velodyne-decoder carries packet times as float seconds since the epoch (~0.2 µs
+        # steps): snap each point onto the exact firing grid of its packet instead, so times
+        # are exact integers and independent of the host clock.
+        within = t_rel_ns - rel_ns[pk_of_point]
+        seq = (within + 1000) // _SEQUENCE_NS  # firing sequence in the packet
+        laser = np.clip(np.rint((within - seq * _SEQUENCE_NS) / _LASER_NS), 0, 15).astype(np.int64)
+        t_rel_ns = rel_ns[pk_of_point] + seq * _SEQUENCE_NS + laser * _LASER_NS
+        unit = seq // 2  # block, or block pair in dual return
         block = pk_of_point * 12 + (np.clip(unit, 0, 5) * 2 if dual else np.clip(unit, 0, 11))
         pts = np.empty(len(raw), POINT_DTYPE)
         pts["x"], pts["y"], pts["z"] = raw["x"], raw["y"], raw["z"]
