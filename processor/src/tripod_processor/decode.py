@@ -64,6 +64,9 @@ _I32_MAX = 2**31 - 1
 _BLOCK_NS = 110_592  # one VLP-16 data block: two firing sequences of 55.296 µs
 _SEQUENCE_NS = 55_296  # one firing sequence: 16 lasers 2.304 µs apart, then recharge
 _LASER_NS = 2_304
+#: time from a packet's first to its last firing [ns]: 24 sequences (12 in dual return, where
+#: two blocks carry the two returns of the same firings), the last one's 16th laser
+_PACKET_SPAN_NS = {False: 23 * 55_296 + 15 * 2_304, True: 11 * 55_296 + 15 * 2_304}
 _MODELS = {"VLP-16": vd.Model.VLP16, "Puck Hi-Res": vd.Model.PuckHiRes}
 _PRODUCT_OF = {"VLP-16": vl.PRODUCT_VLP16, "Puck Hi-Res": vl.PRODUCT_PUCK_HIRES}
 
@@ -446,12 +449,12 @@ class FrameDecoder:
     def _process(self, batch: list[tuple[int, bytes]]) -> Iterator[Frame]:
         """Decode one chunk of data packets and emit the frames it completes."""
         rep, cfg = self.report, self.config
-        buf = np.frombuffer(b"".join(p for _, p in batch), dtype=np.uint8)
+        buf = np.frombuffer(b"".join([p for _, p in batch]), dtype=np.uint8)
         arr = buf.reshape(len(batch), vl.DATA_PACKET_SIZE)
         blocks = arr[:, :1200].reshape(-1, 12, 100)
         ok = (blocks[:, :, 0] == 0xFF).all(1) & (blocks[:, :, 1] == 0xEE).all(1)
         ret = arr[:, vl.RETURN_MODE_OFFSET]
-        ok &= np.isin(ret, (vl.RETURN_STRONGEST, vl.RETURN_LAST, vl.RETURN_DUAL))
+        ok &= (ret >= vl.RETURN_STRONGEST) & (ret <= vl.RETURN_DUAL)
         if not ok.all():
             rep.skip("bad_header", int((~ok).sum()))
         prod_ok = arr[:, vl.PRODUCT_ID_OFFSET] == self._sensor_product
@@ -474,6 +477,7 @@ class FrameDecoder:
         if self._hour_base_ns is None:
             h0 = batch[0][0]
             self._hour_base_ns = ((h0 - int(toh_ns[0]) + HOUR_NS // 2) // HOUR_NS) * HOUR_NS
+            self._t0_ns = self._hour_base_ns
             self._prev_toh_ns = int(toh_ns[0])
         prev = np.empty(k, np.int64)
         prev[0] = self._prev_toh_ns
@@ -518,39 +522,34 @@ class FrameDecoder:
         # ---- decode with velodyne-decoder ----------------------------------------------------
         dual = self._return_mode_byte == vl.RETURN_DUAL
         rel_ns = dev_ns - dev_ns[0]
-        if k > 1 and not (np.diff(rel_ns) >= (self._period_ns * 9) // 10).all():
-            # device times out of order or too close: decode packet by packet (exact, slower)
-            raw, pk_of_point = self._decode_each(batch)
-            t_rel_ns = (np.rint(raw["time"].astype(np.float64) * 1e9).astype(np.int64)
-                        + rel_ns[pk_of_point])
+        # velodyne-decoder gets the lidar clock as its packet stamps (seconds past the stream's
+        # first hour: small doubles), so point times do not depend on the host clock.
+        stamps_s = ((dev_ns - self._t0_ns) * 1e-9).tolist()
+        split_blocks = np.flatnonzero(split)
+        split_pk = split_blocks // 12
+        split_blk = split_blocks % 12
+        split_rel_ns = rel_ns[split_pk] + ((split_blk // 2) if dual else split_blk) * _BLOCK_NS
+        if k == 1 or (np.diff(rel_ns) >= _PACKET_SPAN_NS[dual] + 2000).all():
+            # packets in time order, their firings never overlap: point times increase, so a
+            # frame boundary is where they pass the first firing of the boundary block
+            raw = self._decode_chunk(batch, stamps_s)
+            t_s = raw["time"]  # float32 [s] since packet 0 of the chunk
+            cuts = np.searchsorted(t_s, ((split_rel_ns - 1000) * 1e-9).astype(np.float32))
         else:
-            raw = self._decode_chunk(batch)
-            pk_of_point = None
-            # lidar clock of each point [ns] relative to the chunk's first packet
-            t_rel_ns = np.rint(raw["time"].astype(np.float64) * 1e9).astype(np.int64)
-        # Which block each point comes from, from its firing time: velodyne-decoder's time is
-        # packet time + 55.296 µs per firing sequence + 2.304 µs per laser, so a block (a block
-        # pair in dual return) spans 110.592 µs and a packet less than one packet period.
-        if pk_of_point is None:
-            pk_of_point = np.searchsorted(rel_ns, t_rel_ns + 1000, side="right") - 1
-            np.clip(pk_of_point, 0, k - 1, out=pk_of_point)
-        # velodyne-decoder carries packet times as float seconds since the epoch (~0.2 µs
-        # steps): snap each point onto the exact firing grid of its packet instead, so times
-        # are exact integers and independent of the host clock.
-        within = t_rel_ns - rel_ns[pk_of_point]
-        seq = (within + 1000) // _SEQUENCE_NS  # firing sequence in the packet
-        laser = np.clip(np.rint((within - seq * _SEQUENCE_NS) / _LASER_NS), 0, 15).astype(np.int64)
-        t_rel_ns = rel_ns[pk_of_point] + seq * _SEQUENCE_NS + laser * _LASER_NS
-        unit = seq // 2  # block, or block pair in dual return
-        block = pk_of_point * 12 + (np.clip(unit, 0, 5) * 2 if dual else np.clip(unit, 0, 11))
+            # out of order or overlapping: decode packet by packet and place each point by
+            # its packet and its firing time inside the packet (exact, slower)
+            raw, owner = self._decode_each(batch, stamps_s)
+            within_ns = np.rint(raw["time"].astype(np.float64) * 1e9).astype(np.int64)
+            unit = (within_ns + 1000) // _BLOCK_NS  # block, or block pair in dual return
+            block = owner * 12 + (np.clip(unit, 0, 5) * 2 if dual else np.clip(unit, 0, 11))
+            cuts = np.searchsorted(block, split_blocks, side="left")
+            t_s = (rel_ns[owner] + within_ns) * 1e-9
         pts = np.empty(len(raw), POINT_DTYPE)
         pts["x"], pts["y"], pts["z"] = raw["x"], raw["y"], raw["z"]
         pts["intensity"] = np.clip(raw["intensity"], 0, 255)
         pts["ring"] = raw["ring"]
         pts["return_type"] = raw["return_type"]
         # ---- cut into frames (points come in packet, block, firing order) --------------------
-        split_blocks = np.flatnonzero(split)
-        cuts = np.searchsorted(block, split_blocks, side="left")
         starts = np.concatenate(([0], split_blocks))
         ends = np.concatenate((split_blocks, [k * 12]))
         pstarts = np.concatenate(([0], cuts))
@@ -579,36 +578,40 @@ class FrameDecoder:
             self._frame_az1 = int(az_flat[b1 - 1])
             if q1 > q0:
                 part = pts[q0:q1]
-                off = t_rel_ns[q0:q1] + (chunk_dev0 - self._frame_dev_ns)
+                t = t_s[q0:q1]
+                off = (t - t.dtype.type((self._frame_dev_ns - chunk_dev0) * 1e-9)) * 1e9
+                np.rint(off, out=off)
                 if off[-1] > _I32_MAX or off[0] < -_I32_MAX:
                     rep.warn("a frame spans more than 2.1 s: its time offsets are clipped")
-                    off = np.clip(off, -_I32_MAX, _I32_MAX)
+                    np.clip(off, -_I32_MAX, _I32_MAX, out=off)
                 part["time_offset_ns"] = off
                 self._parts.append(part)
         self._packet_index += k
         rep.packets += k
         # frames never share a packet count: a packet cut by a wrap counts in both frames
 
-    def _packet_vector(self, batch: list[tuple[int, bytes]]):
+    def _packet_vector(self, batch: list[tuple[int, bytes]], stamps_s: list[float]):
         pv = vd.PacketVector()
+        append, packet = pv.append, vd.VelodynePacket
         if self._patch_product:
             tail = bytes([self._expected_product])
-            for h, p in batch:
-                pv.append(vd.VelodynePacket(h * 1e-9, p[:-1] + tail))
+            for (_h, p), st in zip(batch, stamps_s):
+                append(packet(st, p[:-1] + tail))
         else:
-            for h, p in batch:
-                pv.append(vd.VelodynePacket(h * 1e-9, p))
+            for (_h, p), st in zip(batch, stamps_s):
+                append(packet(st, p))
         return pv
 
-    def _decode_chunk(self, batch: list[tuple[int, bytes]]) -> np.ndarray:
-        """All points of a chunk in one velodyne-decoder call (time relative to packet 0)."""
-        return self._scan_decoder.decode(self._packet_vector(batch), as_pcl_structs=True)[1]
+    def _decode_chunk(self, batch, stamps_s) -> np.ndarray:
+        """All points of a chunk in one velodyne-decoder call (time [s] since packet 0)."""
+        return self._scan_decoder.decode(self._packet_vector(batch, stamps_s),
+                                         as_pcl_structs=True)[1]
 
-    def _decode_each(self, batch: list[tuple[int, bytes]]) -> tuple[np.ndarray, np.ndarray]:
-        """Packet by packet: points (time relative to their own packet) and their packet index."""
+    def _decode_each(self, batch, stamps_s) -> tuple[np.ndarray, np.ndarray]:
+        """Packet by packet: points (time [s] since their own packet) and their packet index."""
         parts, owners = [], []
-        for i, item in enumerate(batch):
-            raw = self._scan_decoder.decode(self._packet_vector([item]), as_pcl_structs=True)[1]
+        for i in range(len(batch)):
+            raw = self._decode_chunk(batch[i : i + 1], stamps_s[i : i + 1])
             parts.append(raw)
             owners.append(np.full(len(raw), i, np.int64))
         return np.concatenate(parts), np.concatenate(owners)
