@@ -37,6 +37,9 @@ log = logging.getLogger(__name__)
 
 _CMD_BYTE = b"\xff"  # a command waits in the queue; other bytes are signal numbers
 
+#: daemons whose loop is running in this process (tests stop a ``main()`` thread through it)
+RUNNING: "list[Daemon]" = []
+
 
 class _Command:
     def __init__(self, name: str, label: str):
@@ -178,7 +181,11 @@ class Daemon:
             self.notifier.ready(self._status_line())
             self.ready.set()
             self._running = True
-            self._loop()
+            RUNNING.append(self)
+            try:
+                self._loop()
+            finally:
+                RUNNING.remove(self)
             self.notifier.stopping("stopping: finishing the recording")
             self._final_drain()
             self._shutdown()
