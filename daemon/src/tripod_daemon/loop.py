@@ -80,6 +80,7 @@ class Daemon:
         self._running = False
         self._last_status: messages.Status | None = None
         self._status_text = b"{}"
+        self._last_status_mono = time.monotonic()
 
     # ---- called from any thread -------------------------------------------------------------
     def signal(self, signum: int) -> None:
@@ -177,7 +178,7 @@ class Daemon:
                 return 1
             if self.cfg.recording.enabled:
                 self._start_recording("startup")
-            self._tick(force=True)
+            self._publish_status(notify=False)  # the first status goes with READY=1
             self.notifier.ready(self._status_line())
             self.ready.set()
             self._running = True
@@ -336,12 +337,12 @@ class Daemon:
     def _tick(self, force: bool = False) -> None:
         self._imu_check()
         now_mono = time.monotonic()
-        if force or now_mono - getattr(self, "_last_status_mono", 0.0) >= self.cfg.status.interval_s * 0.95:
+        if force or now_mono - self._last_status_mono >= self.cfg.status.interval_s * 0.95:
             self._last_status_mono = now_mono
             self._publish_status()
         self.notifier.watchdog()
 
-    def _publish_status(self) -> None:
+    def _publish_status(self, notify: bool = True) -> None:
         rec = self.recorder
         counts = dict(self.counts)
         counts["record_queue"] = rec.pending
@@ -366,7 +367,8 @@ class Daemon:
             rec.submit(item)
         if self.publisher is not None:
             self.publisher.submit(item)
-        self.notifier.status(self._status_line())
+        if notify:
+            self.notifier.status(self._status_line())
 
     def _status_line(self) -> str:
         rec = self.recorder
