@@ -206,36 +206,44 @@ class Daemon:
 
     def _loop(self) -> None:
         sel = self._sel
-        rec_submit = self.recorder.submit
         next_tick = time.monotonic() + self._tick_interval()
         while self._running:
             timeout = next_tick - time.monotonic()
             if timeout <= 0:
-                self._tick()
+                try:
+                    self._tick()
+                except Exception:  # noqa: BLE001 - a status problem must not end the service
+                    self.counts.add("internal_errors")
+                    log.exception("error in the periodic tick (counted, continuing)")
                 next_tick = time.monotonic() + self._tick_interval()
                 continue
             for key, _ev in sel.select(timeout):
-                what = key.data
-                if what == "lidar":
-                    batch: list = []
-                    self.lidar.drain(key.fileobj, batch)
-                    if batch:
-                        rec_submit(batch)
-                        if self.publisher is not None:
-                            self.publisher.submit(batch)
-                elif what == "imu":
-                    batch = []
-                    if not self.imu.on_readable(batch):
-                        sel.unregister(key.fileobj)
-                    if batch:
-                        rec_submit(batch)
-                        if self.publisher is not None:
-                            self.publisher.submit(batch)
-                elif what == "pipe":
-                    self._on_pipe()
-                    rec_submit = self.recorder.submit  # a reload may have replaced it
-                    if not self._running:
-                        break
+                try:
+                    self._dispatch(key)
+                except Exception:  # noqa: BLE001 - bad input must never end the service
+                    self.counts.add("internal_errors")
+                    log.exception("error handling %s (counted, continuing)", key.data)
+                if key.data == "pipe":
+                    # a reload may have replaced sockets: the rest of this event list is stale
+                    # (level-triggered, so anything pending is reported again)
+                    break
+
+    def _dispatch(self, key) -> None:
+        what = key.data
+        if what == "lidar":
+            batch: list = []
+            self.lidar.drain(key.fileobj, batch)
+        elif what == "imu":
+            batch = []
+            if not self.imu.on_readable(batch):
+                self._sel.unregister(key.fileobj)
+        else:
+            self._on_pipe()
+            return
+        if batch:
+            self.recorder.submit(batch)
+            if self.publisher is not None:
+                self.publisher.submit(batch)
 
     def _on_pipe(self) -> None:
         try:
