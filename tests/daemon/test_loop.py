@@ -1,0 +1,129 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""The running daemon: Zenoh status and control queryables, SIGHUP reload, bad start-up."""
+
+from __future__ import annotations
+
+import json
+import signal
+
+import zenoh
+
+from tripod_shared import messages, topics
+from tripod_shared.config_io import ConfigError
+from tripod_shared.recording import RecordingReader
+
+from daemon_helpers import (
+    RunningDaemon,
+    free_tcp_port,
+    loopback_config,
+    make_data_packet,
+    send_paced,
+    udp_sender,
+)
+from tripod_daemon.loop import Daemon
+from tripod_daemon.systemd import Notifier
+
+
+def _client(port: int) -> zenoh.Session:
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("connect/endpoints", f'["tcp/127.0.0.1:{port}"]')
+    return zenoh.open(conf)
+
+
+def _query(session, key: str, timeout: float = 5.0) -> dict:
+    for reply in session.get(key, timeout=timeout):
+        if reply.ok is not None:
+            return json.loads(reply.ok.payload.to_bytes())
+        return {"error_reply": reply.err.payload.to_bytes().decode()}
+    return {}
+
+
+def test_status_and_control_queryables(tmp_path):
+    port = free_tcp_port()
+    cfg = loopback_config(tmp_path, zenoh={"enabled": True, "listen": [f"tcp/127.0.0.1:{port}"]})
+    dev = cfg.device_id
+    with RunningDaemon(cfg) as d, _client(port) as z:
+        status = {}
+        assert d.wait_for(lambda: bool(status.update(_query(z, topics.key_status(dev), 1.0))
+                                       or status), timeout=15)
+        assert status["state"] == "recording" and status["recording"] is True
+        assert "lidar_data" in status["counts"] and "lidar" in status["clocks"]
+        first = d.daemon.recorder.file
+
+        r = _query(z, topics.key_control(dev, "mark") + "?label=station-1")
+        assert r["ok"] is True and r["label"] == "station-1"
+        send_paced(udp_sender(), d.data_addr, [make_data_packet(k) for k in range(20)], 1000)
+        assert d.wait_for(lambda: d.daemon.counts["lidar_data"] == 20)
+
+        r = _query(z, topics.key_control(dev, "stop"))
+        assert r == {"ok": True, "recording": False, "file": None}
+        r = _query(z, topics.key_control(dev, "mark") + "?label=ignored")
+        assert r["ok"] is False  # nothing to mark into
+
+        r = _query(z, topics.key_control(dev, "start"))
+        assert r["ok"] is True and r["file"] != first
+        r = _query(z, topics.key_control(dev, "reboot"))
+        assert "unknown command" in r.get("error_reply", "")
+        assert d.stop() == 0
+    f1, f2 = d.daemon.recorder.files
+    events = [(e.kind, e.label) for e in RecordingReader(f1).events()]
+    assert events[0][0] == "start" and ("mark", "station-1") in events
+    assert events[-1] == ("stop", "control")
+    assert len(list(RecordingReader(f1).lidar_packets())) == 20
+    assert [e.kind for e in RecordingReader(f2).events()] == ["start", "stop"]
+
+
+def test_sighup_rereads_config_and_starts_a_new_file(tmp_path):
+    cfg = loopback_config(tmp_path)
+    new = cfg.model_copy(deep=True)
+    new.recording.prefix = "station"
+    calls = []
+
+    def reload():
+        calls.append(1)
+        if len(calls) == 2:
+            raise ConfigError("daemon.yaml: unknown key 'lidar.prot'")
+        return new
+
+    with RunningDaemon(cfg, reload_config=reload) as d:
+        port = d.daemon.lidar.data_port
+        send_paced(udp_sender(), d.data_addr, [make_data_packet(k) for k in range(10)], 1000)
+        assert d.wait_for(lambda: d.daemon.counts["lidar_data"] == 10)
+        d.daemon.signal(signal.SIGHUP)
+        assert d.wait_for(lambda: len(d.daemon.recorder.files) == 1
+                          and "station_" in (d.daemon.recorder.file or ""))
+        send_paced(udp_sender(), d.data_addr, [make_data_packet(k) for k in range(10, 15)], 1000)
+        assert d.wait_for(lambda: d.daemon.counts["lidar_data"] == 15)
+        d.daemon.signal(signal.SIGHUP)  # a broken config: logged, old one kept
+        assert d.wait_for(lambda: len(calls) == 2)
+        assert d.daemon.lidar.data_port == port and d.daemon.recorder.active
+        assert d.stop() == 0
+    old_files = sorted((tmp_path / "rec").glob("tripod_*.mcap"))
+    new_files = sorted((tmp_path / "rec").glob("station_*.mcap"))
+    assert len(old_files) == 1 and len(new_files) == 1
+    assert len(list(RecordingReader(old_files[0]).lidar_packets())) == 10
+    assert len(list(RecordingReader(new_files[0]).lidar_packets())) == 5
+
+
+def test_port_in_use_fails_start_up_cleanly(tmp_path):
+    import socket
+
+    blocker = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    blocker.bind(("127.0.0.1", 0))
+    try:
+        cfg = loopback_config(tmp_path, lidar={"data_port": blocker.getsockname()[1]})
+        d = Daemon(cfg, notifier=Notifier({}), install_signal_handlers=False)
+        assert d.run() == 1
+    finally:
+        blocker.close()
+
+
+def test_status_message_is_valid_json_schema_shape(tmp_path):
+    cfg = loopback_config(tmp_path)
+    with RunningDaemon(cfg) as d:
+        st = messages.decode_status(d.daemon.status_json())
+        assert st.state == "recording" and st.file.endswith(".mcap")
+        assert set(st.counts) >= {"lidar_data", "lidar_malformed", "record_dropped"}
+        d.stop()
