@@ -35,14 +35,16 @@ class PlacementConfig(StrictModel):
 
 class StationConfig(StrictModel):
     #: lidar stationarity test: a 0.1 s window of points, rotated by the IMU about the head's
-    #: pivot, is "still" when its median nearest-neighbour distance to the window
-    #: ``still_gap_s`` earlier, divided by the range, is below this (a ratio)
+    #: pivot, is "still" when the pivot shift fitted to the range changes along the directions
+    #: it shares with the window ``still_gap_s`` earlier is below this [m]
     still_threshold: float = Field(default=0.02, gt=0)
-    still_gap_s: float = Field(default=1.0, gt=0)
+    still_gap_s: float = Field(default=0.5, gt=0)
+    #: ... and the head's pan axis (IMU) tilts by less than this [deg] in that time
+    still_tilt_deg: float = Field(default=0.25, gt=0)
     #: shortest station [s]; shorter still periods are merged into the carry
     min_station_s: float = Field(default=3.0, gt=0)
     #: seconds trimmed from both ends of a station (the tripod settling)
-    trim_s: float = Field(default=0.3, ge=0)
+    trim_s: float = Field(default=0.5, ge=0)
     #: use the daemon's ``mark`` events when present (each station is matched to its mark)
     use_marks: bool = True
 
@@ -53,8 +55,12 @@ class FragmentConfig(StrictModel):
 
 
 class OdometryConfig(StrictModel):
-    #: registration method of the core (gicp, plane, icp, symmetric)
-    method: str = "gicp"
+    #: registration method of the core (gicp, plane, icp, symmetric, lm)
+    method: Literal["gicp", "plane", "icp", "symmetric", "lm"] = "gicp"
+    #: range noise [m] assumed by the registration (whitening, information)
+    point_sigma_m: float = Field(default=0.03, gt=0)
+    #: weight of the IMU rotation prior [deg] (its yaw drifts during a carry)
+    rotation_prior_sigma_deg: float = Field(default=3.0, gt=0)
     #: coarse-to-fine voxels [m]; the max correspondence distance is 3x the voxel
     voxels_m: list[float] = Field(default_factory=lambda: [0.5, 0.25, 0.1], min_length=1)
     #: hold z of the translation at the prior (the original system's z-lock); off by default
@@ -81,7 +87,10 @@ class SlamConfig(StrictModel):
 
 
 class OutputConfig(StrictModel):
-    map_voxel_m: float = Field(default=0.02, gt=0)
+    map_voxel_m: float = Field(default=0.03, gt=0)
+    #: moving-least-squares smoothing radius of the merged map [m] (0: off). Range noise of a
+    #: VLP-16 (~3 cm) leaves a layer as thick as the noise; MLS projects it onto the surface.
+    smooth_radius_m: float = Field(default=0.08, ge=0)
     write_pcd: bool = True
     write_fragments: bool = True
     write_mcap: bool = True

@@ -48,13 +48,31 @@ class PoseErrors:
     per_station_deg: np.ndarray
 
 
-def pose_errors(T_est: np.ndarray, T_true: np.ndarray, align: str = "umeyama") -> PoseErrors:
+def align_poses(T_est: np.ndarray, T_true: np.ndarray) -> np.ndarray:
+    """Rigid A (4, 4) with A·T_est ≈ T_true using orientations and positions: the chordal mean of
+    R_true R_estᵀ for the rotation, then the mean position offset. Well conditioned for any
+    number of stations (positions alone are not when the stations lie on a line)."""
+    M = np.einsum("nij,nkj->ik", T_true[:, :3, :3], T_est[:, :3, :3])
+    U, _, Vt = np.linalg.svd(M)
+    D = np.eye(3)
+    D[2, 2] = np.sign(np.linalg.det(U @ Vt))
+    R = U @ D @ Vt
+    A = np.eye(4)
+    A[:3, :3] = R
+    A[:3, 3] = (T_true[:, :3, 3] - T_est[:, :3, 3] @ R.T).mean(axis=0)
+    return A
+
+
+def pose_errors(T_est: np.ndarray, T_true: np.ndarray, align: str = "poses") -> PoseErrors:
     """Absolute trajectory error of station poses (N, 4, 4) against truth.
 
-    ``align``: ``umeyama`` (rigid fit of positions, as evo's ``-a``; needs N ≥ 3) or ``first``
-    (the first station's pose mapped onto the truth, as for drift).
+    ``align``: ``poses`` (:func:`align_poses`), ``umeyama`` (rigid fit of positions, as evo's
+    ``-a``; needs N ≥ 3) or ``first`` (the first station's pose mapped onto the truth, as for
+    drift).
     """
-    if align == "umeyama" and len(T_est) >= 3:
+    if align == "poses":
+        A = align_poses(T_est, T_true)
+    elif align == "umeyama" and len(T_est) >= 3:
         A = umeyama_rigid(T_est[:, :3, 3], T_true[:, :3, 3])
     else:
         A = T_true[0] @ np.linalg.inv(T_est[0])
@@ -128,3 +146,48 @@ def plane_fit_errors(points: np.ndarray, up: np.ndarray, *, distance_m: float = 
             out["vertical"].append(res)
         pc = pc.select_by_index(idx, invert=True)
     return {k: (np.concatenate(v) if v else np.zeros(0)) for k, v in out.items()}
+
+
+def load_sim_truth(sim_dir) -> tuple[np.ndarray, np.ndarray]:
+    """True T_world_lidar of a ``tripod simulate`` capture on the lidar time line:
+    (t_ns (M,), T (M, 4, 4)). The simulator stamps its truth in host time; the lidar clock runs
+    ``lidar_clock_offset_ns`` ahead (gt/clocks.json)."""
+    import json
+    from pathlib import Path
+
+    from .outputs import read_tum
+
+    d = Path(sim_dir)
+    t, T = read_tum(d / "gt" / "trajectory.tum")
+    clocks = json.loads((d / "gt" / "clocks.json").read_text())
+    return t + int(clocks.get("lidar_clock_offset_ns", 0)), T
+
+
+def evaluate_run(outdir, truth_t_ns: np.ndarray, truth_T: np.ndarray,
+                 mesh_path=None) -> dict:
+    """Accuracy of a finished run (its stations.tum, stations_odometry.tum, map.ply) against a
+    true trajectory on the lidar time line (and the scene mesh, when given)."""
+    from pathlib import Path
+
+    from .. import cloud_io
+    from .outputs import read_tum
+
+    out = Path(outdir)
+    t, T_opt = read_tum(out / "stations.tum")
+    _, T_odo = read_tum(out / "stations_odometry.tum")
+    T_true = interpolate_poses(truth_t_ns, truth_T, t)
+    e_odo = pose_errors(T_odo, T_true)
+    e_opt = pose_errors(T_opt, T_true)
+    drift, path = odometry_drift(T_odo, T_true)
+    r = {"stations": int(len(t)), "path_m": path,
+         "ate_odometry_cm": e_odo.ate_m * 100, "ate_odometry_deg": e_odo.ate_deg,
+         "ate_cm": e_opt.ate_m * 100, "ate_deg": e_opt.ate_deg,
+         "max_err_cm": e_opt.max_m * 100, "max_err_deg": e_opt.max_deg,
+         "odometry_drift_pct": drift}
+    if mesh_path is not None:
+        A = align_poses(T_opt, T_true)
+        pts = cloud_io.xyz(cloud_io.read_ply(out / "map.ply"))
+        d = map_to_mesh(pts, str(mesh_path), A)
+        r["map_to_mesh_median_cm"] = float(np.median(d)) * 100
+        r["map_to_mesh_p95_cm"] = float(np.percentile(d, 95)) * 100
+    return r

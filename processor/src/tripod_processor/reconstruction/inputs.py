@@ -134,26 +134,63 @@ def _finish_lidar(host, payloads, gprmc, rec: Recording | None = None) -> tuple[
     return LidarPackets(host_ns, lidar_ns, pay, mode), hour_source
 
 
-def read_recording(path: str | os.PathLike, imu_log: str | os.PathLike | None = None) -> Recording:
-    """Read a recording (MCAP, or pcap/pcapng with an optional IMU log).
+def read_recording(paths, imu_log: str | os.PathLike | None = None) -> Recording:
+    """Read a recording: one or more MCAP files of ours (a recording split by the daemon), or a
+    pcap/pcapng with an IMU log (a tripod IMU log ``*.tripimu`` or text lines ``t w x y z``), or
+    a ``tripod simulate`` folder (``capture.pcap`` + ``imu.tripimu``).
 
     Raises
     ------
     RecordingError
         Missing or unreadable file, no lidar packets, no usable data.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise RecordingError(f"no such recording: {path}")
-    if path.stat().st_size == 0:
-        raise RecordingError(f"{path}: empty file")
-    if is_mcap(path):
-        rec = _read_mcap(path)
-    else:
-        rec = _read_pcap(path)
+    items = [Path(p) for p in (paths if isinstance(paths, (list, tuple)) else [paths])]
+    if not items:
+        raise RecordingError("no recording given")
+    files: list[Path] = []
+    for p in items:
+        if p.is_dir():
+            cap, imu = p / "capture.pcap", p / "imu.tripimu"
+            if not cap.is_file():
+                raise RecordingError(f"{p}: a folder without capture.pcap")
+            files.append(cap)
+            if imu.is_file() and imu_log is None:
+                imu_log = imu
+        elif not p.is_file():
+            raise RecordingError(f"no such recording: {p}")
+        elif p.stat().st_size == 0:
+            raise RecordingError(f"{p}: empty file")
+        elif p.suffix == ".tripimu" or (p.suffix in (".txt", ".csv") and imu_log is None):
+            imu_log = p
+        else:
+            files.append(p)
+    if not files:
+        raise RecordingError("no lidar recording given (only an IMU log)")
+    recs = [_read_mcap(f) if is_mcap(f) else _read_pcap(f) for f in files]
+    rec = recs[0] if len(recs) == 1 else _concatenate(recs)
     if imu_log is not None:
         rec.imu = read_imu_log(imu_log)
     return rec
+
+
+def _concatenate(recs: list[Recording]) -> Recording:
+    """One recording from the parts the daemon split it into, in time order."""
+    recs = sorted(recs, key=lambda r: int(r.lidar.lidar_ns[0]))
+    lid = LidarPackets(np.concatenate([r.lidar.host_ns for r in recs]),
+                       np.concatenate([r.lidar.lidar_ns for r in recs]),
+                       np.concatenate([r.lidar.payload for r in recs]), recs[0].lidar.return_mode)
+    imus = [r.imu for r in recs if r.imu is not None]
+    imu = None
+    if imus:
+        imu = _imu_track(list(np.concatenate([i.host_ns for i in imus])),
+                         np.concatenate([i.q_wxyz for i in imus]))
+    out = Recording(" + ".join(r.source for r in recs), lid, imu,
+                    sum((r.marks for r in recs), []), recs[0].hour_source,
+                    any(r.truncated for r in recs), sum((r.notes for r in recs), []))
+    for r in recs:
+        for k, v in r.skipped.items():
+            out.skipped[k] = out.skipped.get(k, 0) + v
+    return out
 
 
 def _read_mcap(path: Path) -> Recording:
@@ -242,14 +279,26 @@ def _imu_track(t, q) -> ImuTrack | None:
 
 
 def read_imu_log(path: str | os.PathLike) -> ImuTrack:
-    """Read an IMU log beside a pcap: text lines ``host_time_s w x y z`` (or ``host_ns,w,x,y,z``).
-
-    Lines starting with ``#`` and blank lines are ignored; times are host_realtime, like the pcap's
-    capture stamps.
+    """Read an IMU log beside a pcap: a tripod IMU log (``imu_log``: raw TFP/WitMotion bytes
+    with host read times), or text lines ``host_time_s w x y z`` (or ``host_ns,w,x,y,z``;
+    ``#`` comments). Times are host_realtime, like the pcap's capture stamps.
     """
+    from ..imu_log import MAGIC, ImuLogError, ImuLogReader
+
     path = Path(path)
     if not path.is_file():
         raise RecordingError(f"no such IMU log: {path}")
+    with open(path, "rb") as fh:
+        binary = fh.read(len(MAGIC)) == MAGIC
+    if binary:
+        try:
+            t, q = ImuLogReader(path).parse_quaternions()
+        except ImuLogError as exc:
+            raise RecordingError(str(exc)) from None
+        track = _imu_track(list(t), q)
+        if track is None:
+            raise RecordingError(f"{path}: no IMU quaternions in the log")
+        return track
     rows = []
     with open(path, encoding="utf-8", errors="replace") as fh:
         for ln in fh:

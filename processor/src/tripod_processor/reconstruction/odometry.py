@@ -29,75 +29,83 @@ class PairResult:
     seed: str = ""
 
 
-def _o3d_cloud(xyz: np.ndarray):
-    import open3d as o3d
+def information_target_frame(info_rt_source: np.ndarray, T_target_source: np.ndarray
+                             ) -> np.ndarray:
+    """Convert the registration core's information to the pose graph's convention.
 
-    pc = o3d.geometry.PointCloud()
-    pc.points = o3d.utility.Vector3dVector(np.asarray(xyz, dtype=np.float64))
-    return pc
-
-
-def _information(src_pc, tgt_pc, max_corr: float, T: np.ndarray, rmse: float,
-                 cfg: OdometryConfig) -> np.ndarray:
-    """Pose information from the point correspondences, whitened by the inlier RMSE and capped.
-
-    Open3D orders (rx, ry, rz, tx, ty, tz) and leaves the noise out; we reorder to
-    (t, r), divide by σ² with σ the inlier RMSE, and cap every eigenvalue at the configured
-    floor sigmas: thousands of correlated correspondences would otherwise claim micrometres.
+    The core's ξ = (ω, v) is a right perturbation T·exp(ξ) in the source frame; the pose graph's
+    error is e = (e_t, e_r) with the translation error in the target frame and the rotation error
+    in the source frame, so ω = e_r and v = Rᵀ e_t: ξ = J e with J = [[0, I], [Rᵀ, 0]], and the
+    information of e is Jᵀ Λ J.
     """
-    import open3d as o3d
+    R = np.asarray(T_target_source)[:3, :3]
+    J = np.zeros((6, 6))
+    J[0:3, 3:6] = np.eye(3)
+    J[3:6, 0:3] = R.T
+    return J.T @ info_rt_source @ J
 
-    info_rt = np.asarray(o3d.pipelines.registration.get_information_matrix_from_point_clouds(
-        src_pc, tgt_pc, max_corr, T))
-    perm = [3, 4, 5, 0, 1, 2]
-    info = info_rt[np.ix_(perm, perm)] / max(rmse, 1e-3) ** 2
+
+def _cap_information(info: np.ndarray, cfg: OdometryConfig) -> np.ndarray:
+    """Cap the information at the configured floor sigmas (every eigenvalue of the scaled
+    matrix at most 1): thousands of correlated correspondences would otherwise claim
+    micrometres and make the pose graph's outlier gate meaningless."""
     cap = np.array([1 / cfg.sigma_floor_m**2] * 3 + [1 / np.radians(cfg.sigma_floor_deg)**2] * 3)
-    # cap in the scaled eigenbasis: S^-1/2 info S^-1/2 must not exceed the identity
     s = 1.0 / np.sqrt(cap)
     scaled = info * np.outer(s, s)
     w, V = np.linalg.eigh(0.5 * (scaled + scaled.T))
-    w = np.clip(w, 0.0, 1.0)
-    scaled = (V * w) @ V.T
+    scaled = (V * np.clip(w, 0.0, 1.0)) @ V.T
     return scaled / np.outer(s, s)
 
 
-def icp_refine(source: np.ndarray, target: np.ndarray, T_init: np.ndarray,
-               cfg: OdometryConfig, num_threads: int = 0,
-               voxels: list[float] | None = None) -> PairResult:
-    """Coarse-to-fine GICP of ``source`` onto ``target`` (both (N, 3) [m]) from ``T_init``, over
-    ``voxels`` (default: the configured schedule)."""
-    import open3d as o3d
+class CloudCache:
+    """Fragments prepared for registration (tree, covariances) once per voxel size."""
 
-    reg = o3d.pipelines.registration
+    def __init__(self, point_sigma: float, num_threads: int = 0):
+        self.point_sigma, self.num_threads = point_sigma, num_threads
+        self._c: dict = {}
+
+    def get(self, key, points: np.ndarray, voxel: float):
+        from .. import registration as reg
+
+        k = (key, voxel)
+        if k not in self._c:
+            self._c[k] = reg.prepare(points, voxel_size=voxel, num_neighbors=20,
+                                     point_sigma=self.point_sigma, num_threads=self.num_threads)
+        return self._c[k]
+
+
+def icp_refine(source: np.ndarray, target: np.ndarray, T_init: np.ndarray,
+               cfg: OdometryConfig, num_threads: int = 0, voxels: list[float] | None = None,
+               cache: CloudCache | None = None, keys=("source", "target"),
+               R_prior: np.ndarray | None = None) -> PairResult:
+    """Coarse-to-fine registration (the core's ``cfg.method``) of ``source`` onto ``target``
+    (both (N, 3) [m]) from ``T_init`` over ``voxels`` (default: the configured schedule), with
+    the IMU rotation as a weighted prior."""
+    from .. import registration as reg
+
+    cache = cache or CloudCache(cfg.point_sigma_m, num_threads)
     voxels = list(cfg.voxels_m if voxels is None else voxels)
     T = np.asarray(T_init, dtype=np.float64).copy()
-    src_pc = tgt_pc = None
-    fit, rmse, corr = 0.0, np.inf, voxels[-1] * 3
+    res = None
     for voxel in voxels:
-        s = voxel_downsample(source, voxel, num_threads)
-        t = voxel_downsample(target, voxel, num_threads)
-        if len(s) < 20 or len(t) < 20:
+        src = cache.get(keys[0], source, voxel)
+        tgt = cache.get(keys[1], target, voxel)
+        if len(src) < 20 or len(tgt) < 20:
             return PairResult(T, 0.0, np.inf, np.zeros((6, 6)), False)
-        src_pc, tgt_pc = _o3d_cloud(s), _o3d_cloud(t)
-        corr = 3.0 * voxel
-        if cfg.method == "gicp":
-            est = reg.TransformationEstimationForGeneralizedICP()
-            for pc in (src_pc, tgt_pc):
-                pc.estimate_covariances(o3d.geometry.KDTreeSearchParamHybrid(2.5 * voxel, 20))
-        elif cfg.method == "plane":
-            est = reg.TransformationEstimationPointToPlane()
-            tgt_pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(2.5 * voxel, 20))
-        else:
-            est = reg.TransformationEstimationPointToPoint()
-        z_prior = T[2, 3]
-        res = reg.registration_icp(src_pc, tgt_pc, corr, T, est,
-                                   reg.ICPConvergenceCriteria(1e-7, 1e-7, 40))
-        T = np.asarray(res.transformation).copy()
-        if cfg.lock_z:
-            T[2, 3] = z_prior
-        fit, rmse = float(res.fitness), float(res.inlier_rmse)
-    info = _information(src_pc, tgt_pc, corr, T, rmse, cfg)
-    return PairResult(T, fit, rmse, info, fit >= cfg.min_fitness)
+        try:
+            res = reg.register(src, tgt, method=cfg.method, init=T,
+                               max_correspondence_distance=3.0 * voxel, max_iterations=30,
+                               rotation_prior=R_prior,
+                               rotation_prior_sigma=np.radians(cfg.rotation_prior_sigma_deg),
+                               lock_z=cfg.lock_z, point_sigma=cfg.point_sigma_m,
+                               num_threads=num_threads)
+        except ValueError:
+            return PairResult(T, 0.0, np.inf, np.zeros((6, 6)), False)
+        T = res.T_target_source
+    assert res is not None
+    info = _cap_information(information_target_frame(res.information, T), cfg)
+    ok = res.fitness >= cfg.min_fitness and res.status != "too_few_correspondences"
+    return PairResult(T, float(res.fitness), float(res.inlier_rmse), info, ok)
 
 
 # ---- translation seed: top-down correlation of the gravity-aligned fragments ------------------
@@ -150,13 +158,15 @@ def translation_seeds(target_w: np.ndarray, source_w: np.ndarray, cell: float,
 
 def register_fragments(source: np.ndarray, target: np.ndarray, R_world_source: np.ndarray,
                        R_world_target: np.ndarray, cfg: OdometryConfig, num_threads: int = 0,
-                       T_guess: np.ndarray | None = None) -> PairResult:
+                       T_guess: np.ndarray | None = None, cache: CloudCache | None = None,
+                       keys=("source", "target")) -> PairResult:
     """T_target_source between two fragments, with the IMU attitude as rotation prior.
 
     Tries ``T_guess`` first when given (loop closures from the current map), then the top-down
     seeds; keeps the best-fitting verified result.
     """
     R_ts = R_world_target.T @ R_world_source
+    cache = cache or CloudCache(cfg.point_sigma_m, num_threads)
     candidates: list[tuple[str, np.ndarray]] = []
     if T_guess is not None:
         candidates.append(("guess", np.asarray(T_guess, dtype=np.float64)))
@@ -174,7 +184,7 @@ def register_fragments(source: np.ndarray, target: np.ndarray, R_world_source: n
     coarse_v, fine_v = cfg.voxels_m[:n_coarse], cfg.voxels_m[n_coarse:]
     best: PairResult | None = None
     for name, T0 in candidates:
-        r = icp_refine(source, target, T0, cfg, num_threads, coarse_v)
+        r = icp_refine(source, target, T0, cfg, num_threads, coarse_v, cache, keys, R_ts)
         r.seed = name
         if best is None or (r.fitness, -r.rmse) > (best.fitness, -best.rmse):
             best = r
@@ -183,6 +193,7 @@ def register_fragments(source: np.ndarray, target: np.ndarray, R_world_source: n
     assert best is not None
     if fine_v:
         seed = best.seed
-        best = icp_refine(source, target, best.T_target_source, cfg, num_threads, fine_v)
+        best = icp_refine(source, target, best.T_target_source, cfg, num_threads, fine_v, cache,
+                          keys, R_ts)
         best.seed = seed
     return best

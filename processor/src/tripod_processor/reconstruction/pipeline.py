@@ -24,6 +24,7 @@ from .calibration import estimate_time_offset
 from .config import ReconstructConfig
 from .fragments import Fragment, build_fragment
 from .inputs import Recording, RecordingError, read_recording
+from .odometry import CloudCache
 from .placement import Extrinsic, ImuOrientation, host_to_lidar_offset_ns, pose_world_lidar
 from .slam import SlamResult, inv, run_odometry, run_slam
 from .stations import Segmentation, segment_stations
@@ -108,7 +109,7 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
                      "at the ends")
 
     # 3. stations
-    n_windows = int((rec.lidar.lidar_ns[-1] - rec.lidar.lidar_ns[0]) / 0.25e9)
+    n_windows = int((rec.lidar.lidar_ns[-1] - rec.lidar.lidar_ns[0]) / 0.5e9)
     marks = [(h - delta, label) for h, label in rec.marks]
     with _Stage(times, "stations", n_windows, quiet) as bar:
         seg = segment_stations(rec.lidar, orient, ext, cfg.stations, marks, progress=bar)
@@ -134,13 +135,16 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
             bar.update(1)
 
     # 6. odometry
+    cache = CloudCache(cfg.odometry.point_sigma_m, threads)
     with _Stage(times, "odometry", max(len(frags) - 1, 0), quiet) as bar:
-        T_odom, odom_edges, comp, odom_notes = run_odometry(frags, cfg.odometry, threads, bar)
+        T_odom, odom_edges, comp, odom_notes = run_odometry(frags, cfg.odometry, threads, bar,
+                                                            cache)
     notes += odom_notes
 
     # 7. loops and pose graph
     with _Stage(times, "slam", None, quiet) as bar:
-        slam = run_slam(frags, T_odom, odom_edges, comp, cfg.odometry, cfg.slam, threads, bar)
+        slam = run_slam(frags, T_odom, odom_edges, comp, cfg.odometry, cfg.slam, threads, bar,
+                        cache)
     notes += slam.notes
 
     res = ReconstructResult(out, rec, seg, frags, slam, ext, orient.time_offset_ns, delta,
@@ -211,6 +215,11 @@ def _write_outputs(res: ReconstructResult, cfg: ReconstructConfig, orient: ImuOr
         labels.append(np.full(len(p), k, dtype=np.uint16))
     allp = np.concatenate(parts) if parts else np.zeros((0, 3))
     merged = voxel_downsample(allp, oc.map_voxel_m, cfg.num_threads) if len(allp) else allp
+    if oc.smooth_radius_m > 0 and len(merged) > 10:
+        from .. import _ext
+
+        merged = _ext.mls_smooth(np.ascontiguousarray(merged, dtype=np.float32),
+                                 float(oc.smooth_radius_m), int(cfg.num_threads))
     res.map_points = len(merged)
     cloud = cloud_io.make_cloud(merged)
     cloud_io.write_ply(out / "map.ply", cloud)

@@ -165,3 +165,30 @@ def place_points(xyz: np.ndarray, t_ns: np.ndarray, orient: ImuOrientation, ext:
         np.ascontiguousarray(orient._q, dtype=np.float64),
         np.ascontiguousarray(ext.R_imu_lidar, dtype=np.float64),
         np.ascontiguousarray(ext.lever_arm_m, dtype=np.float64), int(anchor_ns), int(num_threads))
+
+
+def load_extrinsic_file(path) -> tuple[list[float], list[float]]:
+    """(q_imu_lidar w,x,y,z, lever arm [m]) from a calibration file.
+
+    Accepted: YAML/JSON with ``q_imu_lidar`` and ``lever_arm_m`` (our convention), or the
+    ``gt/calibration.json`` of ``tripod simulate`` (``T_pan_lidar``: the lidar on the head's pan
+    frame; ``T_lidar_imu``: the IMU on the lidar), from which R_imu_lidar = R_lidar_imuᵀ and the
+    lever arm, pivot → lidar in the IMU frame, is ℓ = R_imu_lidar · R_pan_lidarᵀ · t_pan_lidar.
+    """
+    import yaml
+
+    with open(path, encoding="utf-8") as fh:
+        data = yaml.safe_load(fh)
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: not a calibration mapping")
+    if "q_imu_lidar" in data:
+        return [float(v) for v in data["q_imu_lidar"]], [float(v) for v in
+                                                         data.get("lever_arm_m", [0, 0, 0])]
+    if "T_pan_lidar" in data and "T_lidar_imu" in data:
+        T_pl = np.asarray(data["T_pan_lidar"], dtype=np.float64)
+        T_li = np.asarray(data["T_lidar_imu"], dtype=np.float64)
+        R_il = T_li[:3, :3].T
+        ell = R_il @ T_pl[:3, :3].T @ T_pl[:3, 3]
+        x, y, z, w = Rotation.from_matrix(R_il).as_quat()
+        return [float(w), float(x), float(y), float(z)], ell.tolist()
+    raise ValueError(f"{path}: expected q_imu_lidar/lever_arm_m or T_pan_lidar/T_lidar_imu")

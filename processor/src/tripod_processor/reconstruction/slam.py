@@ -17,7 +17,7 @@ import numpy as np
 from .. import pose_graph as pg
 from .config import OdometryConfig, SlamConfig
 from .fragments import Fragment
-from .odometry import PairResult, register_fragments
+from .odometry import CloudCache, PairResult, register_fragments
 
 
 def inv(T: np.ndarray) -> np.ndarray:
@@ -45,11 +45,13 @@ def _edge(i: int, j: int, r: PairResult, kind: str) -> pg.Edge:
 
 
 def run_odometry(frags: list[Fragment], cfg: OdometryConfig, num_threads: int = 0,
-                 progress=None) -> tuple[np.ndarray, list[pg.Edge], np.ndarray, list[str]]:
+                 progress=None, cache: CloudCache | None = None
+                 ) -> tuple[np.ndarray, list[pg.Edge], np.ndarray, list[str]]:
     """Chain consecutive registrations. Returns T_world_lidar (N,4,4), edges, component ids,
     notes. A failed pair is retried against the two stations before; if those fail too a new
     component starts there."""
     n = len(frags)
+    cache = cache or CloudCache(cfg.point_sigma_m, num_threads)
     T = np.tile(np.eye(4), (n, 1, 1))
     if n:
         T[0, :3, :3] = frags[0].R_world_lidar  # gravity-aligned world, yaw from the IMU
@@ -63,7 +65,8 @@ def run_odometry(frags: list[Fragment], cfg: OdometryConfig, num_threads: int = 
             if i < 0:
                 break
             r = register_fragments(frags[k].points, frags[i].points, frags[k].R_world_lidar,
-                                   frags[i].R_world_lidar, cfg, num_threads)
+                                   frags[i].R_world_lidar, cfg, num_threads, cache=cache,
+                                   keys=(k, i))
             if r.ok:
                 T[k] = T[i] @ r.T_target_source
                 comp[k] = comp[i]
@@ -91,9 +94,10 @@ def _merge_components(comp: np.ndarray, i: int, j: int) -> None:
 
 def run_slam(frags: list[Fragment], T_odom: np.ndarray, odom_edges: list[pg.Edge],
              comp: np.ndarray, ocfg: OdometryConfig, scfg: SlamConfig, num_threads: int = 0,
-             progress=None) -> SlamResult:
+             progress=None, cache: CloudCache | None = None) -> SlamResult:
     """Loop closures and pose-graph optimisation (see the module docstring)."""
     n = len(frags)
+    cache = cache or CloudCache(ocfg.point_sigma_m, num_threads)
     comp = comp.copy()
     edges = list(odom_edges)
     notes: list[str] = []
@@ -116,7 +120,8 @@ def run_slam(frags: list[Fragment], T_odom: np.ndarray, odom_edges: list[pg.Edge
     for i, j in cands:
         guess = inv(T_odom[i]) @ T_odom[j] if comp[i] == comp[j] else None
         r = register_fragments(frags[j].points, frags[i].points, frags[j].R_world_lidar,
-                               frags[i].R_world_lidar, ocfg, num_threads, T_guess=guess)
+                               frags[i].R_world_lidar, ocfg, num_threads, T_guess=guess,
+                               cache=cache, keys=(j, i))
         if r.ok:
             edges.append(_edge(i, j, r, "loop"))
             if comp[i] != comp[j]:

@@ -3,8 +3,10 @@
 
 Stationarity comes from the lidar and the IMU together: short windows of points are rotated by
 the IMU (and the extrinsic) into the head-pivot frame, where a standing tripod sees the same
-scene whatever the head does; a window is "still" when it lies on the window ``still_gap_s``
-earlier (median nearest-neighbour distance over range below ``still_threshold``). Runs of still windows
+scene whatever the head does; a window is "still" when the pivot shift fitted to the range
+changes along the directions it shares with the window ``still_gap_s`` earlier is below
+``still_threshold`` [m], and the IMU's pan axis (the tripod's vertical) has not tilted by more
+than ``still_tilt_deg`` in that time (carrying sways it). Runs of still windows
 longer than ``min_station_s`` are stations. The operator's ``mark`` events label the stations
 they fall in; a mark outside every still period is reported.
 """
@@ -48,6 +50,7 @@ class Segmentation:
     motion_m: np.ndarray  # (K,) median displacement against the window still_gap_s before
     still: np.ndarray  # (K,) bool
     notes: list[str] = field(default_factory=list)
+    tilt_deg: np.ndarray | None = None  # (K,) change of the pan axis over still_gap_s [deg]
 
 
 def _window_cloud(lidar: LidarPackets, a: int, b: int, orient: ImuOrientation, ext: Extrinsic,
@@ -63,23 +66,51 @@ def _window_cloud(lidar: LidarPackets, a: int, b: int, orient: ImuOrientation, e
     return np.einsum("nij,nj->ni", R_wi, xyz @ ext.R_imu_lidar.T + ext.lever_arm_m)
 
 
-def _relative_displacement(ref: np.ndarray, query: np.ndarray) -> float:
-    """Median of (distance to the nearest reference point) / range over the query points.
+def pivot_shift(ref: np.ndarray, query: np.ndarray, max_angle_deg: float = 0.3) -> float:
+    """How far the head's pivot moved between two windows [m], from the ranges along the
+    directions both windows sampled (pivot frame).
 
-    Dividing by the range makes the test independent of the room's size: a single sweep samples
-    surfaces along its 16 rings, so even a standing tripod's windows differ by up to half the
-    ring spacing, which grows with range; a carried tripod shifts near points the most.
+    A standing tripod sees the same range in every direction from the pivot whatever the head
+    does. If the pivot moved by d, the range along direction u changes by about −u·d, so a
+    robust least-squares fit of d to the range changes measures the motion in whatever
+    directions the shared view constrains (weakly constrained directions are left out). Only
+    directions sampled by both windows (within ``max_angle_deg``) are compared, because a tilted
+    lidar on a panning head sweeps different parts of the sphere from moment to moment.
+    NaN when fewer than 50 directions match.
     """
-    d, _ = cKDTree(ref).query(query, k=1, distance_upper_bound=2.0)
-    d[~np.isfinite(d)] = 2.0
-    r = np.maximum(np.linalg.norm(query, axis=1), 0.5)
-    return float(np.median(d / r))
+    r_ref = np.linalg.norm(ref, axis=1)
+    r_q = np.linalg.norm(query, axis=1)
+    ok_r, ok_q = r_ref > 0.3, r_q > 0.3
+    ref, r_ref, query, r_q = ref[ok_r], r_ref[ok_r], query[ok_q], r_q[ok_q]
+    if len(ref) < 50 or len(query) < 50:
+        return float("nan")
+    u_q = query / r_q[:, None]
+    dist, idx = cKDTree(ref / r_ref[:, None]).query(u_q, k=1,
+                                                    distance_upper_bound=np.radians(max_angle_deg))
+    hit = np.isfinite(dist)
+    if hit.sum() < 50:
+        return float("nan")
+    A = -u_q[hit]
+    b = r_q[hit] - r_ref[idx[hit]]
+    keep = np.ones(len(b), dtype=bool)
+    d = np.zeros(3)
+    for _ in range(3):  # least squares, then trim outliers (occlusion edges, grazing surfaces)
+        d, *_ = np.linalg.lstsq(A[keep], b[keep], rcond=None)
+        res = b - A @ d
+        mad = np.median(np.abs(res[keep] - np.median(res[keep]))) + 1e-6
+        keep = np.abs(res) < 3.0 * 1.4826 * mad
+        if keep.sum() < 20:
+            return float("nan")
+    # only the directions the shared view constrains
+    w, V = np.linalg.eigh(A[keep].T @ A[keep] / keep.sum())
+    d_obs = V[:, w > 0.05] @ (V[:, w > 0.05].T @ d)
+    return float(np.linalg.norm(d_obs))
 
 
 def segment_stations(lidar: LidarPackets, orient: ImuOrientation, ext: Extrinsic,
                      cfg: StationConfig, marks_lidar_ns: list[tuple[int, str]] | None = None,
-                     step_s: float = 0.25, window_s: float = 0.1, n_points: int = 12000,
-                     n_query: int = 1500,
+                     step_s: float = 0.5, window_s: float = 0.1, n_points: int = 12000,
+                     n_query: int = 4000,
                      progress=None) -> Segmentation:
     """Find the stations of a recording (see the module docstring)."""
     t0, t1 = int(lidar.lidar_ns[0]), int(lidar.lidar_ns[-1])
@@ -94,13 +125,34 @@ def segment_stations(lidar: LidarPackets, orient: ImuOrientation, ext: Extrinsic
         clouds.append(_window_cloud(lidar, int(a), int(b), orient, ext, n_points, rng))
         j = k - gap
         if j >= 0 and len(clouds[j]) > 50 and len(clouds[k]) > 50:
-            motion[k] = _relative_displacement(clouds[j], clouds[k][:n_query])
+            motion[k] = pivot_shift(clouds[j], clouds[k][:n_query])
         if j >= 0:
             clouds[j] = None  # type: ignore[call-overload]  (bounded memory)
         if progress is not None:
             progress.update(1)
+    # unknown (too little shared view): take the neighbours' verdict
+    bad = ~np.isfinite(motion)
+    if bad.any() and (~bad).any():
+        good = np.flatnonzero(~bad)
+        motion[bad] = np.interp(np.flatnonzero(bad), good, motion[good])
+    # the IMU's view: a standing tripod's pan axis stays put; carrying sways it. The pan axis
+    # in the IMU frame is the mean of the world's up seen by the IMU (the base is level at
+    # every station, and sway averages out).
+    tilt = np.zeros(len(times))
+    if len(times) > gap:
+        R_all = orient.rotation_at(times + win // 2)
+        b = np.einsum("nji,j->ni", R_all, np.array([0.0, 0.0, 1.0])).mean(axis=0)
+        b /= np.linalg.norm(b)
+        axis_w = np.einsum("nij,j->ni", R_all, b)
+        c = np.clip(np.einsum("ni,ni->n", axis_w[gap:], axis_w[:-gap]), -1.0, 1.0)
+        tilt[gap:] = np.degrees(np.arccos(c))
+    moving_imu = tilt > cfg.still_tilt_deg
+    # a 3-window median removes single spikes (a person walking by, a bad match)
+    if len(motion) >= 3:
+        padded = np.concatenate([motion[:1], motion, motion[-1:]])
+        motion = np.median(np.stack([padded[:-2], padded[1:-1], padded[2:]]), axis=0)
     # a window is still when it matches the window gap before or the window gap after it
-    still_pair = motion < cfg.still_threshold
+    still_pair = (motion < cfg.still_threshold) & ~moving_imu
     still = still_pair.copy()
     still[: len(still) - gap] |= still_pair[gap:]
 
@@ -127,4 +179,4 @@ def segment_stations(lidar: LidarPackets, orient: ImuOrientation, ext: Extrinsic
                 hit[0].label = label or hit[0].label
             else:
                 notes.append(f"mark {label!r} at {t_mark * 1e-9:.3f} s falls in no still period")
-    return Segmentation(stations, times, motion, still, notes)
+    return Segmentation(stations, times, motion, still, notes, tilt)

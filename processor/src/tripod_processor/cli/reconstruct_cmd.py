@@ -1,0 +1,111 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""``tripod reconstruct``: a recording in, a registered indoor model, report and numbers out."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from . import app
+from ._common import fail
+
+
+def _parse_sets(items: list[str]) -> dict:
+    import yaml
+
+    out = {}
+    for it in items or []:
+        key, sep, val = it.partition("=")
+        if not sep or not key:
+            fail(f"--set expects KEY=VALUE, got {it!r}")
+        out[key.strip()] = yaml.safe_load(val)
+    return out
+
+
+def results_table(summary: dict, title: str = "tripod reconstruct"):
+    """A rich table of a run's numbers."""
+    from rich.table import Table
+
+    t = Table(title=title, show_header=True, header_style="bold")
+    t.add_column("quantity")
+    t.add_column("value", justify="right")
+    rec_s = summary["recording_s"]
+    t.add_row("recording", f"{rec_s:.1f} s, {summary['lidar_packets']} packets, "
+                           f"{summary['imu_samples']} IMU samples")
+    disc = summary["disconnected_stations"]
+    t.add_row("stations", f"{summary['stations']}" + (f" ({len(disc)} disconnected: {disc})"
+                                                     if disc else ""))
+    t.add_row("edges (odometry / loop / rejected)",
+              f"{summary['odometry_edges']} / {summary['loop_edges']} / "
+              f"{summary['loop_edges_rejected']}")
+    t.add_row("IMU time offset", f"{summary['imu_time_offset_ms']:.2f} ms")
+    t.add_row("extrinsic", summary["extrinsic"]["source"])
+    t.add_row("map points", f"{summary['map_points']:,}")
+    for k, v in summary["stage_s"].items():
+        t.add_row(f"  time: {k}", f"{v:.2f} s")
+    t.add_row("processing / recording time",
+              f"{summary['processing_s']:.1f} s / {rec_s:.1f} s = "
+              f"{summary['processing_s'] / max(rec_s, 1e-9):.3f}")
+    for key in ("ate_cm", "ate_deg", "map_to_mesh_median_cm"):
+        if key in summary:
+            t.add_row(key, f"{summary[key]:.3f}")
+    return t
+
+
+@app.command("reconstruct", rich_help_panel="Run")
+def reconstruct_command(
+    recording: list[Path] = typer.Argument(
+        None, help="our MCAP recording (one or more files of one recording), a pcap plus an IMU "
+                   "log, or a `tripod simulate` folder"),
+    output: Path = typer.Option(Path("reconstruction"), "-o", "--output", help="output folder"),
+    imu: Path = typer.Option(None, "--imu", help="IMU log for a pcap (tripod IMU log or text "
+                                                 "'t w x y z')"),
+    config: Path = typer.Option(None, "--config", help="YAML config (see --print-default-config)"),
+    calibration: Path = typer.Option(
+        None, "--calibration", help="lidar-IMU extrinsic: YAML/JSON with q_imu_lidar and "
+                                    "lever_arm_m, or a simulator's gt/calibration.json"),
+    set_: list[str] = typer.Option(None, "--set", help="override a config key: a.b=value"),
+    quiet: bool = typer.Option(False, "--quiet", help="no progress bars"),
+    print_default_config: bool = typer.Option(False, "--print-default-config",
+                                              help="print the default config and exit"),
+) -> None:
+    """Reconstruct an indoor model: stations, fragments, odometry, pose graph, map, report."""
+    from rich.console import Console
+
+    from tripod_shared.config_io import ConfigError, dump_config, load_config
+
+    from ..reconstruction.config import ReconstructConfig
+    from ..reconstruction.inputs import RecordingError
+
+    if print_default_config:
+        print(dump_config(ReconstructConfig()), end="")
+        raise typer.Exit(0)
+    if not recording:
+        fail("give a recording (MCAP, pcap + --imu, or a simulate folder)")
+    overrides = _parse_sets(set_)
+    if calibration is not None:
+        from ..reconstruction.placement import load_extrinsic_file
+
+        try:
+            q, lever = load_extrinsic_file(calibration)
+        except (OSError, ValueError) as exc:
+            fail(f"calibration: {exc}")
+        overrides.setdefault("placement.extrinsic.q_imu_lidar", q)
+        overrides.setdefault("placement.extrinsic.lever_arm_m", lever)
+    try:
+        cfg = load_config(ReconstructConfig, config, overrides)
+    except ConfigError as exc:
+        fail(str(exc))
+    from ..reconstruction.pipeline import reconstruct, summary
+
+    try:
+        res = reconstruct(recording, output, cfg, imu_log=imu, quiet=quiet)
+    except RecordingError as exc:
+        fail(str(exc))
+    con = Console()
+    con.print(results_table(summary(res)))
+    for n in res.notes:
+        con.print(f"[yellow]note:[/] {n}")
+    con.print(f"outputs in [bold]{output}[/]" + (f", report [bold]{res.files['report']}[/]"
+                                                 if "report" in res.files else ""))
