@@ -102,11 +102,13 @@ def synth_capture(path: Path, *, stations=((2.0, 1.5, 0.0), (4.8, 1.4, 40.0), (7
                   tilt_deg: float = 25.0, lever=(0.0, 0.05, 0.12), range_noise_m: float = 0.005,
                   imu_hz: float = 100.0, imu_latency_ms: float = 8.0, yaw_drift_deg_s: float = 0.02,
                   imu_noise_deg: float = 0.02, seed: int = 0, scene: Scene | None = None,
-                  marks: bool = True, with_imu: bool = True, tripod_height: float = 1.4) -> Truth:
+                  marks: bool = True, with_imu: bool = True, tripod_height: float = 1.4,
+                  pan_wobble_deg: float = 0.0) -> Truth:
     """Write a tripod MCAP recording to ``path``; return the truth.
 
     Stations are (x, y, yaw_deg) of the head's pivot at ``tripod_height``. At each station the
-    head pans at ``pan_deg_s`` with the lidar tilted ``tilt_deg`` on it; between stations the
+    head pans at ``pan_deg_s`` (plus a ``pan_wobble_deg`` oscillation at 0.7 Hz) with the lidar
+    tilted ``tilt_deg`` on it; between stations the
     tripod is carried (smooth translation and yaw, a little sway) while data keeps flowing.
     """
     scene = scene or default_scene()
@@ -139,7 +141,8 @@ def synth_capture(path: Path, *, stations=((2.0, 1.5, 0.0), (4.8, 1.4, 40.0), (7
             if kind == "station":
                 x, y, y0 = stations[k]
                 pos[m] = (x, y, tripod_height)
-                yaw[m] = np.radians(y0 + pans[k]) + np.radians(pan_deg_s) * (ts[m] - s0)
+                yaw[m] = np.radians(y0 + pans[k]) + np.radians(pan_deg_s) * (ts[m] - s0) \
+                    + np.radians(pan_wobble_deg) * np.sin(2 * np.pi * 0.7 * (ts[m] - s0))
             else:
                 x0, y0_, a0 = stations[k]
                 x1, y1, a1 = stations[k + 1]

@@ -127,7 +127,7 @@ def plane_fit_errors(points: np.ndarray, up: np.ndarray, *, distance_m: float = 
     for _ in range(max_planes):
         if len(pc.points) < min_inliers:
             break
-        model, idx = pc.segment_plane(distance_m, 3, 200)
+        model, idx = pc.segment_plane(distance_m, 3, 100)
         if len(idx) < min_inliers:
             break
         n = np.asarray(model[:3])

@@ -252,7 +252,9 @@ def _write_outputs(res: ReconstructResult, cfg: ReconstructConfig, orient: ImuOr
     dump_config(cfg, out / "config.yaml")
     res.files["config"] = str(out / "config.yaml")
     if oc.write_mcap:
-        frags_out = [res.fragments[k].points for k in main]
+        # fragments at 5 cm in the MCAP: enough to inspect, light to load
+        frags_out = [voxel_downsample(res.fragments[k].points, 0.05, cfg.num_threads)
+                     for k in main]
         outputs.write_foxglove_mcap(out / "reconstruction.mcap", merged, int(t_st[-1]),
                                     list(t_st[main]), slam.T_optimized[main], frags_out, traj)
         res.files["mcap"] = str(out / "reconstruction.mcap")

@@ -1,0 +1,299 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""Reconstruction: placement, stations, time offset, odometry/SLAM, outputs, bad input, CLI —
+on a small synthetic tripod capture with known truth (``recon_synth``)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation, Slerp
+
+from recon_synth import synth_capture
+from tripod_processor import cloud_io
+from tripod_processor.reconstruction import evaluation as ev
+from tripod_processor.reconstruction.config import ReconstructConfig
+from tripod_processor.reconstruction.inputs import RecordingError, read_recording
+from tripod_processor.reconstruction.outputs import read_tum
+from tripod_processor.reconstruction.placement import (Extrinsic, ImuOrientation,
+                                                        host_to_lidar_offset_ns, place_points)
+from tripod_shared.config_io import ConfigError, load_config
+
+
+def _ext_overrides(truth) -> dict:
+    x, y, z, w = Rotation.from_matrix(truth.R_imu_lidar).as_quat()
+    return {"placement.extrinsic.q_imu_lidar": [w, x, y, z],
+            "placement.extrinsic.lever_arm_m": truth.lever_arm_m.tolist()}
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory):
+    path = tmp_path_factory.mktemp("synth") / "rec.mcap"
+    truth = synth_capture(path)
+    return path, truth
+
+
+@pytest.fixture(scope="module")
+def run(capture, tmp_path_factory):
+    from tripod_processor.reconstruction.pipeline import reconstruct
+
+    path, truth = capture
+    out = tmp_path_factory.mktemp("recon")
+    cfg = load_config(ReconstructConfig, overrides=_ext_overrides(truth))
+    res = reconstruct(path, out, cfg, quiet=True)
+    return res, truth, out
+
+
+# ---- placement ---------------------------------------------------------------------------------
+def test_slerp_matches_scipy_and_holds_at_the_ends():
+    from tripod_processor.reconstruction.inputs import ImuTrack
+
+    rng = np.random.default_rng(0)
+    t = np.cumsum(rng.integers(8_000_000, 12_000_000, 50)).astype(np.int64)
+    rots = Rotation.from_rotvec(np.cumsum(rng.normal(0, 0.05, (50, 3)), axis=0))
+    q = rots.as_quat()[:, [3, 0, 1, 2]]
+    q[::3] *= -1  # sign flips must not matter
+    o = ImuOrientation(ImuTrack(t, q), host_minus_lidar_ns=0)
+    tq = np.linspace(t[0], t[-1], 333).astype(np.int64)
+    ref = Slerp(t.astype(float), rots)(tq.astype(float))
+    got = Rotation.from_matrix(o.rotation_at(tq))
+    assert np.degrees((ref.inv() * got).magnitude()).max() < 1e-6
+    ends = o.rotation_at(np.array([t[0] - 10**9, t[-1] + 10**9]))
+    np.testing.assert_allclose(ends[0], rots[0].as_matrix(), atol=1e-9)
+    np.testing.assert_allclose(ends[1], rots[-1].as_matrix(), atol=1e-9)
+
+
+def test_native_placement_matches_the_model():
+    from tripod_processor.reconstruction.inputs import ImuTrack
+
+    rng = np.random.default_rng(1)
+    t_imu = np.arange(0, 2_000_000_000, 10_000_000, dtype=np.int64)
+    rots = Rotation.from_euler("z", np.linspace(0, 60, len(t_imu))[:, None], degrees=True)
+    o = ImuOrientation(ImuTrack(t_imu, rots.as_quat()[:, [3, 0, 1, 2]]), 0)
+    ext = Extrinsic(Rotation.from_euler("x", 30, degrees=True).as_matrix(),
+                    np.array([0.05, -0.02, 0.12]))
+    xyz = rng.uniform(-5, 5, (2000, 3))
+    t = rng.integers(0, 2_000_000_000, 2000).astype(np.int64)
+    anchor = 1_000_000_000
+    got = place_points(xyz, t, o, ext, anchor)
+    R_wi = o.rotation_at(t)
+    p_w = np.einsum("nij,nj->ni", R_wi, xyz @ ext.R_imu_lidar.T + ext.lever_arm_m)
+    R_a = o.rotation_at(np.array([anchor]))[0]
+    expect = (p_w - R_a @ ext.lever_arm_m) @ (R_a @ ext.R_imu_lidar)
+    np.testing.assert_allclose(got, expect, atol=2e-5)
+
+
+def test_clock_mapping_and_marks(capture):
+    path, truth = capture
+    rec = read_recording(path)
+    assert rec.hour_source == "host"
+    # packets' host stamps run 0.3 s + packet time + jitter ahead of the lidar clock
+    d = host_to_lidar_offset_ns(rec.lidar)
+    assert 300_000_000 < d < 302_000_000
+    assert abs(rec.lidar.lidar_ns[0] - truth.t0_ns) < 1000  # the packets carry whole µs
+    assert [label for _, label in rec.marks] == ["station-0", "station-1", "station-2"]
+    assert len(rec.imu) == 2000
+
+
+# ---- whole run on the synthetic capture -------------------------------------------------------
+def test_stations_found_and_labelled(run):
+    res, truth, _ = run
+    st = res.segmentation.stations
+    assert len(st) == len(truth.stations_span_ns) == 3
+    for s, (a, b) in zip(st, truth.stations_span_ns):
+        assert a - 10**8 <= s.start_ns and s.end_ns <= b + 10**8  # inside the true station
+        assert s.duration_s > 0.6 * (b - a) * 1e-9
+    assert [s.label for s in st] == ["station-0", "station-1", "station-2"]
+
+
+def test_time_offset_estimate(tmp_path):
+    """The IMU's latency is found from the data where the head's turn rate varies (at a
+    constant rate a time offset only turns the whole fragment, and nothing can see it)."""
+    from tripod_processor.reconstruction.calibration import estimate_time_offset
+    from tripod_processor.reconstruction.config import StationConfig
+    from tripod_processor.reconstruction.stations import segment_stations
+
+    path = tmp_path / "wobble.mcap"
+    truth = synth_capture(path, stations=((2.0, 1.5, 0.0), (4.8, 1.4, 40.0)),
+                          pan_wobble_deg=15.0, imu_latency_ms=8.0)
+    rec = read_recording(path)
+    q = Rotation.from_matrix(truth.R_imu_lidar).as_quat()
+    ext = Extrinsic(truth.R_imu_lidar, truth.lever_arm_m)
+    o = ImuOrientation(rec.imu, host_to_lidar_offset_ns(rec.lidar))
+    seg = segment_stations(rec.lidar, o, ext, StationConfig())
+    assert len(seg.stations) == 2 and q is not None
+    off, info = estimate_time_offset(rec.lidar, seg.stations, o, ext, 0.08)
+    # IMU stamps are late by the latency (+ up to 0.5 ms jitter); the packets' by their fill
+    # time (1.33 ms): the correction that puts the IMU on the lidar clock is about -6.9 ms
+    expect_ms = -(truth.imu_time_offset_ns * 1e-6 + 0.25 - 1.33)
+    assert abs(off * 1e-6 - expect_ms) < 1.5
+    assert info["best_spread_m"] < 0.8 * info["zero_spread_m"]
+
+
+def test_station_accuracy_against_truth(run):
+    res, truth, out = run
+    T_true = ev.interpolate_poses(truth.trajectory_t_ns, truth.trajectory_T, res.station_t_ns)
+    e = ev.pose_errors(res.slam.T_optimized, T_true)
+    assert e.ate_m < 0.02 and e.ate_deg < 0.2
+    drift, path_m = ev.odometry_drift(res.slam.T_odometry, T_true)
+    assert path_m > 5 and drift < 0.5
+    r = ev.evaluate_run(out, truth.trajectory_t_ns, truth.trajectory_T)
+    assert r["ate_cm"] < 2 and r["stations"] == 3
+
+
+def test_map_lies_on_the_scene(run):
+    res, truth, out = run
+    from recon_synth import default_scene
+
+    pts = cloud_io.xyz(cloud_io.read_ply(out / "map.ply"))
+    t, T_est = read_tum(out / "stations.tum")
+    A = ev.align_poses(T_est, ev.interpolate_poses(truth.trajectory_t_ns, truth.trajectory_T, t))
+    p = pts @ A[:3, :3].T + A[:3, 3]
+    # distance to the nearest face of the box room or its boxes
+    scene = default_scene()
+    boxes = [scene.room] + scene.obstacles
+    d = np.full(len(p), np.inf)
+    for b in boxes:
+        lo, hi = np.array(b.lo), np.array(b.hi)
+        inside = np.all((p >= lo) & (p <= hi), axis=1)
+        out_d = np.linalg.norm(np.maximum(0, np.maximum(lo - p, p - hi)), axis=1)
+        in_d = np.min(np.minimum(p - lo, hi - p), axis=1)
+        d = np.minimum(d, np.where(inside, in_d, out_d))
+    assert np.median(d) < 0.01
+    assert np.percentile(d, 95) < 0.04
+
+
+def test_outputs_open_in_the_usual_tools(run):
+    res, truth, out = run
+    for name in ("map.ply", "map.pcd", "stations.tum", "trajectory.tum", "pose_graph.g2o",
+                 "config.yaml", "result.json", "report.md", "report_planes.png",
+                 "report_topdown.png", "reconstruction.mcap"):
+        assert (out / name).stat().st_size > 0, name
+    assert len(cloud_io.read_pcd(out / "map.pcd")) == len(cloud_io.read_ply(out / "map.ply"))
+    assert len(list((out / "fragments").glob("station_*.ply"))) == 3
+    # TUM: one line per station at its middle time, lidar time in UNIX seconds
+    t, T = read_tum(out / "stations.tum")
+    np.testing.assert_array_equal(t, res.station_t_ns)
+    assert abs(t[0] * 1e-9 - truth.t0_ns * 1e-9) < 30
+    # trajectory at >= 10 Hz over the whole recording
+    tt, _ = read_tum(out / "trajectory.tum")
+    assert np.all(np.diff(tt) <= 100_000_000)
+    assert tt[0] - res.recording.lidar.lidar_ns[0] < 100_000_000
+    assert res.recording.lidar.lidar_ns[-1] - tt[-1] < 100_000_000
+    # z up: the floor is the lowest large surface, below every station
+    z = cloud_io.xyz(cloud_io.read_ply(out / "map.ply"))[:, 2]
+    assert np.percentile(z, 1) < T[:, 2, 3].min() - 1.0
+    # the effective config reloads as the same config
+    cfg2 = load_config(ReconstructConfig, out / "config.yaml")
+    assert cfg2.placement.extrinsic.lever_arm_m == pytest.approx(truth.lever_arm_m.tolist())
+    summary = json.loads((out / "result.json").read_text())
+    assert summary["stations"] == 3 and summary["loop_edges"] >= 1
+    # g2o: 3 vertices, every edge
+    g2o = (out / "pose_graph.g2o").read_text().splitlines()
+    assert sum(ln.startswith("VERTEX_SE3:QUAT") for ln in g2o) == 3
+    assert sum(ln.startswith("EDGE_SE3:QUAT") for ln in g2o) == len(res.slam.edges)
+    # violin statistics: floor/ceiling and walls found in every fragment
+    planes = json.loads((out / "plane_errors.json").read_text())
+    assert len(planes["horizontal"]) == 3 and len(planes["vertical"]) == 3
+
+
+def test_foxglove_mcap(run):
+    from mcap.reader import make_reader
+    import base64
+
+    _, _, out = run
+    with open(out / "reconstruction.mcap", "rb") as fh:
+        reader = make_reader(fh)
+        schemas = {s.name for s in reader.get_summary().schemas.values()}
+        assert schemas == {"foxglove.PointCloud", "foxglove.FrameTransform"}
+        seen = {}
+        for schema, channel, message in reader.iter_messages():
+            body = json.loads(message.data)
+            seen[channel.topic] = seen.get(channel.topic, 0) + 1
+            if schema.name == "foxglove.PointCloud":
+                n = len(base64.b64decode(body["data"])) // body["point_stride"]
+                assert n > 1000 and body["fields"][0]["name"] == "x"
+            else:
+                assert body["parent_frame_id"] == "map"
+    assert seen["/map"] == 1 and seen["/fragments"] == 3 and seen["/tf"] > 100
+
+
+# ---- SLAM: disconnected stations are reported, never merged -------------------------------------
+def test_station_without_overlap_is_reported_disconnected(run):
+    from tripod_processor.reconstruction.config import OdometryConfig, SlamConfig
+    from tripod_processor.reconstruction.fragments import Fragment
+    from tripod_processor.reconstruction.slam import run_odometry, run_slam
+    import dataclasses
+
+    res, _, _ = run
+    frags = list(res.fragments)
+    # a fourth fragment from somewhere else: a long, narrow corridor none of the others saw
+    rng = np.random.default_rng(5)
+    n = 40000
+    pts = np.stack([rng.uniform(-20, 20, n), rng.choice([-0.8, 0.8], n) + rng.normal(0, .005, n),
+                    rng.uniform(-1.4, 1.3, n)], 1)
+    floor = np.stack([rng.uniform(-20, 20, n), rng.uniform(-0.8, 0.8, n), np.full(n, -1.4)], 1)
+    other = np.concatenate([pts, floor]).astype(np.float32)
+    st = dataclasses.replace(frags[-1].station, index=3)
+    frags.append(Fragment(st, other, np.eye(3), len(other)))
+    T, edges, comp, notes = run_odometry(frags, OdometryConfig())
+    slam = run_slam(frags, T, edges, comp, OdometryConfig(), SlamConfig())
+    assert slam.disconnected == [3]
+    assert any("disconnected" in n for n in slam.notes)
+    assert slam.component[:3].tolist() == [0, 0, 0] and slam.component[3] != 0
+
+
+# ---- bad input -----------------------------------------------------------------------------------
+def test_recording_without_imu_is_a_clear_error(tmp_path):
+    from tripod_processor.reconstruction.pipeline import reconstruct
+
+    path = tmp_path / "noimu.mcap"
+    synth_capture(path, stations=((2.0, 1.5, 0.0), (4.0, 1.5, 20.0)), station_s=3.5,
+                  carry_s=1.5, with_imu=False)
+    with pytest.raises(RecordingError, match="no IMU samples"):
+        reconstruct(path, tmp_path / "out", quiet=True)
+    proc = subprocess.run([sys.executable, "-m", "tripod_processor", "reconstruct", str(path),
+                           "-o", str(tmp_path / "out2"), "--quiet"], capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().count("\n") == 0 and "no IMU samples" in proc.stderr
+
+
+def test_truncated_recording_keeps_what_was_written(capture, tmp_path):
+    from tripod_processor.reconstruction.pipeline import reconstruct
+
+    path, truth = capture
+    cut = tmp_path / "cut.mcap"
+    data = path.read_bytes()
+    cut.write_bytes(data[: int(len(data) * 0.62)])
+    cfg = load_config(ReconstructConfig, overrides={**_ext_overrides(truth),
+                                                    "output.report": False,
+                                                    "output.write_mcap": False})
+    res = reconstruct(cut, tmp_path / "out", cfg, quiet=True)
+    assert res.recording.truncated
+    assert any("cut off" in n for n in res.notes)
+    assert 1 <= len(res.fragments) <= 2
+
+
+def test_missing_and_garbage_input(tmp_path):
+    with pytest.raises(RecordingError, match="no such recording"):
+        read_recording(tmp_path / "nope.mcap")
+    junk = tmp_path / "junk.bin"
+    junk.write_bytes(np.random.default_rng(0).bytes(5000))
+    with pytest.raises(RecordingError):
+        read_recording(junk)
+
+
+def test_config_errors_name_the_key(tmp_path):
+    with pytest.raises(ConfigError, match="unknown key 'odometry.voxel'"):
+        load_config(ReconstructConfig, overrides={"odometry.voxel": 0.1})
+    proc = subprocess.run([sys.executable, "-m", "tripod_processor", "reconstruct",
+                           "--print-default-config"], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0
+    p = tmp_path / "c.yaml"
+    p.write_text(proc.stdout)
+    assert load_config(ReconstructConfig, p) == ReconstructConfig()
