@@ -60,6 +60,7 @@ POINT_DTYPE = np.dtype([
 ])
 
 HOUR_NS = 3_600_000_000_000
+_FIRST_CAPACITY = 32_768  # points; a VLP-16 rotation holds up to 28,800 (5 Hz, single return)
 _I32_MAX = 2**31 - 1
 _BLOCK_NS = 110_592  # one VLP-16 data block: two firing sequences of 55.296 µs
 _SEQUENCE_NS = 55_296  # one firing sequence: 16 lasers 2.304 µs apart, then recharge
@@ -369,7 +370,8 @@ class FrameDecoder:
         self._hour_base_ns = None
         self._packet_index = 0
         self._frame_index = 0
-        self._parts: list[np.ndarray] = []
+        self._buf = np.empty(_FIRST_CAPACITY, POINT_DTYPE)  # points of the open frame
+        self._n = 0
         self._frame_open = False
         self._frame_host_ns = 0
         self._frame_dev_ns = 0
@@ -544,16 +546,12 @@ class FrameDecoder:
             block = owner * 12 + (np.clip(unit, 0, 5) * 2 if dual else np.clip(unit, 0, 11))
             cuts = np.searchsorted(block, split_blocks, side="left")
             t_s = (rel_ns[owner] + within_ns) * 1e-9
-        pts = np.empty(len(raw), POINT_DTYPE)
-        pts["x"], pts["y"], pts["z"] = raw["x"], raw["y"], raw["z"]
-        pts["intensity"] = np.clip(raw["intensity"], 0, 255)
-        pts["ring"] = raw["ring"]
-        pts["return_type"] = raw["return_type"]
         # ---- cut into frames (points come in packet, block, firing order) --------------------
         starts = np.concatenate(([0], split_blocks))
         ends = np.concatenate((split_blocks, [k * 12]))
         pstarts = np.concatenate(([0], cuts))
-        pends = np.concatenate((cuts, [len(pts)]))
+        pends = np.concatenate((cuts, [len(raw)]))
+        intensity = np.clip(raw["intensity"], 0, 255)
         chunk_dev0 = int(dev_ns[0])
         continued = self._frame_open  # the first segment goes on with a frame of the last chunk
         for seg, (b0, b1, q0, q1) in enumerate(zip(starts, ends, pstarts, pends)):
@@ -577,7 +575,18 @@ class FrameDecoder:
             self._frame_gaps += int(((gap_idx > lo) & (gap_idx <= last_pk)).sum())
             self._frame_az1 = int(az_flat[b1 - 1])
             if q1 > q0:
-                part = pts[q0:q1]
+                # one copy per point: velodyne-decoder's output straight into the frame
+                n, m = self._n, q1 - q0
+                if n + m > len(self._buf):
+                    grown = np.empty(max(2 * len(self._buf), n + m), POINT_DTYPE)
+                    grown[:n] = self._buf[:n]
+                    self._buf = grown
+                part = self._buf[n : n + m]
+                src = raw[q0:q1]
+                part["x"], part["y"], part["z"] = src["x"], src["y"], src["z"]
+                part["intensity"] = intensity[q0:q1]
+                part["ring"] = src["ring"]
+                part["return_type"] = src["return_type"]
                 t = t_s[q0:q1]
                 off = (t - t.dtype.type((self._frame_dev_ns - chunk_dev0) * 1e-9)) * 1e9
                 np.rint(off, out=off)
@@ -585,7 +594,7 @@ class FrameDecoder:
                     rep.warn("a frame spans more than 2.1 s: its time offsets are clipped")
                     np.clip(off, -_I32_MAX, _I32_MAX, out=off)
                 part["time_offset_ns"] = off
-                self._parts.append(part)
+                self._n = n + m
         self._packet_index += k
         rep.packets += k
         # frames never share a packet count: a packet cut by a wrap counts in both frames
@@ -619,10 +628,10 @@ class FrameDecoder:
     def _close_frame(self) -> Iterator[Frame]:
         if not self._frame_open:
             return
-        parts = self._parts
-        pts = parts[0] if len(parts) == 1 else (
-            np.concatenate(parts) if parts else np.empty(0, POINT_DTYPE))
-        self._parts = []
+        # the frame keeps its buffer; the next one gets a fresh buffer sized after this one
+        pts = self._buf[: self._n]
+        self._buf = np.empty(max(_FIRST_CAPACITY, self._n + self._n // 8), POINT_DTYPE)
+        self._n = 0
         self._frame_open = False
         f = Frame(self._frame_index, pts, self._frame_host_ns, self._frame_dev_ns,
                   self._frame_packets, self._frame_az0 / 100.0, self._frame_az1 / 100.0,
