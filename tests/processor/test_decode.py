@@ -309,3 +309,48 @@ def test_dual_return_frames(velodyne_dir):
     for f in frames:
         t = f.points["time_offset_ns"].astype(np.int64)
         assert t.min() >= -1000 and np.all(np.diff(t) >= 0)
+
+
+def test_long_silence_starts_a_new_frame(velodyne_dir):
+    payloads = _data_payloads(velodyne_dir / "veloview-vlp16-20hz.pcap")
+    cut_from, cut_to = 500, 700  # 200 packets = 0.27 s of silence, mid-rotation
+    kept = payloads[:cut_from] + payloads[cut_to:]
+    dec = FrameDecoder()
+    frames = list(dec.decode(kept))
+    az = _block_azimuths(kept)
+    splits = set(np.flatnonzero(np.diff(az) < 0) + 1) | {cut_from * 12}
+    assert len(frames) == len(splits) + 1
+    assert dec.report.gap_count == 1 and dec.report.missing_packets == cut_to - cut_from
+    assert sum(len(f) for f in frames) == dec.report.points
+
+
+def test_out_of_order_packets_decode_packet_by_packet(velodyne_dir):
+    payloads = _data_payloads(velodyne_dir / "veloview-vlp16-20hz.pcap")
+    shuffled = list(payloads)
+    shuffled[300], shuffled[301] = shuffled[301], shuffled[300]
+    ref = FrameDecoder()
+    n_ref = sum(len(f) for f in ref.decode(payloads))
+    dec = FrameDecoder()
+    frames = list(dec.decode(shuffled))
+    assert sum(len(f) for f in frames) == n_ref == 700400
+    assert any("backwards" in w for w in dec.report.warnings)
+    pts = np.concatenate([f.points for f in frames])
+    assert np.isfinite(pts["x"]).all() and np.abs(pts["time_offset_ns"]).max() < 0.2e9
+
+
+def test_mcap_cut_short_keeps_whole_packets(velodyne_dir, tmp_path, capsys):
+    from tripod_shared.recording import RecordingWriter
+
+    payloads = _data_payloads(velodyne_dir / "veloview-vlp16-20hz.pcap")
+    rec = tmp_path / "r.mcap"
+    with RecordingWriter(rec, chunk_size=64 * 1024) as w:
+        for t, p in payloads:
+            w.write_lidar_packet(t, p)
+    data = rec.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) // 2])
+    code, out, err = _cli(capsys, cut, "--summary")
+    assert code == 0
+    s = json.loads(out)
+    assert s["truncated"] and 0 < s["packets"] < len(payloads) and "cut short" in err
+    assert s["input_format"] == "mcap"
