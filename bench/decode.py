@@ -35,7 +35,6 @@ from pathlib import Path
 import velodyne_decoder as vd
 from rich.console import Console
 from rich.table import Table
-
 from tripod_processor.cli import main as tripod_main
 from tripod_processor.decode import DecodeConfig, decode_file
 from tripod_processor.pcap import PcapReader, PcapWriter

@@ -12,11 +12,15 @@ import tracemalloc
 import numpy as np
 import pytest
 import velodyne_decoder as vd
-
 from tripod_processor.cli import main
 from tripod_processor.cloud_io import read_ply
 from tripod_processor.decode import (
-    POINT_DTYPE, DecodeConfig, DecodeError, FrameDecoder, decode_file, identify_sensor,
+    POINT_DTYPE,
+    DecodeConfig,
+    DecodeError,
+    FrameDecoder,
+    decode_file,
+    identify_sensor,
     to_veloview_xyz,
 )
 from tripod_processor.pcap import PcapReader, PcapWriter

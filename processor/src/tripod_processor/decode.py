@@ -692,6 +692,7 @@ def decode_file(path: str | os.PathLike, config: DecodeConfig | None = None,
 
 
 __all__ = [
-    "POINT_DTYPE", "DecodeConfig", "DecodeError", "DecodeReport", "DecodeRun", "Frame", "FrameDecoder",
+    "POINT_DTYPE", "DecodeConfig", "DecodeError", "DecodeReport", "DecodeRun", "Frame",
+    "FrameDecoder",
     "Gap", "PositionReport", "SourceError", "decode_file", "identify_sensor", "to_veloview_xyz",
 ]

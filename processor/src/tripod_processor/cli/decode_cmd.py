@@ -139,7 +139,8 @@ def run_decode(input_path: Path, outdir: Path | None, *, summary_only: bool = Fa
 @app.command("decode", rich_help_panel="Inspect")
 def decode_command(
     input_path: Path = typer.Argument(
-        ..., metavar="INPUT", help="pcap/pcapng capture, raw 1206-byte payload file, or tripod MCAP"),
+        ..., metavar="INPUT",
+        help="pcap/pcapng capture, raw 1206-byte payload file, or tripod MCAP"),
     output: Path = typer.Option(None, "-o", "--output", help="folder for one cloud per frame, "
                                 "summary.json and decode_config.yaml"),
     summary: bool = typer.Option(False, "--summary", help="print one JSON object to stdout"),
