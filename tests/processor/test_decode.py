@@ -358,3 +358,21 @@ def test_mcap_cut_short_keeps_whole_packets(velodyne_dir, tmp_path, capsys):
     s = json.loads(out)
     assert s["truncated"] and 0 < s["packets"] < len(payloads) and "cut short" in err
     assert s["input_format"] == "mcap"
+
+
+def test_device_clock_unwraps_at_the_top_of_the_hour(velodyne_dir):
+    """Shift the lidar clock so the hour rolls over mid-capture: same frames, time running on."""
+    payloads = _data_payloads(velodyne_dir / "veloview-vlp16-20hz.pcap")
+    toh0 = struct.unpack_from("<I", payloads[0][1], 1200)[0]
+    shift = 3_600_000_000 - 1_000_000 - toh0  # the hour ends 1 s into the capture
+    rolled = [(t, p[:1200] + struct.pack("<I", (struct.unpack_from("<I", p, 1200)[0] + shift)
+                                          % 3_600_000_000) + p[1204:]) for t, p in payloads]
+    ref = list(FrameDecoder().decode(payloads))
+    dec = FrameDecoder()
+    got = list(dec.decode(rolled))
+    assert [len(f) for f in got] == [len(f) for f in ref]
+    stamps = np.array([f.stamp_device_ns for f in got])
+    assert np.all(np.diff(stamps) > 0) and np.all(np.diff(stamps) < 0.06e9)
+    for a, b in zip(ref, got):
+        np.testing.assert_array_equal(a.points["time_offset_ns"], b.points["time_offset_ns"])
+    assert dec.report.gap_count == 0 and not dec.report.warnings
