@@ -380,6 +380,8 @@ class FrameDecoder:
         self._frame_az1 = 0
         self._frame_gaps = 0
         self._return_mode_byte = None
+        self._last_nmea = ""
+        self._last_parsed: tuple = ("", False, None, "")
 
     def _detect(self, first: list[tuple[int, bytes]]) -> None:
         cfg, rep = self.config, self.report
@@ -422,30 +424,40 @@ class FrameDecoder:
         nmea = vl.position_nmea(payload)
         if not nmea:
             return
-        kind = nmea[1:6] if nmea.startswith("$") else "unknown"
-        if not _nmea_checksum_ok(nmea):
-            kind = "bad_checksum"
+        # the sensor repeats each (1 Hz) sentence in many position packets: parse it once
+        if nmea != self._last_nmea:
+            self._last_nmea = nmea
+            self._last_parsed = self._parse_nmea(nmea, payload)
+        kind, fix, position, utc = self._last_parsed
         pr.nmea[kind] = pr.nmea.get(kind, 0) + 1
         if not pr.first_nmea:
             pr.first_nmea = nmea
-        if kind == "bad_checksum":
-            return
+        if fix:
+            pr.fixes += 1
+            if pr.first_position is None:
+                pr.first_position = position
+        if utc:
+            if not pr.first_utc:
+                pr.first_utc = utc
+            pr.last_utc = utc
+
+    @staticmethod
+    def _parse_nmea(nmea: str, payload: bytes) -> tuple[str, bool, tuple | None, str]:
+        """(sentence type or 'bad_checksum', has a fix, (lon, lat, alt), ISO UTC time)."""
+        kind = nmea[1:6] if nmea.startswith("$") else "unknown"
+        if not _nmea_checksum_ok(nmea):
+            return "bad_checksum", False, None, ""
         try:
             info = vd.TelemetryPacket(payload).parse_nmea()
         except Exception:  # noqa: BLE001 - a sentence velodyne-decoder cannot parse is counted
             info = None
         if info is None:
-            return
-        if info.fix_available:
-            pr.fixes += 1
-            if pr.first_position is None:
-                pr.first_position = (info.longitude, info.latitude, info.altitude)
+            return kind, False, None, ""
         date = (f"{info.utc_year:04d}-{info.utc_month:02d}-{info.utc_day:02d}T"
                 if info.utc_year > 0 else "")
         utc = f"{date}{info.utc_hours:02d}:{info.utc_minutes:02d}:{info.utc_seconds:06.3f}Z"
-        if not pr.first_utc:
-            pr.first_utc = utc
-        pr.last_utc = utc
+        position = (info.longitude, info.latitude, info.altitude)
+        return kind, bool(info.fix_available), position, utc
 
     # ---------------------------------------------------------------------------------------
     def _process(self, batch: list[tuple[int, bytes]]) -> Iterator[Frame]:
