@@ -83,6 +83,8 @@ def test_veloview_vlp16_reproduces_veloview_oracle(velodyne_dir):
         for idx, x, y, z, intensity, _last in rows:
             assert np.linalg.norm(xyz[idx] - (x, y, z)) < 1e-3, (f, idx, xyz[idx])
             assert frames[f].points["intensity"][idx] == intensity
+            # (the oracle's last column is not compared: it reads 0 for both points, but the
+            # last one is the +15° laser by its z and intensity, i.e. laser 15 in firing order)
 
 
 def test_veloview_vlp16_points_are_velodyne_decoders(velodyne_dir):
