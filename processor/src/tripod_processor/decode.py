@@ -566,7 +566,7 @@ class FrameDecoder:
         ends = np.concatenate((split_blocks, [k * 12]))
         pstarts = np.concatenate(([0], cuts))
         pends = np.concatenate((cuts, [len(raw)]))
-        intensity = np.clip(raw["intensity"], 0, 255)
+
         chunk_dev0 = int(dev_ns[0])
         continued = self._frame_open  # the first segment goes on with a frame of the last chunk
         for seg, (b0, b1, q0, q1) in enumerate(zip(starts, ends, pstarts, pends)):
@@ -599,7 +599,7 @@ class FrameDecoder:
                 part = self._buf[n : n + m]
                 src = raw[q0:q1]
                 part["x"], part["y"], part["z"] = src["x"], src["y"], src["z"]
-                part["intensity"] = intensity[q0:q1]
+                part["intensity"] = src["intensity"]  # 0..255: velodyne-decoder clamps it
                 ring = src["ring"]
                 part["ring"] = ring
                 part["laser"] = _LASER_OF_RING[ring]
