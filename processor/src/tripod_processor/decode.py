@@ -366,7 +366,6 @@ class FrameDecoder:
         self._sensor_product = None
         self._scan_decoder = None
         self._patch_product = False
-        self._blocks_per_column = 0.5
         self._prev_az = -1  # azimuth of the last block seen
         self._prev_dev_ns = None  # lidar clock of the last packet (unwrapped, absolute)
         self._prev_toh_ns = None
@@ -546,7 +545,8 @@ class FrameDecoder:
         split_pk = split_blocks // 12
         split_blk = split_blocks % 12
         split_rel_ns = rel_ns[split_pk] + ((split_blk // 2) if dual else split_blk) * _BLOCK_NS
-        if k == 1 or (np.diff(rel_ns) >= _PACKET_SPAN_NS[dual] + 2000).all():
+        ordered = k == 1 or bool((np.diff(rel_ns) >= _PACKET_SPAN_NS[dual] + 2000).all())
+        if ordered:
             # packets in time order, their firings never overlap: point times increase, so a
             # frame boundary is where they pass the first firing of the boundary block
             raw = self._decode_chunk(batch, stamps_s)
@@ -585,7 +585,7 @@ class FrameDecoder:
                 self._frame_gaps = 0
                 self._frame_az0 = int(az_flat[b0])
             first_pk, last_pk = b0 // 12, (b1 - 1) // 12
-            self._frame_packets += last_pk - first_pk + 1
+            self._frame_packets += last_pk - first_pk + 1  # a packet cut by a wrap: in both
             lo = first_pk - 1 if (seg == 0 and continued and b0 == 0) else first_pk
             self._frame_gaps += int(((gap_idx > lo) & (gap_idx <= last_pk)).sum())
             self._frame_az1 = int(az_flat[b1 - 1])
@@ -607,14 +607,14 @@ class FrameDecoder:
                 t = t_s[q0:q1]
                 off = (t - t.dtype.type((self._frame_dev_ns - chunk_dev0) * 1e-9)) * 1e9
                 np.rint(off, out=off)
-                if off[-1] > _I32_MAX or off[0] < -_I32_MAX:
+                hi, lo = (off[-1], off[0]) if ordered else (off.max(), off.min())
+                if hi > _I32_MAX or lo < -_I32_MAX:
                     rep.warn("a frame spans more than 2.1 s: its time offsets are clipped")
                     np.clip(off, -_I32_MAX, _I32_MAX, out=off)
                 part["time_offset_ns"] = off
                 self._n = n + m
         self._packet_index += k
         rep.packets += k
-        # frames never share a packet count: a packet cut by a wrap counts in both frames
 
     def _packet_vector(self, batch: list[tuple[int, bytes]], stamps_s: list[float]):
         pv = vd.PacketVector()
