@@ -378,3 +378,38 @@ def test_device_clock_unwraps_at_the_top_of_the_hour(velodyne_dir):
     for a, b in zip(ref, got):
         np.testing.assert_array_equal(a.points["time_offset_ns"], b.points["time_offset_ns"])
     assert dec.report.gap_count == 0 and not dec.report.warnings
+
+
+def _write_pcapng(path, frames_ns):
+    """Minimal little-endian pcapng: section header, one Ethernet interface (ns resolution),
+    one enhanced packet block per (t_ns, ethernet frame)."""
+    def block(btype, body):
+        body += b"\x00" * (-len(body) % 4)
+        n = len(body) + 12
+        return struct.pack("<II", btype, n) + body + struct.pack("<I", n)
+
+    with open(path, "wb") as fh:
+        fh.write(block(0x0A0D0D0A, struct.pack("<IHHq", 0x1A2B3C4D, 1, 0, -1)))
+        tsresol = struct.pack("<HHB3x", 9, 1, 9) + struct.pack("<HH", 0, 0)
+        fh.write(block(1, struct.pack("<HHI", 1, 0, 65535) + tsresol))
+        for t, frame in frames_ns:
+            fh.write(block(6, struct.pack("<IIIII", 0, t >> 32, t & 0xFFFFFFFF, len(frame),
+                                          len(frame)) + frame))
+
+
+def test_pcapng_decodes_like_pcap(velodyne_dir, tmp_path):
+    src = velodyne_dir / "rustlidar-vlp16.pcap"
+    raw = src.read_bytes()
+    frames, off = [], 24  # the Ethernet frames of the classic pcap, with their times
+    while off + 16 <= len(raw):
+        sec, usec, incl, _ = struct.unpack_from("<IIII", raw, off)
+        frames.append((sec * 10**9 + usec * 1000, raw[off + 16 : off + 16 + incl]))
+        off += 16 + incl
+    ng = tmp_path / "c.pcapng"
+    _write_pcapng(ng, frames)
+    a, b = decode_file(src), decode_file(ng)
+    fa, fb = list(a), list(b)
+    assert b.source.kind == "pcapng" and len(fa) == len(fb) == 2
+    for x, y in zip(fa, fb):
+        np.testing.assert_array_equal(x.points, y.points)
+        assert x.stamp_host_ns == y.stamp_host_ns
