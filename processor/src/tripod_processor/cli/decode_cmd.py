@@ -122,6 +122,8 @@ def run_decode(input_path: Path, outdir: Path | None, *, summary_only: bool = Fa
         fail(f"{input_path}: {exc}")
     except OSError as exc:
         fail(f"{input_path}: {exc}")
+    except RuntimeError as exc:  # velodyne-decoder's way of refusing a packet
+        fail(f"{input_path}: velodyne-decoder: {exc}")
     summary = run.report.summary()
     summary["input"] = str(input_path)
     summary["input_format"] = run.source.kind
