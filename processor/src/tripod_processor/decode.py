@@ -22,15 +22,25 @@ Time
     holding the frame's first block) and ``stamp_device_ns`` (lidar clock: the packets'
     µs-past-the-hour, put on the hour nearest the host time, unwrapped across hours; the time of
     the frame's first firing). Each point has ``time_offset_ns`` (int32, lidar clock) since
-    ``stamp_device_ns``, from the firing timing of the VLP-16 manual.
+    ``stamp_device_ns``, from the firing timing of the VLP-16 manual (55.296 µs per firing
+    sequence, 2.304 µs per laser) as velodyne-decoder computes it; it comes back as float32
+    seconds, so offsets are good to about ±30 ns. velodyne-decoder is handed the lidar clock as
+    its packet stamps, so point times never depend on the host clock's jitter.
+
+Azimuth
+    velodyne-decoder interpolates each laser's azimuth by its firing time; VeloView (the version
+    that made its regression oracle) gives all 16 lasers of a firing sequence one azimuth.
+    Points differ by up to 15 × 2.304 µs of rotation (0.25° at 20 Hz); :func:`to_veloview_xyz`
+    undoes it. The default ``calibration="veloview"`` uses VeloView's nominal laser angles.
 
 Sensor
     Product byte 0x22 is a VLP-16, 0x24 a Puck Hi-Res (VLP-16 Hi-Res). 0x21 is an HDL-32E *or*
     an early-firmware VLP-16: the data packet period decides (VLP-16 1327 µs, or 664 µs in dual
     return; HDL-32E 553 µs). Other sensors are refused with :class:`DecodeError`.
 
-Memory stays constant: packets are decoded in chunks of ``chunk_packets``, and at most one
-frame plus one chunk of points is held.
+Memory stays constant: packets are decoded in chunks of ``chunk_packets`` (one call into
+velodyne-decoder each), and at most one chunk of points plus the open frame is held; each point
+is copied once, from velodyne-decoder's output into its frame.
 """
 
 from __future__ import annotations
