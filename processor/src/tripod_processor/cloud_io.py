@@ -196,7 +196,8 @@ def write_ply(path: str | os.PathLike, cloud: np.ndarray, comments: list[str] | 
     header += [f"element vertex {len(cloud)}", *props, "end_header"]
     with open(path, "wb") as fh:
         fh.write(("\n".join(header) + "\n").encode("ascii"))
-        fh.write(out.tobytes())
+        # a contiguous array is written from its own memory (no copy of the body)
+        fh.write(out.data if out.flags.c_contiguous else out.tobytes())
 
 
 # ---------------------------------------------------------------------------------------------

@@ -22,15 +22,25 @@ Time
     holding the frame's first block) and ``stamp_device_ns`` (lidar clock: the packets'
     µs-past-the-hour, put on the hour nearest the host time, unwrapped across hours; the time of
     the frame's first firing). Each point has ``time_offset_ns`` (int32, lidar clock) since
-    ``stamp_device_ns``, from the firing timing of the VLP-16 manual.
+    ``stamp_device_ns``, from the firing timing of the VLP-16 manual (55.296 µs per firing
+    sequence, 2.304 µs per laser) as velodyne-decoder computes it; it comes back as float32
+    seconds, so offsets are good to about ±30 ns. velodyne-decoder is handed the lidar clock as
+    its packet stamps, so point times never depend on the host clock's jitter.
+
+Azimuth
+    velodyne-decoder interpolates each laser's azimuth by its firing time; VeloView (the version
+    that made its regression oracle) gives all 16 lasers of a firing sequence one azimuth.
+    Points differ by up to 15 × 2.304 µs of rotation (0.25° at 20 Hz); :func:`to_veloview_xyz`
+    undoes it. The default ``calibration="veloview"`` uses VeloView's nominal laser angles.
 
 Sensor
     Product byte 0x22 is a VLP-16, 0x24 a Puck Hi-Res (VLP-16 Hi-Res). 0x21 is an HDL-32E *or*
     an early-firmware VLP-16: the data packet period decides (VLP-16 1327 µs, or 664 µs in dual
     return; HDL-32E 553 µs). Other sensors are refused with :class:`DecodeError`.
 
-Memory stays constant: packets are decoded in chunks of ``chunk_packets``, and at most one
-frame plus one chunk of points is held.
+Memory stays constant: packets are decoded in chunks of ``chunk_packets`` (one call into
+velodyne-decoder each), and at most one chunk of points plus the open frame is held; each point
+is copied once, from velodyne-decoder's output into its frame.
 """
 
 from __future__ import annotations
@@ -48,18 +58,23 @@ from tripod_shared.config_io import StrictModel
 
 from .packet_sources import PacketSource, SourceError, open_source
 
-#: Per-point fields of a frame (packed little-endian: a PLY/PCD body is this array's bytes).
+#: Per-point fields of a frame: packed little-endian, 20 bytes (4-byte fields aligned, which
+#: makes filling it twice as fast as a 19-byte record); a PLY/PCD body is this array's bytes.
 POINT_DTYPE = np.dtype([
     ("x", "<f4"),  # [m], sensor frame "lidar" (x forward, y left, z up)
     ("y", "<f4"),
     ("z", "<f4"),
+    ("time_offset_ns", "<i4"),  # since the frame's stamp_device_ns, lidar clock
     ("intensity", "u1"),  # calibrated reflectivity 0..255
     ("ring", "u1"),  # laser index ordered by elevation, 0 = lowest (-15° on a VLP-16)
-    ("time_offset_ns", "<i4"),  # since the frame's stamp_device_ns, lidar clock
+    ("laser", "u1"),  # laser index in firing order (VeloView's laser_id, the packet's channel)
     ("return_type", "u1"),  # 1 strongest, 2 last, 3 both (velodyne_decoder.ReturnMode)
 ])
+#: VLP-16 firing order of each ring: lasers alternate -15°, +1°, -13°, +3°, ...
+_LASER_OF_RING = np.array([0, 2, 4, 6, 8, 10, 12, 14, 1, 3, 5, 7, 9, 11, 13, 15], np.uint8)
 
 HOUR_NS = 3_600_000_000_000
+_FIRST_CAPACITY = 32_768  # points; a VLP-16 rotation holds up to 28,800 (5 Hz, single return)
 _I32_MAX = 2**31 - 1
 _BLOCK_NS = 110_592  # one VLP-16 data block: two firing sequences of 55.296 µs
 _SEQUENCE_NS = 55_296  # one firing sequence: 16 lasers 2.304 µs apart, then recharge
@@ -247,8 +262,7 @@ def to_veloview_xyz(points: np.ndarray, block_azimuth_step_deg: float | None = N
     x = points["x"].astype(np.float64)
     y = points["y"].astype(np.float64)
     if block_azimuth_step_deg:
-        ring = points["ring"].astype(np.int64)
-        laser = np.where(ring < 8, 2 * ring, 2 * (ring - 8) + 1)  # firing order (VLP-16)
+        laser = points["laser"].astype(np.int64)  # firing order
         # azimuth grows clockwise seen from above: undoing an advance turns counter-clockwise
         a = np.deg2rad(block_azimuth_step_deg * laser * 2304 / _BLOCK_NS)
         c, s = np.cos(a), np.sin(a)
@@ -362,14 +376,14 @@ class FrameDecoder:
         self._sensor_product = None
         self._scan_decoder = None
         self._patch_product = False
-        self._blocks_per_column = 0.5
         self._prev_az = -1  # azimuth of the last block seen
         self._prev_dev_ns = None  # lidar clock of the last packet (unwrapped, absolute)
         self._prev_toh_ns = None
         self._hour_base_ns = None
         self._packet_index = 0
         self._frame_index = 0
-        self._parts: list[np.ndarray] = []
+        self._buf = np.empty(_FIRST_CAPACITY, POINT_DTYPE)  # points of the open frame
+        self._n = 0
         self._frame_open = False
         self._frame_host_ns = 0
         self._frame_dev_ns = 0
@@ -378,6 +392,8 @@ class FrameDecoder:
         self._frame_az1 = 0
         self._frame_gaps = 0
         self._return_mode_byte = None
+        self._last_nmea = ""
+        self._last_parsed: tuple = ("", False, None, "")
 
     def _detect(self, first: list[tuple[int, bytes]]) -> None:
         cfg, rep = self.config, self.report
@@ -420,30 +436,40 @@ class FrameDecoder:
         nmea = vl.position_nmea(payload)
         if not nmea:
             return
-        kind = nmea[1:6] if nmea.startswith("$") else "unknown"
-        if not _nmea_checksum_ok(nmea):
-            kind = "bad_checksum"
+        # the sensor repeats each (1 Hz) sentence in many position packets: parse it once
+        if nmea != self._last_nmea:
+            self._last_nmea = nmea
+            self._last_parsed = self._parse_nmea(nmea, payload)
+        kind, fix, position, utc = self._last_parsed
         pr.nmea[kind] = pr.nmea.get(kind, 0) + 1
         if not pr.first_nmea:
             pr.first_nmea = nmea
-        if kind == "bad_checksum":
-            return
+        if fix:
+            pr.fixes += 1
+            if pr.first_position is None:
+                pr.first_position = position
+        if utc:
+            if not pr.first_utc:
+                pr.first_utc = utc
+            pr.last_utc = utc
+
+    @staticmethod
+    def _parse_nmea(nmea: str, payload: bytes) -> tuple[str, bool, tuple | None, str]:
+        """(sentence type or 'bad_checksum', has a fix, (lon, lat, alt), ISO UTC time)."""
+        kind = nmea[1:6] if nmea.startswith("$") else "unknown"
+        if not _nmea_checksum_ok(nmea):
+            return "bad_checksum", False, None, ""
         try:
             info = vd.TelemetryPacket(payload).parse_nmea()
         except Exception:  # noqa: BLE001 - a sentence velodyne-decoder cannot parse is counted
             info = None
         if info is None:
-            return
-        if info.fix_available:
-            pr.fixes += 1
-            if pr.first_position is None:
-                pr.first_position = (info.longitude, info.latitude, info.altitude)
+            return kind, False, None, ""
         date = (f"{info.utc_year:04d}-{info.utc_month:02d}-{info.utc_day:02d}T"
                 if info.utc_year > 0 else "")
         utc = f"{date}{info.utc_hours:02d}:{info.utc_minutes:02d}:{info.utc_seconds:06.3f}Z"
-        if not pr.first_utc:
-            pr.first_utc = utc
-        pr.last_utc = utc
+        position = (info.longitude, info.latitude, info.altitude)
+        return kind, bool(info.fix_available), position, utc
 
     # ---------------------------------------------------------------------------------------
     def _process(self, batch: list[tuple[int, bytes]]) -> Iterator[Frame]:
@@ -529,7 +555,8 @@ class FrameDecoder:
         split_pk = split_blocks // 12
         split_blk = split_blocks % 12
         split_rel_ns = rel_ns[split_pk] + ((split_blk // 2) if dual else split_blk) * _BLOCK_NS
-        if k == 1 or (np.diff(rel_ns) >= _PACKET_SPAN_NS[dual] + 2000).all():
+        ordered = k == 1 or bool((np.diff(rel_ns) >= _PACKET_SPAN_NS[dual] + 2000).all())
+        if ordered:
             # packets in time order, their firings never overlap: point times increase, so a
             # frame boundary is where they pass the first firing of the boundary block
             raw = self._decode_chunk(batch, stamps_s)
@@ -544,16 +571,12 @@ class FrameDecoder:
             block = owner * 12 + (np.clip(unit, 0, 5) * 2 if dual else np.clip(unit, 0, 11))
             cuts = np.searchsorted(block, split_blocks, side="left")
             t_s = (rel_ns[owner] + within_ns) * 1e-9
-        pts = np.empty(len(raw), POINT_DTYPE)
-        pts["x"], pts["y"], pts["z"] = raw["x"], raw["y"], raw["z"]
-        pts["intensity"] = np.clip(raw["intensity"], 0, 255)
-        pts["ring"] = raw["ring"]
-        pts["return_type"] = raw["return_type"]
         # ---- cut into frames (points come in packet, block, firing order) --------------------
         starts = np.concatenate(([0], split_blocks))
         ends = np.concatenate((split_blocks, [k * 12]))
         pstarts = np.concatenate(([0], cuts))
-        pends = np.concatenate((cuts, [len(pts)]))
+        pends = np.concatenate((cuts, [len(raw)]))
+
         chunk_dev0 = int(dev_ns[0])
         continued = self._frame_open  # the first segment goes on with a frame of the last chunk
         for seg, (b0, b1, q0, q1) in enumerate(zip(starts, ends, pstarts, pends)):
@@ -572,23 +595,36 @@ class FrameDecoder:
                 self._frame_gaps = 0
                 self._frame_az0 = int(az_flat[b0])
             first_pk, last_pk = b0 // 12, (b1 - 1) // 12
-            self._frame_packets += last_pk - first_pk + 1
+            self._frame_packets += last_pk - first_pk + 1  # a packet cut by a wrap: in both
             lo = first_pk - 1 if (seg == 0 and continued and b0 == 0) else first_pk
             self._frame_gaps += int(((gap_idx > lo) & (gap_idx <= last_pk)).sum())
             self._frame_az1 = int(az_flat[b1 - 1])
             if q1 > q0:
-                part = pts[q0:q1]
+                # one copy per point: velodyne-decoder's output straight into the frame
+                n, m = self._n, q1 - q0
+                if n + m > len(self._buf):
+                    grown = np.empty(max(2 * len(self._buf), n + m), POINT_DTYPE)
+                    grown[:n] = self._buf[:n]
+                    self._buf = grown
+                part = self._buf[n : n + m]
+                src = raw[q0:q1]
+                part["x"], part["y"], part["z"] = src["x"], src["y"], src["z"]
+                part["intensity"] = src["intensity"]  # 0..255: velodyne-decoder clamps it
+                ring = src["ring"]
+                part["ring"] = ring
+                part["laser"] = _LASER_OF_RING[ring]
+                part["return_type"] = src["return_type"]
                 t = t_s[q0:q1]
                 off = (t - t.dtype.type((self._frame_dev_ns - chunk_dev0) * 1e-9)) * 1e9
                 np.rint(off, out=off)
-                if off[-1] > _I32_MAX or off[0] < -_I32_MAX:
+                hi, lo = (off[-1], off[0]) if ordered else (off.max(), off.min())
+                if hi > _I32_MAX or lo < -_I32_MAX:
                     rep.warn("a frame spans more than 2.1 s: its time offsets are clipped")
                     np.clip(off, -_I32_MAX, _I32_MAX, out=off)
                 part["time_offset_ns"] = off
-                self._parts.append(part)
+                self._n = n + m
         self._packet_index += k
         rep.packets += k
-        # frames never share a packet count: a packet cut by a wrap counts in both frames
 
     def _packet_vector(self, batch: list[tuple[int, bytes]], stamps_s: list[float]):
         pv = vd.PacketVector()
@@ -619,10 +655,10 @@ class FrameDecoder:
     def _close_frame(self) -> Iterator[Frame]:
         if not self._frame_open:
             return
-        parts = self._parts
-        pts = parts[0] if len(parts) == 1 else (
-            np.concatenate(parts) if parts else np.empty(0, POINT_DTYPE))
-        self._parts = []
+        # the frame keeps its buffer; the next one gets a fresh buffer sized after this one
+        pts = self._buf[: self._n]
+        self._buf = np.empty(max(_FIRST_CAPACITY, self._n + self._n // 8), POINT_DTYPE)
+        self._n = 0
         self._frame_open = False
         f = Frame(self._frame_index, pts, self._frame_host_ns, self._frame_dev_ns,
                   self._frame_packets, self._frame_az0 / 100.0, self._frame_az1 / 100.0,
@@ -683,6 +719,7 @@ def decode_file(path: str | os.PathLike, config: DecodeConfig | None = None,
 
 
 __all__ = [
-    "POINT_DTYPE", "DecodeConfig", "DecodeError", "DecodeReport", "DecodeRun", "Frame", "FrameDecoder",
+    "POINT_DTYPE", "DecodeConfig", "DecodeError", "DecodeReport", "DecodeRun", "Frame",
+    "FrameDecoder",
     "Gap", "PositionReport", "SourceError", "decode_file", "identify_sensor", "to_veloview_xyz",
 ]

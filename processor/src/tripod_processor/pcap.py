@@ -157,7 +157,8 @@ def _iter_pcap(fh: BinaryIO, head: bytes, stats: PcapStats) -> Iterator[UdpDatag
             return
         sec, frac, incl, _orig = rec.unpack(h)
         if incl > 262144 * 4:
-            raise PcapFormatError(f"pcap record {stats.records} claims {incl} bytes: file is corrupt")
+            raise PcapFormatError(
+                f"pcap record {stats.records} claims {incl} bytes: file is corrupt")
         data = _read_exact(fh, incl)
         if len(data) < incl:
             stats.truncated = True
@@ -247,7 +248,8 @@ _REC_BE = struct.Struct(">IIII")
 _BUF_SIZE = 1 << 20
 
 
-def _iter_pcap_payloads(fh: BinaryIO, head: bytes, stats: PcapStats) -> Iterator[tuple[int, int, bytes]]:
+def _iter_pcap_payloads(fh: BinaryIO, head: bytes, stats: PcapStats
+                        ) -> Iterator[tuple[int, int, bytes]]:
     """Fast path of :func:`_iter_pcap`: ``(t_ns, dst_port, payload)``, no address strings.
 
     Reads the file in 1 MiB blocks and slices records out of them; plain Ethernet/IPv4/UDP

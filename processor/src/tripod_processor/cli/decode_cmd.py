@@ -122,6 +122,8 @@ def run_decode(input_path: Path, outdir: Path | None, *, summary_only: bool = Fa
         fail(f"{input_path}: {exc}")
     except OSError as exc:
         fail(f"{input_path}: {exc}")
+    except RuntimeError as exc:  # velodyne-decoder's way of refusing a packet
+        fail(f"{input_path}: velodyne-decoder: {exc}")
     summary = run.report.summary()
     summary["input"] = str(input_path)
     summary["input_format"] = run.source.kind
@@ -139,7 +141,8 @@ def run_decode(input_path: Path, outdir: Path | None, *, summary_only: bool = Fa
 @app.command("decode", rich_help_panel="Inspect")
 def decode_command(
     input_path: Path = typer.Argument(
-        ..., metavar="INPUT", help="pcap/pcapng capture, raw 1206-byte payload file, or tripod MCAP"),
+        ..., metavar="INPUT",
+        help="pcap/pcapng capture, raw 1206-byte payload file, or tripod MCAP"),
     output: Path = typer.Option(None, "-o", "--output", help="folder for one cloud per frame, "
                                 "summary.json and decode_config.yaml"),
     summary: bool = typer.Option(False, "--summary", help="print one JSON object to stdout"),

@@ -50,4 +50,4 @@ def demo_command(
     if capture is None:
         fail(f"the demo capture {DEMO_CAPTURE} was not found beside the repository "
              "(set TRIPOD_SHARED_DATA to the data folder, or pass --input)")
-    run_decode(capture, output / "frames", progress=True)
+    run_decode(capture, output, progress=True)
