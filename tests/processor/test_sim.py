@@ -184,3 +184,27 @@ def test_imu_log_errors(tmp_path, noisy):
     r = ImuLogReader(cut)
     recs = list(r)
     assert r.truncated and len(recs) == len(list(ImuLogReader(noisy / "imu.tripimu"))) - 1
+
+
+def test_hour_rollover_of_the_lidar_clock(tmp_path):
+    """The lidar's us-past-the-hour stamp wraps inside this capture: decode, placement and the
+    label join must not notice."""
+    start = 1_767_268_800 * 10**9 - 3 * 10**9  # lidar clock crosses the hour ~2.2 s in
+    cap = make_capture(tmp_path, "wrap", stations=1, start_unix_ns=start,
+                       lidar={"range_noise_m": 0.0, "dropout": 0.0})
+    toh = np.load(cap / "labels.npz")["packet_toh_us"]
+    assert toh.max() > 3599 * 10**6 and toh.min() < 10**6  # it does wrap
+    r = fidelity.packet_check(cap)
+    assert r["toh_step_us"] == [1327, 1328]
+    f = fidelity.geometry_check(cap)
+    assert f.dist_median_m <= 0.002 and f.label_joined == 1.0 and f.label_agreement > 0.995
+
+
+def test_labeled_points_for_segmentation(clean):
+    xyz, lab, pts = fidelity.labeled_points(clean, max_packets=500)
+    assert xyz.shape == (len(lab), 3) and len(lab) > 10_000 and np.all(lab < 4)
+    from tripod_processor.sim.scenes import CEILING, FLOOR
+    meta, _ = fidelity.load_meta(clean)
+    height = meta["scene"]["params"]["height_m"]
+    assert np.median(xyz[lab == FLOOR, 2]) == pytest.approx(0.0, abs=0.005)
+    assert np.median(xyz[lab == CEILING, 2]) == pytest.approx(height, abs=0.005)

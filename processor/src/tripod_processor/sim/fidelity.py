@@ -129,6 +129,23 @@ def join_labels(points: DecodedPoints, labels_npz: str | Path) -> np.ndarray:
     return np.where(ok, out, 255).astype(np.uint8)
 
 
+def labeled_points(capture_dir: str | Path, max_packets: int | None = None,
+                   world: bool = True) -> tuple[np.ndarray, np.ndarray, DecodedPoints]:
+    """Decoded points of a capture with their true class: ``(xyz (N, 3), labels (N,), points)``.
+
+    ``world=True`` places every point with the true pose at its firing time (a perfectly
+    registered, labelled cloud: training and test data for segmentation); ``False`` keeps the
+    lidar frame. Labels are class ids (``CLASS_NAMES``), 255 where no join was possible.
+    """
+    _meta, cfg = load_meta(capture_dir)
+    pts = decode_capture(capture_dir, max_packets)
+    lab = join_labels(pts, Path(capture_dir) / LABELS_FILE)
+    if not world:
+        return pts.xyz, lab, pts
+    _scene, xyz, _origin = place_points(pts, cfg)
+    return xyz, lab, pts
+
+
 @dataclass
 class Fidelity:
     """Results of :func:`evaluate`; distances in metres."""

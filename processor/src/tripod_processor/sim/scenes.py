@@ -367,9 +367,9 @@ def _read_classified_ply(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray 
 
 
 def classify_by_normal(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """Class per triangle from its normal and height: horizontal faces in the lowest/highest
-    15 % of the height span are floor/ceiling, near-vertical faces taller than 1.5 m... are
-    walls when they span most of the height, everything else is other."""
+    """Class per triangle from its normal and height: horizontal faces in the lowest / highest
+    15 % of the mesh's height span are floor / ceiling, near-vertical faces spanning more than
+    half of the height are walls, everything else is other."""
     p = vertices[triangles]  # (T, 3, 3)
     n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
