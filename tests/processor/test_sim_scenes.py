@@ -101,3 +101,28 @@ def test_trajectory_stations_pans_and_transits():
     assert speed.max() < 2.5  # walking pace (offset from the route's centre line in corners)
     walks = np.abs(np.diff([st.arc_m for st in traj.stations]))
     assert np.all(walks / traj.transit_s <= cfg.max_carry_speed_m_s / 1.875 + 1e-9)
+
+
+def test_scene_file_with_route_and_raised_floor(tmp_path):
+    """A foreign mesh whose floor is not at z = 0, with a blocked default route, then a free one."""
+    from tripod_processor.sim import SimConfig, simulate
+    from tripod_processor.sim.fidelity import geometry_check
+
+    room = o3d.geometry.TriangleMesh.create_box(8.0, 6.0, 2.8)
+    room.translate((10.0, -3.0, 5.0))
+    pillar = o3d.geometry.TriangleMesh.create_box(6.0, 0.4, 2.8)  # a wall across the loop
+    pillar.translate((11.0, -0.2 - 1.2, 5.0))
+    path = tmp_path / "building.ply"
+    o3d.io.write_triangle_mesh(str(path), room + pillar)
+    scene = load_scene_file(path)
+    assert scene.floor_z == pytest.approx(5.0)
+    motion = {"pan_s": 1.5, "settle_s": 0.1, "transit_s": 1.0}
+    with pytest.raises(ValueError, match="route passes"):
+        simulate(SimConfig(scene_file=str(path), stations=2, motion=motion), tmp_path / "x")
+    cfg = SimConfig(scene_file=str(path), stations=2, motion=motion, route_closed=False,
+                    route_xy=[(11.5, 1.5), (16.0, 1.5)], lidar={"range_noise_m": 0.0})
+    simulate(cfg, tmp_path / "ok", nthreads=2)
+    st = np.loadtxt(tmp_path / "ok/gt/stations.csv", delimiter=",", skiprows=1)
+    assert np.all((st[:, 5] > 5.0 + 1.29) & (st[:, 5] < 5.0 + 1.61))  # heights above the floor
+    f = geometry_check(tmp_path / "ok")
+    assert f.dist_median_m <= 0.002

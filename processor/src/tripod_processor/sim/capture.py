@@ -29,7 +29,8 @@ from .imu import R_lidar_imu, simulate_imu, wxyz
 from .lidar import (LASER_ELEVATION_DEG, SEQUENCE_NS, Vlp16, gprmc, packet_period_ns,
                     position_packet, position_schedule)
 from .motion import Trajectory
-from .scenes import CLASS_NAMES, NO_RETURN, Scene, load_scene_file, make_scene, write_mesh_ply
+from .scenes import (CLASS_NAMES, NO_RETURN, Scene, check_route, load_scene_file, make_scene,
+                     write_mesh_ply)
 
 FORMAT_VERSION = 1
 CAPTURE_FILE = "capture.pcap"
@@ -66,9 +67,17 @@ def build_scene(cfg: SimConfig) -> Scene:
 def build_rig(cfg: SimConfig, scene: Scene | None = None) -> tuple[Scene, Trajectory]:
     """The scene and the trajectory of a config (deterministic per seed)."""
     scene = scene or build_scene(cfg)
-    traj = Trajectory(scene.route, scene.closed_route, cfg.stations, cfg.motion,
-                      np.random.default_rng([cfg.seed, 0x7A3]))
+    route, closed = route_of(cfg, scene)
+    traj = Trajectory(route, closed, cfg.stations, cfg.motion,
+                      np.random.default_rng([cfg.seed, 0x7A3]), floor_z=scene.floor_z)
     return scene, traj
+
+
+def route_of(cfg: SimConfig, scene: Scene) -> tuple[np.ndarray, bool]:
+    """The route of a capture: ``route_xy`` from the config, else the scene's own."""
+    if cfg.route_xy is not None:
+        return np.asarray(cfg.route_xy, dtype=np.float64), cfg.route_closed
+    return scene.route, scene.closed_route
 
 
 def _tum_line(t_ns: int, p, q_wxyz) -> str:
@@ -94,7 +103,9 @@ def simulate(cfg: SimConfig, out_dir: str | os.PathLike, *, nthreads: int = 0,
     wall0 = time.perf_counter()
     out = Path(out_dir)
     (out / GT_DIR).mkdir(parents=True, exist_ok=True)
-    scene, traj = build_rig(cfg)
+    scene = build_scene(cfg)
+    check_route(scene, *route_of(cfg, scene))  # fail early, in one line, on a blocked route
+    scene, traj = build_rig(cfg, scene)
     lc = cfg.lidar
     start = cfg.start_unix_ns
     duration_ns = int(round(traj.duration_s * 1e9))

@@ -90,6 +90,10 @@ class SimConfig(StrictModel):
 
     scene: str = "room"
     scene_file: str | None = None
+    route_xy: list[tuple[float, float]] | None = Field(
+        None, description="route of the tripod through free space (x, y) [m]; default: the "
+                          "scene's own (parametric scenes) or a loop inset from the bounds")
+    route_closed: bool = Field(True, description="route_xy is a loop")
     stations: int = Field(3, ge=1, le=500)
     seed: int = 0
     start_unix_ns: int = Field(1_767_268_800_000_000_000,

@@ -17,8 +17,8 @@ Frames (all right-handed, metres):
 Timeline (seconds from the capture start): at every station the head rests ``settle_s``,
 pans one full turn plus ``pan_overlap_deg`` in ``pan_s`` (raised-cosine speed ramps), rests
 ``settle_s`` again; between stations the tripod is carried for ``transit_s`` (longer for long
-walks: peak speed ``max_carry_speed_m_s``) along the scene's route (minimum-jerk progress, sway in roll/pitch/height/sideways, heading change up to
-``max_yaw_change_deg``). The lidar and IMU stream the whole time.
+walks: peak speed ``max_carry_speed_m_s``) along the scene's route (minimum-jerk progress,
+sway in roll/pitch/height/sideways, heading change up to ``max_yaw_change_deg``). The lidar and IMU stream the whole time.
 """
 
 from __future__ import annotations
@@ -151,10 +151,11 @@ class Trajectory:
     n_stations : number of stations
     cfg : MotionConfig
     rng : numpy Generator (stations, headings, sway phases)
+    floor_z : height of the floor [m]; tripod heights are above it
     """
 
     def __init__(self, route_xy: np.ndarray, closed: bool, n_stations: int, cfg: MotionConfig,
-                 rng: np.random.Generator):
+                 rng: np.random.Generator, floor_z: float = 0.0):
         self.cfg = cfg
         self.route = Route(route_xy, closed)
         self.n = n_stations
@@ -176,7 +177,7 @@ class Trajectory:
         yaw[1:] = yaw[0] + np.cumsum(rng.uniform(-1, 1, n - 1) * np.radians(cfg.max_yaw_change_deg))
         level = np.radians(cfg.level_error_deg)
         roll, pitch = rng.normal(0, level, n), rng.normal(0, level, n)
-        height = rng.uniform(cfg.tripod_height_m[0], cfg.tripod_height_m[1], n)
+        height = floor_z + rng.uniform(cfg.tripod_height_m[0], cfg.tripod_height_m[1], n)
         # carrying time: at least transit_s, longer when the walk would exceed the peak speed
         # (minimum-jerk progress peaks at 1.875 x the mean speed)
         walk = np.abs(np.diff(s)) if n > 1 else np.zeros(0)

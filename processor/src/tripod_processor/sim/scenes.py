@@ -57,6 +57,13 @@ class Scene:
     params: dict = field(default_factory=dict)
 
     @property
+    def floor_z(self) -> float:
+        """Height of the floor [m]: the lowest floor triangle (else the lowest vertex)."""
+        f = self.classes == FLOOR
+        z = self.vertices[self.triangles[f]][..., 2] if f.any() else self.vertices[:, 2]
+        return float(z.min())
+
+    @property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         return self.vertices.min(axis=0), self.vertices.max(axis=0)
 
@@ -281,6 +288,40 @@ def make_scene(name: str, seed: int) -> Scene:
     rng = np.random.default_rng([seed, 0x5CE7E])
     mb, route, closed, params = _BUILDERS[name](rng)
     return mb.build(name, route, closed, {k: round(float(v), 4) for k, v in params.items()}, rng)
+
+
+def check_route(scene: Scene, route_xy: np.ndarray, closed: bool, clearance_m: float = 0.25,
+                heights_m: tuple[float, ...] = (0.5, 1.0, 1.5, 1.7)) -> None:
+    """Raise ValueError (one line) unless the route keeps ``clearance_m`` from the mesh at the
+    tripod's heights above the floor and lies inside the scene (a ceiling above it)."""
+    import open3d as o3d
+
+    pts = np.asarray(route_xy, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2:
+        raise ValueError("a route needs at least two (x, y) points")
+    seq = np.vstack([pts, pts[:1]]) if closed else pts
+    samples = [seq[i] + (seq[i + 1] - seq[i]) * f for i in range(len(seq) - 1)
+               for f in np.linspace(0, 1, max(2, int(np.linalg.norm(seq[i + 1] - seq[i]) / 0.2)),
+                                    endpoint=False)]
+    xy = np.asarray(samples)
+    rc = o3d.t.geometry.RaycastingScene()
+    rc.add_triangles(o3d.core.Tensor(scene.vertices.astype(np.float32)),
+                     o3d.core.Tensor(scene.triangles.astype(np.uint32)))
+    z0 = scene.floor_z
+    for h in heights_m:
+        q = np.c_[xy, np.full(len(xy), z0 + h)].astype(np.float32)
+        d = rc.compute_distance(o3d.core.Tensor(q)).numpy()
+        bad = np.argmin(d)
+        if d[bad] < clearance_m:
+            raise ValueError(
+                f"the route passes {d[bad]:.2f} m from the mesh at ({xy[bad, 0]:.2f}, "
+                f"{xy[bad, 1]:.2f}), {h} m above the floor: give a free route with route_xy")
+    up = np.c_[xy, np.full(len(xy), z0 + 1.0), np.zeros((len(xy), 2)), np.ones(len(xy))]
+    t = rc.cast_rays(o3d.core.Tensor(up.astype(np.float32)))["t_hit"].numpy()
+    if not np.isfinite(t).all():
+        i = int(np.argmin(np.isfinite(t)))
+        raise ValueError(f"the route leaves the scene at ({xy[i, 0]:.2f}, {xy[i, 1]:.2f}) "
+                         "(no ceiling above): give a route inside it with route_xy")
 
 
 # --------------------------------------------------------------------------- mesh files
