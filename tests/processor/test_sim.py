@@ -208,3 +208,17 @@ def test_labeled_points_for_segmentation(clean):
     height = meta["scene"]["params"]["height_m"]
     assert np.median(xyz[lab == FLOOR, 2]) == pytest.approx(0.0, abs=0.005)
     assert np.median(xyz[lab == CEILING, 2]) == pytest.approx(height, abs=0.005)
+
+
+def test_lookup_labels_with_lidar_clock_ns(clean):
+    """The join works from int64 lidar-clock nanoseconds and firing-order laser ids (the fields
+    tripod decode gives), and refuses times outside every packet."""
+    pts = fidelity.decode_capture(clean, max_packets=300)
+    meta, cfg = fidelity.load_meta(clean)
+    lidar_ns = pts.host_ns + cfg.lidar.clock_offset_ns
+    laser = fidelity._LASER_OF_RING[pts.ring]
+    a = fidelity.lookup_labels(lidar_ns, laser, pts.return_type, clean / "labels.npz")
+    b = fidelity.join_labels(pts, clean / "labels.npz")
+    assert np.array_equal(a, b) and np.all(a < 4)
+    off = fidelity.lookup_labels(lidar_ns - 10**9, laser, pts.return_type, clean / "labels.npz")
+    assert np.all(off == 255)

@@ -101,27 +101,48 @@ def decode_capture(capture_dir: str | Path, max_packets: int | None = None) -> D
 
 
 def join_labels(points: DecodedPoints, labels_npz: str | Path) -> np.ndarray:
-    """Class id of every decoded point from ``labels.npz`` (255 where it cannot be joined).
+    """Class id of every decoded point from ``labels.npz`` (255 where it cannot be joined)."""
+    laser = _LASER_OF_RING[np.clip(points.ring, 0, 15)]
+    return lookup_labels(points.toh_us, laser, points.return_type, labels_npz)
+
+
+def lookup_labels(device_time, laser: np.ndarray, return_type: np.ndarray,
+                  labels_npz: str | Path) -> np.ndarray:
+    """Class ids of decoded points, from any decoder's per-point fields.
+
+    Parameters
+    ----------
+    device_time : (N,) firing time on the lidar clock: float microseconds past the hour, or
+        int64 nanoseconds (UNIX time on the lidar clock, as ``tripod decode`` stamps points:
+        ``stamp_device_ns + time_offset_ns``)
+    laser : (N,) laser id in firing order (0..15; velodyne-decoder's ring is *not* this)
+    return_type : (N,) 1 strongest, 2 last, 3 both (velodyne-decoder's ReturnMode)
+    labels_npz : the capture's ``labels.npz``
 
     The packet is found by device time (``packet_toh_us``), the firing sequence inside it by
-    the time offset, the laser by the ring, the block by the return type (dual: even blocks
-    hold the last return, odd blocks the strongest).
+    the time offset, the block by the return type (dual: even blocks hold the last return, odd
+    blocks the strongest), the channel by sequence and laser. Returns (N,) uint8, 255 where
+    the point falls outside the capture's packets.
     """
     z = np.load(labels_npz)
     labels, toh = z["labels"], z["packet_toh_us"].astype(np.int64)
     mode = str(z["return_mode"])
     spp = sequences_per_packet(mode)
     toh_u = np.asarray(unwrap_toh_us(toh.tolist()), dtype=np.float64)
-    # points' device times, unwrapped like the packets' (captures shorter than an hour)
-    t = points.toh_us + np.where(points.toh_us < toh[0] - 1.8e9, 3.6e9, 0.0)
+    t = np.asarray(device_time)
+    if t.dtype.kind in "iu":  # ns on the lidar clock -> us past the hour
+        t = (t % HOUR_NS) / 1e3
+    t = t.astype(np.float64)
+    # unwrap the points' times like the packets' (captures shorter than an hour)
+    t = t + np.where(t < toh[0] - 1.8e9, 3.6e9, 0.0)
     p = np.clip(np.searchsorted(toh_u, t + 0.5, side="right") - 1, 0, len(toh_u) - 1)
-    laser = _LASER_OF_RING[np.clip(points.ring, 0, 15)]
+    laser = np.clip(np.asarray(laser, dtype=np.int64), 0, 15)
     off_ns = (t - toh_u[p]) * 1e3 - laser * FIRING_NS
     k = np.round(off_ns / SEQUENCE_NS).astype(np.int64)
-    ok = (k >= 0) & (k < spp)
+    ok = (k >= 0) & (k < spp) & (np.abs(off_ns - k * SEQUENCE_NS) < 2000)
     k = np.clip(k, 0, spp - 1)
     if mode == "dual":
-        block = 2 * (k // 2) + np.where(points.return_type == DEC_STRONGEST, 1, 0)
+        block = 2 * (k // 2) + np.where(np.asarray(return_type) == DEC_STRONGEST, 1, 0)
     else:
         block = k // 2
     ch = (k % 2) * 16 + laser
