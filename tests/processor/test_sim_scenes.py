@@ -37,7 +37,8 @@ def test_scene_is_closed_classified_and_route_is_free(name):
     rays = np.c_[np.repeat(o, 500, axis=0), d].astype(np.float32)
     t = rc.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
     assert np.isfinite(t).all()
-    # ... and the route keeps clear of everything by 0.3 m at heights 0.5 .. 1.7 m (the head; door lintels are at 2.05 m)
+    # ... and the route keeps clear of everything by 0.3 m at heights 0.5 .. 1.7 m (the head;
+    # door lintels are at 2.05 m)
     for z in (0.5, 1.0, 1.5, 1.7):
         q = np.c_[pts, np.full(len(pts), z)].astype(np.float32)
         assert rc.compute_distance(o3d.core.Tensor(q)).numpy().min() > 0.3, (name, z)
@@ -83,9 +84,11 @@ def test_trajectory_stations_pans_and_transits():
     n = 5
     traj = Trajectory(scene.route, scene.closed_route, n, cfg, np.random.default_rng(1))
     assert np.all(traj.transit_s >= cfg.transit_s)
-    assert traj.duration_s == pytest.approx(n * (2 * cfg.settle_s + cfg.pan_s) + traj.transit_s.sum())
+    dwell = 2 * cfg.settle_s + cfg.pan_s
+    assert traj.duration_s == pytest.approx(n * dwell + traj.transit_s.sum())
     for st in traj.stations:
-        t = np.linspace(st.t_pan_start_s - cfg.settle_s + 1e-6, st.t_pan_end_s + cfg.settle_s - 1e-6, 50)
+        t = np.linspace(st.t_pan_start_s - cfg.settle_s + 1e-6,
+                        st.t_pan_end_s + cfg.settle_s - 1e-6, 50)
         R, p = traj.T_world_base(t)
         assert np.ptp(p, axis=0).max() < 1e-9  # the tripod stands still during its station
         _, _, _, _, phi = traj.base_state(np.array([st.t_pan_start_s, st.t_pan_end_s]))
@@ -126,3 +129,12 @@ def test_scene_file_with_route_and_raised_floor(tmp_path):
     assert np.all((st[:, 5] > 5.0 + 1.29) & (st[:, 5] < 5.0 + 1.61))  # heights above the floor
     f = geometry_check(tmp_path / "ok")
     assert f.dist_median_m <= 0.002
+
+
+@pytest.mark.parametrize("name", SCENE_NAMES)
+def test_every_seed_gives_a_free_route(name):
+    from tripod_processor.sim.scenes import check_route
+
+    for seed in range(20):
+        scene = make_scene(name, seed)
+        check_route(scene, scene.route, scene.closed_route)

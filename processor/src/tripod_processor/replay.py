@@ -52,7 +52,8 @@ class ReplayInputError(ValueError):
 # ----------------------------------------------------------------------------- sources
 
 
-def _pcap_events(path: Path, lidar_port: int, position_port: int) -> Iterator[tuple[int, int, bytes]]:
+def _pcap_events(path: Path, lidar_port: int,
+                 position_port: int) -> Iterator[tuple[int, int, bytes]]:
     for d in PcapReader(path):
         if d.dst_port == lidar_port or (d.dst_port != position_port
                                         and len(d.payload) == v.DATA_PACKET_SIZE):
@@ -96,7 +97,8 @@ class ReplaySource:
     position_port: int = v.POSITION_PORT
 
     @classmethod
-    def open(cls, path: str | os.PathLike, imu_log: str | os.PathLike | None = None) -> "ReplaySource":
+    def open(cls, path: str | os.PathLike,
+             imu_log: str | os.PathLike | None = None) -> "ReplaySource":
         """Recognise a capture directory, a pcap/pcapng or an MCAP recording."""
         from .pcap import sniff_format
 

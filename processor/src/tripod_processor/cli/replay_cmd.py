@@ -119,7 +119,8 @@ def replay_cmd(
     t.add_row("lidar packets/s", f"{stats.packets_per_s:.0f}")
     if len(stats.lateness_ns):
         t.add_row("jitter p50 / p99 / max (us)",
-                  f"{stats.jitter_us(50):.0f} / {stats.jitter_us(99):.0f} / {stats.jitter_us(100):.0f}")
+                  f"{stats.jitter_us(50):.0f} / {stats.jitter_us(99):.0f} / "
+                  f"{stats.jitter_us(100):.0f}")
     t.add_row("scheduling", stats.scheduling)
     if stats.stopped_early:
         t.add_row("stopped early", "yes")

@@ -215,7 +215,8 @@ def _write_ground_truth(out: Path, cfg: SimConfig, scene: Scene, traj: Trajector
         "T_pan_lidar": _T(traj.R_pan_lidar, traj.t_pan_lidar),
         "T_lidar_imu": _T(R_lidar_imu(ic), ic.t_lidar_imu_m),
         "imu_reference": {
-            "description": "the IMU reports R_ref_imu = Rz(yaw_offset + yaw_drift * t) R_world_imu, "
+            "description": "the IMU reports "
+                           "R_ref_imu = Rz(yaw_offset + yaw_drift * t) R_world_imu, "
                            "t = seconds since the capture start",
             "yaw_offset_deg": ic.yaw_offset_deg,
             "yaw_drift_deg_per_min": ic.yaw_drift_deg_per_min,

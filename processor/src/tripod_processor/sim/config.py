@@ -30,7 +30,8 @@ class MotionConfig(StrictModel):
     tripod_height_m: tuple[float, float] = Field((1.3, 1.6), description="head height range [m]")
     level_error_deg: float = Field(0.3, ge=0.0, description="sigma of station roll/pitch [deg]")
     max_yaw_change_deg: float = Field(180.0, ge=0.0, le=180.0,
-                                      description="heading change between stations, uniform +/- [deg]")
+                                      description="heading change between stations, "
+                                                  "uniform +/- [deg]")
     station_lateral_jitter_m: float = Field(0.2, ge=0.0, description="off-route offset [m]")
     sway_side_m: float = Field(0.03, ge=0.0, description="sideways sway while carried [m]")
     sway_height_m: float = Field(0.015, ge=0.0, description="vertical bob while carried [m]")

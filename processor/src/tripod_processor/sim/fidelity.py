@@ -10,7 +10,7 @@ scene mesh; labels are joined to decoded points through (firing time, ring, retu
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -178,8 +178,7 @@ class Fidelity:
     range_err_robust_std_m: float = float("nan")
     configured_sigma_m: float = 0.0
     label_agreement: float = float("nan")
-    packets: dict = field(default_factory=dict)
-    imu: dict = field(default_factory=dict)
+    label_joined: float = float("nan")  # fraction of points the label join found
 
 
 def place_points(points: DecodedPoints, cfg: SimConfig):
@@ -230,7 +229,8 @@ def geometry_check(capture_dir: str | Path, max_packets: int | None = None,
     err = rng_meas[fin] - t_true[fin]
     if cfg.lidar.return_mode != "strongest":
         # last returns of a split footprint lie on a surface behind the centre ray's hit
-        err = err[np.abs(err) < max(0.5 * cfg.lidar.dual_min_separation_m, 6 * cfg.lidar.range_noise_m)]
+        keep = max(0.5 * cfg.lidar.dual_min_separation_m, 6 * cfg.lidar.range_noise_m)
+        err = err[np.abs(err) < keep]
     res.n_points = int(len(dist))
     res.dist_median_m = float(np.median(dist))
     res.dist_p99_m = float(np.percentile(dist, 99))
@@ -240,7 +240,7 @@ def geometry_check(capture_dir: str | Path, max_packets: int | None = None,
     truth = scene.classes[closest]
     ok = lab != 255
     res.label_agreement = float(np.mean(lab[ok] == truth[ok])) if ok.any() else float("nan")
-    res.label_joined = float(np.mean(ok))  # type: ignore[attr-defined]
+    res.label_joined = float(np.mean(ok))
     return res
 
 

@@ -201,7 +201,8 @@ class Vlp16:
             refl = self.scene.reflectivity[pr].astype(np.float64) * (0.4 + 0.6 * cos_inc)
             refl = np.where(ok, np.clip(np.round(refl), 1, 100), 0)
             lab = np.where(ok, self.scene.classes[pr], NO_RETURN)
-            return (dist.astype(np.uint16).reshape(n_seq, 16), refl.astype(np.uint8).reshape(n_seq, 16),
+            return (dist.astype(np.uint16).reshape(n_seq, 16),
+                    refl.astype(np.uint8).reshape(n_seq, 16),
                     lab.astype(np.uint8).reshape(n_seq, 16))
 
         pkt = np.zeros(count, dtype=PACKET_DTYPE)

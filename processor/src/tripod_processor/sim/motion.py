@@ -18,7 +18,8 @@ Timeline (seconds from the capture start): at every station the head rests ``set
 pans one full turn plus ``pan_overlap_deg`` in ``pan_s`` (raised-cosine speed ramps), rests
 ``settle_s`` again; between stations the tripod is carried for ``transit_s`` (longer for long
 walks: peak speed ``max_carry_speed_m_s``) along the scene's route (minimum-jerk progress,
-sway in roll/pitch/height/sideways, heading change up to ``max_yaw_change_deg``). The lidar and IMU stream the whole time.
+sway in roll/pitch/height/sideways, heading change up to ``max_yaw_change_deg``).
+The lidar and IMU stream the whole time.
 """
 
 from __future__ import annotations
@@ -238,7 +239,8 @@ class Trajectory:
             ph, gain = self._sway_phase[kk], self._sway_gain[kk]
             tt = t_transit[i]
             side = lat[kk] + (lat[kk + 1] - lat[kk]) * g
-            side = side + cfg.sway_side_m * gain[:, 0] * np.sin(2 * np.pi * 0.9 * tt + ph[:, 0]) * win
+            side = side + cfg.sway_side_m * gain[:, 0] * np.sin(
+                2 * np.pi * 0.9 * tt + ph[:, 0]) * win
             xy = xy + side[:, None] * normal
             z = pos[kk, 2] + (pos[kk + 1, 2] - pos[kk, 2]) * g
             z = z + cfg.lift_m * win**2 + cfg.sway_height_m * gain[:, 1] * np.sin(

@@ -171,7 +171,7 @@ class MeshBuilder:
 
 
 def surface_reflectivity(classes: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Per-triangle reflectivity: the class's typical value, varied per quad (pairs of triangles)."""
+    """Per-triangle reflectivity: the class's typical value, varied per quad (triangle pair)."""
     base = np.array([CLASS_REFLECTIVITY[i] for i in range(len(CLASS_NAMES))], dtype=np.float64)
     b = base[np.minimum(classes, len(CLASS_NAMES) - 1)]
     var = rng.uniform(-12, 12, size=(len(classes) + 1) // 2).repeat(2)[: len(classes)]
@@ -248,8 +248,8 @@ def _office(rng: np.random.Generator):
     for y0, y1 in desk_rows:
         if y1 - y0 < 0.7:
             continue
-        x = 1.0
-        while x + 1.6 < w - 0.8:
+        x = 2.2  # the route's cross aisles run at x = 1.2 and w - 1.2
+        while x + 1.6 < w - 2.2:
             if rng.random() < 0.8:
                 mb.box((x, y0, 0.72), (x + 1.6, min(y0 + 0.8, y1), 0.75), OTHER)
                 mb.box((x + 0.05, y0 + 0.05, 0), (x + 0.10, y0 + 0.10, 0.72), OTHER)
@@ -266,8 +266,8 @@ def _hall(rng: np.random.Generator):
     mb = MeshBuilder()
     mb.floor_plan([(0, 0, w, d)], h)
     sp = rng.uniform(6.0, 8.0)
-    xs = np.arange(sp, w - sp / 2, sp)
-    ys = np.arange(sp, d - sp / 2, sp)
+    xs = np.arange(sp, w - sp + 1e-9, sp)  # at least sp from the walls: the loop runs between
+    ys = np.arange(sp, d - sp + 1e-9, sp)
     for x in xs:
         for y in ys:
             mb.prism(x, y, 0.3, 0.0, h, OTHER)
@@ -282,7 +282,7 @@ _BUILDERS = {"room": _room, "corridor": _corridor, "two_rooms": _two_rooms, "off
 
 
 def make_scene(name: str, seed: int) -> Scene:
-    """Build parametric scene ``name`` (one of ``SCENE_NAMES``) with dimensions drawn from ``seed``."""
+    """Parametric scene ``name`` (one of ``SCENE_NAMES``), dimensions drawn from ``seed``."""
     if name not in _BUILDERS:
         raise ValueError(f"unknown scene {name!r} (choose from {', '.join(SCENE_NAMES)})")
     rng = np.random.default_rng([seed, 0x5CE7E])
