@@ -222,3 +222,24 @@ def test_lookup_labels_with_lidar_clock_ns(clean):
     assert np.array_equal(a, b) and np.all(a < 4)
     off = fidelity.lookup_labels(lidar_ns - 10**9, laser, pts.return_type, clean / "labels.npz")
     assert np.all(off == 255)
+
+
+def test_mcap_recording_as_the_daemon_records(tmp_path):
+    from tripod_shared.recording import RecordingReader
+
+    cap = make_capture(tmp_path, "mcap", stations=1, mcap=True)
+    r = RecordingReader(cap / "recording.mcap")
+    lidar = list(r.lidar_packets())
+    want = [(d.t_ns, d.payload) for d in PcapReader(cap / "capture.pcap")
+            if d.dst_port == v.DATA_PORT]
+    assert lidar == want
+    pos = list(r.position_packets())
+    assert len(pos) == sum(1 for d in PcapReader(cap / "capture.pcap")
+                           if d.dst_port == v.POSITION_PORT)
+    imu = list(r.imu_samples())
+    recs = list(ImuLogReader(cap / "imu.tripimu"))
+    assert [s.raw for s in imu] == [x.data for x in recs]
+    assert [s.host_ns for s in imu] == [x.host_ns for x in recs]
+    assert imu[0].driver == "tfp" and abs(np.linalg.norm(imu[0].q_world_imu) - 1) < 1e-9
+    assert [e.kind for e in r.events()] == ["start", "stop"]
+    assert not r.report.truncated

@@ -35,6 +35,8 @@ def simulate_cmd(
     noise_free: bool = typer.Option(False, "--noise-free",
                                     help="No range noise, IMU noise or random dropout."),
     gps: bool = typer.Option(False, "--gps", help="GPS attached: PPS locked, GPRMC sentences."),
+    mcap: bool = typer.Option(False, "--mcap",
+                              help="Also write recording.mcap, as the daemon would record it."),
     config: Optional[Path] = typer.Option(None, "--config", help="YAML config (see config.yaml "
                                           "of any capture); options given here override it."),
     threads: int = typer.Option(0, "--threads", help="Ray-casting threads (0: all cores)."),
@@ -54,6 +56,8 @@ def simulate_cmd(
         overrides.update({"lidar.range_noise_m": 0.0, "lidar.dropout": 0.0, "imu.noise_deg": 0.0})
     if gps:
         overrides["lidar.gps"] = True
+    if mcap:
+        overrides["mcap"] = True
     try:
         cfg = load_config(SimConfig, config, overrides)
     except ConfigError as exc:

@@ -38,6 +38,7 @@ IMU_FILE = "imu.tripimu"
 LABELS_FILE = "labels.npz"
 MESH_FILE = "mesh.ply"
 META_FILE = "meta.json"
+MCAP_FILE = "recording.mcap"
 CONFIG_FILE = "config.yaml"
 GT_DIR = "gt"
 
@@ -173,6 +174,8 @@ def simulate(cfg: SimConfig, out_dir: str | os.PathLike, *, nthreads: int = 0,
             fh.write(f"{h},{s_},{q[0]:.9f},{q[1]:.9f},{q[2]:.9f},{q[3]:.9f}\n")
 
     _write_ground_truth(out, cfg, scene, traj, duration_ns)
+    if cfg.mcap:
+        write_recording(out, cfg)
     write_mesh_ply(out / MESH_FILE, scene)
     wall = time.perf_counter() - wall0
     summary = SimSummary(out, duration_ns * 1e-9, int(n_packets), int(n_pos), len(imu.host_ns),
@@ -182,6 +185,46 @@ def simulate(cfg: SimConfig, out_dir: str | os.PathLike, *, nthreads: int = 0,
         fh.write("# effective config of this capture: tripod simulate --config config.yaml\n")
         yaml.safe_dump(cfg.model_dump(mode="json"), fh, sort_keys=False)
     return summary
+
+
+def write_recording(out: Path, cfg: SimConfig) -> Path:
+    """``recording.mcap``: the capture as the daemon would record it (every packet and IMU
+    sample at its host receive time, IMU samples decoded with their raw bytes)."""
+    from tripod_shared import tfp, witmotion
+    from tripod_shared.messages import Event, ImuSample
+    from tripod_shared.recording import RecordingWriter
+
+    from ..replay import IMU, LIDAR, POSITION, ReplaySource
+
+    src = ReplaySource.open(out)
+    first = last = None
+    with RecordingWriter(out / MCAP_FILE, metadata={"source": "tripod simulate",
+                                                    "seed": str(cfg.seed)}) as w:
+        tp = tfp.TfpStreamParser()
+        wp = witmotion.WitStreamParser()
+        for t_ns, kind, data in src.events():
+            if first is None:
+                first = t_ns
+                w.write_event(Event(t_ns, "start", "simulated capture"))
+            last = t_ns
+            if kind == LIDAR:
+                w.write_lidar_packet(t_ns, data)
+            elif kind == POSITION:
+                w.write_position_packet(t_ns, data)
+            elif kind == IMU and cfg.imu.protocol == "tfp":
+                for pk in tp.feed(data):
+                    if pk.function_id == tfp.FID_CALLBACK_QUATERNION:
+                        q = tfp.decode_quaternion(pk.payload)
+                        w.write_imu(ImuSample(t_ns, *q, driver="tfp", sequence=pk.sequence,
+                                              raw=pk.raw))
+            elif kind == IMU:
+                for fr in wp.feed(data):
+                    if fr.ftype == witmotion.TYPE_QUATERNION:
+                        q = witmotion.decode_quaternion(fr.data)
+                        w.write_imu(ImuSample(t_ns, *q, driver="witmotion", raw=fr.raw))
+        if last is not None:
+            w.write_event(Event(last, "stop", "simulated capture"))
+    return out / MCAP_FILE
 
 
 def _write_ground_truth(out: Path, cfg: SimConfig, scene: Scene, traj: Trajectory,
@@ -277,6 +320,7 @@ def _write_meta(out: Path, cfg: SimConfig, scene: Scene, traj: Trajectory, lidar
             "gt/calibration.json": "extrinsics", "gt/clocks.json": "clock offsets, latencies",
             "gt/imu_truth.csv": "noise-free IMU quaternions",
             CONFIG_FILE: "effective config",
+            **({MCAP_FILE: "the capture as the daemon records it"} if cfg.mcap else {}),
         },
         "generation": {"wall_s": round(s.wall_s, 3), "realtime_factor": round(s.realtime_factor, 3),
                        "python": platform.python_version(), "open3d": open3d.__version__,

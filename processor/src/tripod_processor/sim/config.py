@@ -100,6 +100,7 @@ class SimConfig(StrictModel):
     start_unix_ns: int = Field(1_767_268_800_000_000_000,
                                description="host_realtime of the capture start (UNIX ns)")
     gt_rate_hz: float = Field(200.0, gt=0.0, description="rate of the TUM trajectory")
+    mcap: bool = Field(False, description="also write recording.mcap, as the daemon records")
     motion: MotionConfig = MotionConfig()
     lidar: LidarConfig = LidarConfig()
     imu: ImuConfig = ImuConfig()
