@@ -43,8 +43,9 @@ def noisy(tmp_path_factory):
 def test_output_files(clean):
     for name in ("capture.pcap", "imu.tripimu", "labels.npz", "mesh.ply", "meta.json",
                  "config.yaml", "gt/trajectory.tum", "gt/stations.tum", "gt/stations.csv",
-                 "gt/calibration.json", "gt/clocks.json", "gt/imu_truth.csv"):
+                 "gt/calibration.json", "gt/clocks.json", "gt/imu_truth.csv", "overview.png"):
         assert (clean / name).is_file(), name
+    assert (clean / "overview.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     meta = json.loads((clean / "meta.json").read_text())
     assert meta["config"]["lidar"]["range_noise_m"] == 0.0
     assert meta["derived"]["data_packets"] > 0

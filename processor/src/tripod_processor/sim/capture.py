@@ -39,6 +39,7 @@ LABELS_FILE = "labels.npz"
 MESH_FILE = "mesh.ply"
 META_FILE = "meta.json"
 MCAP_FILE = "recording.mcap"
+OVERVIEW_FILE = "overview.png"
 CONFIG_FILE = "config.yaml"
 GT_DIR = "gt"
 
@@ -177,6 +178,9 @@ def simulate(cfg: SimConfig, out_dir: str | os.PathLike, *, nthreads: int = 0,
     if cfg.mcap:
         write_recording(out, cfg)
     write_mesh_ply(out / MESH_FILE, scene)
+    from .plot import plot_overview
+
+    plot_overview(out / OVERVIEW_FILE, scene, traj, route_of(cfg, scene)[0])
     wall = time.perf_counter() - wall0
     summary = SimSummary(out, duration_ns * 1e-9, int(n_packets), int(n_pos), len(imu.host_ns),
                          cfg.stations, wall)
@@ -320,6 +324,7 @@ def _write_meta(out: Path, cfg: SimConfig, scene: Scene, traj: Trajectory, lidar
             "gt/calibration.json": "extrinsics", "gt/clocks.json": "clock offsets, latencies",
             "gt/imu_truth.csv": "noise-free IMU quaternions",
             CONFIG_FILE: "effective config",
+            OVERVIEW_FILE: "top view: scene, route, tripod path, stations",
             **({MCAP_FILE: "the capture as the daemon records it"} if cfg.mcap else {}),
         },
         "generation": {"wall_s": round(s.wall_s, 3), "realtime_factor": round(s.realtime_factor, 3),

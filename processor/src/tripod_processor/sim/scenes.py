@@ -261,18 +261,21 @@ def _office(rng: np.random.Generator):
     return mb, route, True, {"width_m": w, "depth_m": d, "height_m": h}
 
 
+def _centered_grid(length: float, margin: float, spacing: float) -> np.ndarray:
+    """Positions ``spacing`` apart, centred in [margin, length - margin] (at least one)."""
+    n = max(1, int((length - 2 * margin) // spacing) + 1)
+    return length / 2 + (np.arange(n) - (n - 1) / 2) * spacing
+
+
 def _hall(rng: np.random.Generator):
     w, d, h = rng.uniform(25.0, 40.0), rng.uniform(15.0, 25.0), rng.uniform(6.0, 10.0)
     mb = MeshBuilder()
     mb.floor_plan([(0, 0, w, d)], h)
     sp = rng.uniform(6.0, 8.0)
-    xs = np.arange(sp, w - sp + 1e-9, sp)  # at least sp from the walls: the loop runs between
-    ys = np.arange(sp, d - sp + 1e-9, sp)
-    for x in xs:
-        for y in ys:
+    m = 3.0  # the route: a loop 3 m from the walls; columns fill the space inside it
+    for x in _centered_grid(w, m + 2.0, sp):
+        for y in _centered_grid(d, m + 2.0, sp):
             mb.prism(x, y, 0.3, 0.0, h, OTHER)
-    # route: a loop halfway between the outer columns and the walls
-    m = sp / 2
     route = [(m, m), (w - m, m), (w - m, d - m), (m, d - m)]
     return mb, route, True, {"width_m": w, "depth_m": d, "height_m": h, "column_spacing_m": sp}
 
