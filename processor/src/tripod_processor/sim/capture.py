@@ -300,7 +300,9 @@ def _write_meta(out: Path, cfg: SimConfig, scene: Scene, traj: Trajectory, lidar
         "scene": {"name": scene.name, "params": scene.params, "triangles": len(scene.triangles),
                   "class_triangles": scene.class_counts(),
                   "bounds_m": [b.round(4).tolist() for b in scene.bounds],
-                  "route_length_m": round(traj.route.length, 4)},
+                  "route_length_m": round(traj.route.length, 4),
+                  "route_xy": np.round(route_of(cfg, scene)[0], 4).tolist(),
+                  "route_closed": route_of(cfg, scene)[1]},
         "derived": {
             "duration_s": s.duration_s,
             "data_packets": s.data_packets,
