@@ -36,8 +36,9 @@ def replay_cmd(
     lidar: str = typer.Option("127.0.0.1:2368", "--lidar", help="UDP HOST:PORT for data packets."),
     position: str = typer.Option("127.0.0.1:8308", "--position",
                                  help="UDP HOST:PORT for position packets."),
-    imu: str = typer.Option("pty", "--imu", help="IMU bytes to: pty, tcp:PORT (brickd-like; 0 = "
-                                                 "any free port), serial:DEV, serial:DEV@BAUD or none."),
+    imu: str = typer.Option(
+        "pty", "--imu", help="IMU bytes to: pty, tcp:PORT (brickd-like; 0 = any free port), "
+                             "serial:DEV, serial:DEV@BAUD or none."),
     imu_log: Optional[Path] = typer.Option(None, "--imu-log",
                                            help="IMU log to send (default: imu.tripimu beside "
                                                 "the input)."),
