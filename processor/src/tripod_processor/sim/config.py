@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from tripod_shared.config_io import StrictModel
 
@@ -55,9 +55,10 @@ class LidarConfig(StrictModel):
     dual_min_separation_m: float = Field(0.3, ge=0.0,
                                          description="closer returns merge into one [m]")
     product_id: int = Field(0x22, ge=0, le=255, description="factory byte (0x22 VLP-16)")
-    clock_offset_ns: int = Field(823_456_789,
-                                 description="lidar_toh clock minus host_realtime [ns] "
-                                             "(free-running lidar clock)")
+    clock_offset_ns: int | None = Field(
+        None, description="lidar_toh clock minus host_realtime [ns]; default 823456789 "
+                          "(free-running lidar clock), or -1200000 with gps (lidar on UTC "
+                          "through PPS, host clock 1.2 ms ahead by NTP)")
     network_latency_us: float = Field(60.0, ge=0.0,
                                       description="last firing to host receive, mean [us]")
     network_jitter_us: float = Field(15.0, ge=0.0, description="exponential jitter [us]")
@@ -67,6 +68,12 @@ class LidarConfig(StrictModel):
     gps_lon_deg: float = 10.7217
     src_ip: str = "192.168.1.201"
     dst_ip: str = "255.255.255.255"
+
+    @model_validator(mode="after")
+    def _derived_clock_offset(self) -> "LidarConfig":
+        if self.clock_offset_ns is None:
+            self.clock_offset_ns = -1_200_000 if self.gps else 823_456_789
+        return self
 
 
 class ImuConfig(StrictModel):
