@@ -97,6 +97,15 @@ def test_noise_free_points_land_on_mesh(clean):
     assert f.label_agreement > 0.995
 
 
+def test_nominal_geometry_without_vertical_offsets(tmp_path):
+    """vertical_offsets=False: every laser at the origin, decoded with the nominal calibration
+    (VeloView's geometry) the points land on the mesh just as well."""
+    cap = make_capture(tmp_path, "nominal", stations=1, lidar={
+        "range_noise_m": 0.0, "dropout": 0.0, "vertical_offsets": False})
+    f = fidelity.geometry_check(cap, max_packets=1500)
+    assert f.dist_median_m <= 0.002 and f.dist_p99_m <= 0.01
+
+
 def test_noise_spread_matches_sigma(noisy):
     f = fidelity.geometry_check(noisy)
     assert f.range_err_robust_std_m == pytest.approx(0.03, rel=0.1)

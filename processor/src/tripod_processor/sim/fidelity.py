@@ -54,8 +54,12 @@ def decode_capture(capture_dir: str | Path, max_packets: int | None = None) -> D
     import velodyne_decoder as vd
 
     meta, cfg = load_meta(capture_dir)
-    dec = vd.StreamDecoder(vd.Config(model=vd.Model.VLP16, timestamp_first_packet=True,
-                                     min_range=0.05, max_range=200.0))
+    # the geometry the capture was made with: built-in VLP-16 (manual's vertical offsets) or
+    # the bundled nominal calibration without them
+    calib = None if cfg.lidar.vertical_offsets else vd.get_bundled_calibration("VLP-16.yml")
+    dec = vd.StreamDecoder(vd.Config(model=vd.Model.VLP16, calibration=calib,
+                                     timestamp_first_packet=True, min_range=0.05,
+                                     max_range=200.0))
     parts = []
 
     def take(res):
@@ -194,7 +198,8 @@ def _laser_offsets_world(points: DecodedPoints, cfg: SimConfig) -> np.ndarray:
     _scene, traj = build_rig(cfg)
     R, _ = traj.T_world_lidar((points.host_ns - cfg.start_unix_ns) * 1e-9)
     laser = _LASER_OF_RING[np.clip(points.ring, 0, 15)]
-    return R[:, :, 2] * LASER_VERT_OFFSET_M[laser][:, None]
+    offsets = LASER_VERT_OFFSET_M if cfg.lidar.vertical_offsets else np.zeros(16)
+    return R[:, :, 2] * offsets[laser][:, None]
 
 
 def geometry_check(capture_dir: str | Path, max_packets: int | None = None,

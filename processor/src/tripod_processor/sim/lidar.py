@@ -125,6 +125,7 @@ class Vlp16:
         self.deg_per_ns = 360.0 * cfg.rpm / 60.0 / 1e9
         self._mode = _MODE_BYTE[cfg.return_mode]
         self._cos_max_inc = float(np.cos(np.radians(cfg.max_incidence_deg)))
+        self.vert_offsets_m = LASER_VERT_OFFSET_M if cfg.vertical_offsets else np.zeros(16)
 
     # ---------------------------------------------------------------- geometry
     def azimuth_deg(self, t_ns: np.ndarray) -> np.ndarray:
@@ -164,7 +165,7 @@ class Vlp16:
         d1 = np.matmul(d_lidar, Rt).reshape(-1, 3)  # batched R @ d, much faster than einsum
         d2 = np.matmul(d_edge, Rt).reshape(-1, 3)
         # each laser's own origin: lidar origin + its vertical offset along the lidar z axis
-        o = (p[:, None, :] + R[:, None, :, 2] * LASER_VERT_OFFSET_M[None, :, None]).reshape(-1, 3)
+        o = (p[:, None, :] + R[:, None, :, 2] * self.vert_offsets_m[None, :, None]).reshape(-1, 3)
         t1, prim1, c1 = self._cast(o, d1)
         t2, prim2, c2 = self._cast(o, d2)
 
