@@ -366,11 +366,14 @@ class BrickdImuSink(ImuSink):
 
 
 def open_imu_sink(spec: str, uid: int | None = None) -> ImuSink | None:
-    """``pty``, ``tcp:PORT`` (0 = any free port), ``serial:DEV[@BAUD]`` or ``none``."""
+    """``pty``, ``tcp[:PORT]`` (brickd's 4223 by default, 0 = any free port),
+    ``serial:DEV[@BAUD]`` or ``none``."""
     if spec in ("none", ""):
         return None
     if spec == "pty":
         return PtyImuSink()
+    if spec == "tcp":
+        spec = f"tcp:{tfp.BRICKD_PORT}"
     if spec.startswith("tcp:"):
         try:
             port = int(spec[4:])

@@ -37,7 +37,8 @@ def replay_cmd(
     position: str = typer.Option("127.0.0.1:8308", "--position",
                                  help="UDP HOST:PORT for position packets."),
     imu: str = typer.Option(
-        "pty", "--imu", help="IMU bytes to: pty, tcp:PORT (brickd-like; 0 = any free port), "
+        "pty", "--imu", help="IMU bytes to: pty, tcp (brickd-like on 4223), tcp:PORT (0 = any "
+                             "free port), "
                              "serial:DEV, serial:DEV@BAUD or none."),
     imu_log: Optional[Path] = typer.Option(None, "--imu-log",
                                            help="IMU log to send (default: imu.tripimu beside "
