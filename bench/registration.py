@@ -10,7 +10,7 @@ registration on a symmetric room: flips in random trials with gravity (tripod) a
 Pairs come from the project's simulator (``tripod_processor.sim``: scenes, VLP-16 beam model,
 range noise 3 cm), one revolution per head tilt at -15, 0, +15 deg; all starts from identity.
 
-    .venv/bin/python bench/registration.py            # full run (about 2 minutes on 2 cores)
+    .venv/bin/python bench/registration.py            # full run (about 4 minutes on 2 cores)
     .venv/bin/python bench/registration.py --quick    # fewer repeats and trials
 Open3D's OpenMP thread count is fixed at import, so its rows run in child processes.
 """
@@ -110,29 +110,35 @@ TOOLS = {
 }
 
 
-def measure(fn, method, src, tgt, threads, repeats):
-    """(T, best CPU seconds, best wall seconds) over repeats."""
-    cpu, wall, T = [], [], None
-    for _ in range(repeats):
-        c0, w0 = time.process_time(), time.perf_counter()
-        T = fn(method, src, tgt, threads)
-        cpu.append(time.process_time() - c0)
-        wall.append(time.perf_counter() - w0)
-    return T, min(cpu), min(wall)
+def timed(fn, method, src, tgt, threads):
+    """(T, CPU seconds, wall seconds) of one run."""
+    c0, w0 = time.process_time(), time.perf_counter()
+    T = fn(method, src, tgt, threads)
+    return T, time.process_time() - c0, time.perf_counter() - w0
 
 
-def local_rows(tool, pairs, repeats, threads_list=(1, 2)):
-    fn, methods = TOOLS[tool]
+def local_rows(tools, pairs, repeats, threads_list=(1, 2)):
+    """Best of `repeats` per (pair, tool, method), runs interleaved across tools and methods so
+    that the load of a shared machine falls on all of them alike."""
     rows = []
     for name, (src, tgt, G) in pairs.items():
-        for m in methods:
-            T, cpu1, _ = measure(fn, m, src, tgt, threads_list[0], repeats) if 1 in threads_list \
-                else (None, float("nan"), None)
-            T2, _, wall2 = measure(fn, m, src, tgt, 2, repeats) if 2 in threads_list \
-                else (None, None, float("nan"))
-            rot, tr = errors(T if T is not None else T2, G)
+        best = {}
+        for _ in range(repeats):
+            for tool in tools:
+                fn, methods = TOOLS[tool]
+                for m in methods:
+                    b = best.setdefault((tool, m), {"T": None, "cpu1": np.inf, "wall2": np.inf})
+                    for threads in threads_list:
+                        T, cpu, wall = timed(fn, m, src, tgt, threads)
+                        if threads == 1:
+                            b["T"], b["cpu1"] = T, min(b["cpu1"], cpu)
+                        else:
+                            b["T"] = T if b["T"] is None else b["T"]
+                            b["wall2"] = min(b["wall2"], wall)
+        for (tool, m), b in best.items():
+            rot, tr = errors(b["T"], G)
             rows.append({"pair": name, "tool": tool, "method": m, "rot_deg": rot, "trans_cm": tr,
-                         "cpu1_ms": cpu1 * 1e3, "wall2_ms": wall2 * 1e3})
+                         "cpu1_ms": b["cpu1"] * 1e3, "wall2_ms": b["wall2"] * 1e3})
     return rows
 
 
@@ -230,10 +236,10 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=None)
     ap.add_argument("--o3d-worker", type=int, default=0, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
-    repeats = args.repeats or (1 if args.quick else 3)
+    repeats = args.repeats or (1 if args.quick else 5)
     pairs = make_pairs()
     if args.o3d_worker:
-        rows = local_rows("open3d", pairs, repeats, threads_list=(args.o3d_worker,))
+        rows = local_rows(["open3d"], pairs, repeats, threads_list=(args.o3d_worker,))
         for r in rows:  # this process has one thread count only
             if args.o3d_worker == 2:
                 r["cpu1_ms"] = float("nan")
@@ -245,7 +251,8 @@ def main(argv=None) -> int:
     from rich.console import Console
     from rich.table import Table
 
-    rows = local_rows("tripod", pairs, repeats) + local_rows("small_gicp", pairs, repeats)
+    load0 = os.getloadavg()[0]
+    rows = local_rows(["tripod", "small_gicp"], pairs, repeats)
     rows += open3d_rows(repeats)
     ref = {r["pair"]: r for r in rows if r["tool"] == "small_gicp" and r["method"] == "GICP"}
     n = {name: (len(src), len(tgt)) for name, (src, tgt, _) in pairs.items()}
@@ -265,6 +272,8 @@ def main(argv=None) -> int:
               + ", ".join(f"{k} {a}/{b}" for k, (a, b) in n.items()))
     from tripod_processor.preprocess import voxel_downsample
 
+    con.print(f"load average at start/end: {load0:.1f}/{os.getloadavg()[0]:.1f} on "
+              f"{os.cpu_count()} cores; times are the best of {repeats} interleaved runs")
     con.print(f"after {VOXEL} m voxels: " + ", ".join(
         f"{k} {len(voxel_downsample(s, VOXEL))}/{len(voxel_downsample(tt, VOXEL))}"
         for k, (s, tt, _) in pairs.items()))
