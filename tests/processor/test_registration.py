@@ -174,6 +174,15 @@ def test_global_gravity_never_flips_symmetric_room():
         # the estimate keeps gravity: up in the source maps to up in the target
         up = r.T_target_source[:3, :3] @ np.array([0, 0, 1.0])
         assert up[2] > np.cos(np.radians(1.0)), up
+        # gravity cannot tell the room from its 180 deg twin; the right pose or the twin it is
+        assert min(rot_err_deg(r.T_target_source, G),
+                   rot_err_deg(r.T_target_source, G @ pose(180.0))) < 3.0
+        # an IMU yaw that is 12 deg off still picks the right one
+        imu = pose(12.0)[:3, :3] @ G[:3, :3]
+        r = reg.register_global(src, tgt, voxel_size=0.15, gravity_aligned=True, seed=trial,
+                                rotation_prior=imu, rotation_tolerance=np.radians(30))
+        assert r.success and rot_err_deg(r.T_target_source, G) < 3.0
+        assert trans_err(r.T_target_source, G) < 0.2
 
 
 # ------------------------------------------------------------------ degenerate input

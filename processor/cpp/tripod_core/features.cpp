@@ -50,6 +50,13 @@ std::vector<int64_t> finite_rows(const PointsXYZ& points) {
 
 LocalGeometry estimate_local_geometry(const PointsXYZ& points, const Neighborhood& nb,
                                       const Eigen::Vector3d& viewpoint, int num_threads) {
+    const KdTree<3> tree(points.data(), points.rows());
+    return estimate_local_geometry(points, tree, nb, viewpoint, num_threads, false);
+}
+
+LocalGeometry estimate_local_geometry(const PointsXYZ& points, const KdTree<3>& tree,
+                                      const Neighborhood& nb, const Eigen::Vector3d& viewpoint,
+                                      int num_threads, bool keep_frames) {
     if (nb.k_neighbors <= 0 && nb.radius <= 0)
         throw std::invalid_argument("neighbourhood needs k_neighbors > 0 or radius > 0");
     const int64_t n = points.rows();
@@ -58,38 +65,42 @@ LocalGeometry estimate_local_geometry(const PointsXYZ& points, const Neighborhoo
     g.covariances.setZero(n, 9);
     g.curvature.setZero(n);
     g.valid.assign(n, 0);
+    if (keep_frames) g.frames.assign(n, Eigen::Matrix3d::Identity());
     if (n == 0) return g;
-    const KdTree<3> tree(points.data(), n);
+    const std::vector<int64_t>& order = tree.order();
 #pragma omp parallel num_threads(threads(num_threads))
     {
         std::vector<int> idx;
         std::vector<float> dist;
-#pragma omp for schedule(guided, 32)
-        for (int64_t i = 0; i < n; ++i) {
+#pragma omp for schedule(static, 256)
+        for (int64_t k = 0; k < n; ++k) {
+            const int64_t i = order[k];  // tree order: neighbouring queries share cache lines
             neighbours(tree, points.row(i).data(), nb, idx, dist);
             const int m = static_cast<int>(idx.size());
             if (m < 3) continue;
+            // mean and scatter about the first point (numerically safe far from the origin)
+            const Eigen::Vector3d o = points.row(i).transpose().cast<double>();
             Eigen::Vector3d mean = Eigen::Vector3d::Zero();
             Eigen::Matrix3d sum = Eigen::Matrix3d::Zero();
             for (int j = 0; j < m; ++j) {
-                const Eigen::Vector3d p = points.row(idx[j]).transpose().cast<double>();
+                const Eigen::Vector3d p = points.row(idx[j]).transpose().cast<double>() - o;
                 mean += p;
-                sum += p * p.transpose();
+                sum.noalias() += p * p.transpose();
             }
             mean /= m;
-            const Eigen::Matrix3d cov = (sum - m * mean * mean.transpose()) / m;
+            const Eigen::Matrix3d cov = sum / m - mean * mean.transpose();
             Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
             es.computeDirect(cov);
             const Eigen::Vector3d ev = es.eigenvalues().cwiseMax(0.0);  // ascending
             if (!(ev[1] > 1e-12 * std::max(ev[2], 1e-30)) || !(ev[2] > 0)) continue;  // collinear
             Eigen::Vector3d normal = es.eigenvectors().col(0);
-            const Eigen::Vector3d p = points.row(i).transpose().cast<double>();
-            if (normal.dot(viewpoint - p) < 0) normal = -normal;
+            if (normal.dot(viewpoint - o) < 0) normal = -normal;
             g.normals.row(i) = normal.transpose();
             Eigen::Map<Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(g.covariances.row(i).data()) =
                 cov;
             g.curvature[i] = ev[0] / ev.sum();
             g.valid[i] = 1;
+            if (keep_frames) g.frames[i] = es.eigenvectors();
         }
     }
     return g;

@@ -34,7 +34,11 @@ struct LocalGeometry {
     MatrixX9d covariances;  ///< N x 9 row-major 3x3 sample covariances [m^2]
     Eigen::VectorXd curvature;  ///< N: lambda_min / (sum lambda) (0 = flat)
     std::vector<uint8_t> valid;  ///< N: 1 if the neighbourhood had >= 3 non-collinear points
+    std::vector<Eigen::Matrix3d> frames;  ///< N eigenvector bases (ascending), if asked for
 };
+
+template <int Dim>
+class KdTree;
 
 /// Estimate normals and covariances (PCA of each neighbourhood).
 /// @param points      N x 3 finite points [m]
@@ -43,6 +47,11 @@ struct LocalGeometry {
 /// @param num_threads 0 = all
 LocalGeometry estimate_local_geometry(const PointsXYZ& points, const Neighborhood& nb,
                                       const Eigen::Vector3d& viewpoint, int num_threads);
+
+/// Same, over an existing k-d tree of `points`; `keep_frames` fills LocalGeometry::frames.
+LocalGeometry estimate_local_geometry(const PointsXYZ& points, const KdTree<3>& tree,
+                                      const Neighborhood& nb, const Eigen::Vector3d& viewpoint,
+                                      int num_threads, bool keep_frames = false);
 
 /// Remove points whose mean distance to their k neighbours exceeds mean + std_ratio * std
 /// over the cloud (PCL's StatisticalOutlierRemoval). @return indices of the kept rows.

@@ -82,6 +82,14 @@ GlobalResult register_global(const PointsXYZ& source_in, const PointsXYZ& target
         throw std::invalid_argument("give the up vector of both clouds or of neither");
     if (!opt.up_source.allFinite() || !opt.up_target.allFinite())
         throw std::invalid_argument("up vectors must be finite");
+    if (opt.has_rotation_prior) {
+        const Eigen::Matrix3d& P = opt.R_prior;
+        if (!P.allFinite() || (P.transpose() * P - Eigen::Matrix3d::Identity()).norm() > 1e-4 ||
+            P.determinant() < 0)
+            throw std::invalid_argument("rotation prior is not a rotation matrix");
+        if (!(opt.rotation_tolerance > 0))
+            throw std::invalid_argument("rotation_tolerance must be > 0");
+    }
     const int nt = threads(opt.num_threads);
 
     // 0. finite points only
@@ -173,6 +181,13 @@ GlobalResult register_global(const PointsXYZ& source_in, const PointsXYZ& target
         for (const Match& m : matches) c += (T * m.p - m.q).squaredNorm() < thr2;
         return c;
     };
+    // rotation prior, compared in the original frames: R = Lt^T R_levelled Ls
+    const double cos_tol = std::cos(std::min(opt.rotation_tolerance, M_PI));
+    auto agrees_with_prior = [&](const Eigen::Isometry3d& T) {
+        if (!opt.has_rotation_prior) return true;
+        const Eigen::Matrix3d R = Lt.transpose() * T.linear() * Ls;
+        return ((R * opt.R_prior.transpose()).trace() - 1) / 2 >= cos_tol;
+    };
     auto hypothesis = [&](int64_t k, Eigen::Isometry3d& T) -> bool {
         uint64_t state = splitmix(opt.seed * 0x100000001b3ULL + static_cast<uint64_t>(k));
         int idx[3];
@@ -205,7 +220,7 @@ GlobalResult register_global(const PointsXYZ& source_in, const PointsXYZ& target
             }
         std::vector<int> sel(idx, idx + sample);
         T = fit(matches, sel, gravity);
-        return true;
+        return agrees_with_prior(T);
     };
     // Hypotheses that agree with more than the minimal sample are scored on the clouds
     // themselves (source points, at most 2000, with a target point within the inlier distance),
@@ -284,7 +299,7 @@ GlobalResult register_global(const PointsXYZ& source_in, const PointsXYZ& target
             if ((T * matches[i].p - matches[i].q).squaredNorm() < thr2) sel.push_back(static_cast<int>(i));
         if (static_cast<int>(sel.size()) < sample) break;
         const Eigen::Isometry3d T2 = fit(matches, sel, gravity);
-        if (geometric_score(T2) >= geometric_score(T)) T = T2;
+        if (agrees_with_prior(T2) && geometric_score(T2) >= geometric_score(T)) T = T2;
     }
     res.num_inlier_correspondences = count_inliers(T);
     // back from the levelled frames: T_target_source = Lt^T T Ls

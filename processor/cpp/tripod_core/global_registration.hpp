@@ -25,6 +25,12 @@ struct GlobalOptions {
     /// set (non-zero) the rotation is searched about up only.
     Eigen::Vector3d up_source = Eigen::Vector3d::Zero();
     Eigen::Vector3d up_target = Eigen::Vector3d::Zero();
+    /// Optional rotation prior (e.g. the IMU's relative orientation, yaw included): hypotheses
+    /// whose rotation differs from R_prior by more than rotation_tolerance are rejected. It
+    /// resolves what geometry cannot: the 180 deg twin of a symmetric room.
+    bool has_rotation_prior = false;
+    Eigen::Matrix3d R_prior = Eigen::Matrix3d::Identity();  ///< prior R_target_source
+    double rotation_tolerance = 0.5;                         ///< [rad]
     Eigen::Vector3d viewpoint_source = Eigen::Vector3d::Zero();  ///< normals face it [m]
     Eigen::Vector3d viewpoint_target = Eigen::Vector3d::Zero();
     uint64_t seed = 0;                ///< same seed, same result, whatever num_threads

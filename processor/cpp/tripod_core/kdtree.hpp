@@ -23,7 +23,7 @@ public:
     /// @param data      n x Dim row-major floats (copied)
     /// @param n         number of rows
     /// @param leaf_size points per leaf (>= 1)
-    KdTree(const float* data, int64_t n, int leaf_size = 12) : leaf_size_(std::max(1, leaf_size)) {
+    KdTree(const float* data, int64_t n, int leaf_size = 16) : leaf_size_(std::max(1, leaf_size)) {
         order_.resize(n);
         std::iota(order_.begin(), order_.end(), 0);
         pts_.resize(static_cast<size_t>(n) * Dim);
@@ -37,6 +37,9 @@ public:
 
     int64_t size() const { return static_cast<int64_t>(order_.size()); }
 
+    /// Row indices in tree order: querying in this order is spatially coherent (cache friendly).
+    const std::vector<int64_t>& order() const { return order_; }
+
     /// k nearest neighbours of q, ascending distance.
     /// @param q       query, Dim floats
     /// @param k       wanted neighbours
@@ -47,7 +50,8 @@ public:
         if (nodes_.empty() || k <= 0) return 0;
         int found = 0;
         float worst = std::numeric_limits<float>::infinity();
-        knn_rec(0, q, k, idx, sq_dist, found, worst);
+        float off[Dim] = {};
+        knn_rec(0, q, k, idx, sq_dist, found, worst, 0.f, off);
         return found;
     }
 
@@ -55,7 +59,8 @@ public:
     int nearest(const float* q, float max_sq_dist, float* sq_dist) const {
         int idx = -1;
         float best = max_sq_dist;
-        if (!nodes_.empty()) nn_rec(0, q, idx, best);
+        float off[Dim] = {};
+        if (!nodes_.empty()) nn_rec(0, q, idx, best, 0.f, off);
         if (sq_dist) *sq_dist = best;
         return idx;
     }
@@ -113,8 +118,11 @@ private:
         return s;
     }
 
-    void knn_rec(int id, const float* q, int k, int* idx, float* dist, int& found,
-                 float& worst) const {
+    // Searches descend to the near child first; the far child is visited only if its cell can
+    // hold a closer point. The cell distance is tracked incrementally per axis (Arya & Mount):
+    // `off[d]` is the query's offset from the cell along d, `mindist` their squared sum.
+    void knn_rec(int id, const float* q, int k, int* idx, float* dist, int& found, float& worst,
+                 float mindist, float* off) const {
         const Node& nd = nodes_[id];
         if (nd.axis < 0) {
             for (int i = nd.begin; i < nd.end; ++i) {
@@ -135,11 +143,17 @@ private:
         const float diff = q[nd.axis] - nd.split;
         const int near = diff < 0 ? nd.left : nd.right;
         const int far = diff < 0 ? nd.right : nd.left;
-        knn_rec(near, q, k, idx, dist, found, worst);
-        if (found < k || diff * diff < worst) knn_rec(far, q, k, idx, dist, found, worst);
+        knn_rec(near, q, k, idx, dist, found, worst, mindist, off);
+        const float old = off[nd.axis];
+        const float far_dist = mindist - old * old + diff * diff;
+        if (found < k || far_dist < worst) {
+            off[nd.axis] = diff;
+            knn_rec(far, q, k, idx, dist, found, worst, far_dist, off);
+            off[nd.axis] = old;
+        }
     }
 
-    void nn_rec(int id, const float* q, int& idx, float& best) const {
+    void nn_rec(int id, const float* q, int& idx, float& best, float mindist, float* off) const {
         const Node& nd = nodes_[id];
         if (nd.axis < 0) {
             for (int i = nd.begin; i < nd.end; ++i) {
@@ -152,8 +166,14 @@ private:
             return;
         }
         const float diff = q[nd.axis] - nd.split;
-        nn_rec(diff < 0 ? nd.left : nd.right, q, idx, best);
-        if (diff * diff < best) nn_rec(diff < 0 ? nd.right : nd.left, q, idx, best);
+        nn_rec(diff < 0 ? nd.left : nd.right, q, idx, best, mindist, off);
+        const float old = off[nd.axis];
+        const float far_dist = mindist - old * old + diff * diff;
+        if (far_dist < best) {
+            off[nd.axis] = diff;
+            nn_rec(diff < 0 ? nd.right : nd.left, q, idx, best, far_dist, off);
+            off[nd.axis] = old;
+        }
     }
 
     void radius_rec(int id, const float* q, float r2, std::vector<int>& idx,

@@ -194,8 +194,17 @@ void associate(const PreparedCloud& src, const PreparedCloud& tgt, const Eigen::
 }
 
 Normal linearize(Method method, const PreparedCloud& src, const PreparedCloud& tgt,
-                 const Eigen::Isometry3d& T, const std::vector<int>& corr,
-                 const RegistrationOptions& opt, bool with_jacobian, int num_threads) {
+                 const Eigen::Isometry3d& T, std::vector<int>& corr,
+                 const RegistrationOptions& opt, bool with_jacobian, int num_threads,
+                 double associate_sq_dist, std::vector<Eigen::Matrix3d>* mahalanobis) {
+    const bool find = associate_sq_dist > 0;
+    if (find) corr.assign(src.points.rows(), -1);
+    const bool store_M = mahalanobis && with_jacobian && method == Method::kGICP;
+    const bool reuse_M = mahalanobis && !with_jacobian && method == Method::kGICP &&
+                         mahalanobis->size() == static_cast<size_t>(src.points.rows());
+    if (store_M) mahalanobis->resize(src.points.rows());
+    const Eigen::Matrix3f Rf = T.linear().cast<float>();
+    const Eigen::Vector3f tf = T.translation().cast<float>();
     const int nt = threads(num_threads);
     const double inv_s2 = 1.0 / (opt.point_sigma * opt.point_sigma);
     const Kernel kernel{opt.loss, std::pow(opt.loss_scale / opt.point_sigma, 2)};
@@ -208,6 +217,11 @@ Normal linearize(Method method, const PreparedCloud& src, const PreparedCloud& t
         Normal acc;
 #pragma omp for schedule(static)
         for (int64_t i = 0; i < n; ++i) {
+            if (find) {
+                const Eigen::Vector3f pf = Rf * src.points.row(i).transpose() + tf;
+                float d2;
+                corr[i] = tgt.tree->nearest(pf.data(), static_cast<float>(associate_sq_dist), &d2);
+            }
             const int j = corr[i];
             if (j < 0) continue;
             const Eigen::Vector3d Rp = R * src.points.row(i).transpose().cast<double>();
@@ -221,9 +235,15 @@ Normal linearize(Method method, const PreparedCloud& src, const PreparedCloud& t
             double w = 0, rho = 0;
             switch (method) {
                 case Method::kGICP: {
-                    const Eigen::Matrix3d C =
-                        tgt.covariances[j] + R * src.covariances[i] * R.transpose();
-                    const Eigen::Matrix3d M = C.inverse();
+                    Eigen::Matrix3d M;
+                    if (reuse_M) {
+                        M = (*mahalanobis)[i];
+                    } else {
+                        const Eigen::Matrix3d C =
+                            tgt.covariances[j] + R * src.covariances[i] * R.transpose();
+                        M = C.inverse();
+                        if (store_M) (*mahalanobis)[i] = M;
+                    }
                     const Eigen::Vector3d Me = M * e;
                     kernel(e.dot(Me), w, rho);
                     if (with_jacobian) {
@@ -281,8 +301,7 @@ void finish_result(const PreparedCloud& src, const PreparedCloud& tgt, Method re
     const Eigen::Isometry3d T(res.T_target_source);
     const double d = opt.max_correspondence_distances.back();
     std::vector<int> corr;
-    associate(src, tgt, T, d * d, corr, num_threads);
-    Normal nl = linearize(residual_model, src, tgt, T, corr, opt, true, num_threads);
+    Normal nl = linearize(residual_model, src, tgt, T, corr, opt, true, num_threads, d * d);
     res.final_error = nl.error + add_prior(opt, T.linear(), &nl.H, &nl.b);
     // Fitness and RMSE as Open3D defines them (all correspondences within the distance).
     int64_t inl = 0;
@@ -351,25 +370,22 @@ std::shared_ptr<PreparedCloud> prepare_cloud(const PointsXYZ& points, const Neig
     pc->points.resize(static_cast<Eigen::Index>(rows.size()), 3);
     for (size_t i = 0; i < rows.size(); ++i) pc->points.row(i) = points.row(rows[i]);
     pc->tree = std::make_unique<KdTree<3>>(pc->points.data(), pc->points.rows());
-    const LocalGeometry g = estimate_local_geometry(pc->points, nb, viewpoint, num_threads);
+    const LocalGeometry g =
+        estimate_local_geometry(pc->points, *pc->tree, nb, viewpoint, num_threads, true);
     pc->normals = g.normals;
     pc->normal_valid = g.valid;
     const int64_t n = pc->points.rows();
     pc->covariances.resize(n);
     constexpr double kEps = 1e-3;
     const double s2 = point_sigma * point_sigma / kEps;
-#pragma omp parallel for num_threads(threads(num_threads)) schedule(static)
+    const Eigen::Vector3d diag(s2 * kEps, s2, s2);
     for (int64_t i = 0; i < n; ++i) {
         if (!g.valid[i]) {  // isotropic: no plane known
             pc->covariances[i] = s2 * Eigen::Matrix3d::Identity();
             continue;
         }
-        Eigen::Matrix3d C =
-            Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(g.covariances.row(i).data());
-        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
-        es.computeDirect(C);
-        const Eigen::Matrix3d& U = es.eigenvectors();
-        pc->covariances[i] = s2 * U * Eigen::Vector3d(kEps, 1, 1).asDiagonal() * U.transpose();
+        const Eigen::Matrix3d& U = g.frames[i];
+        pc->covariances[i].noalias() = U * diag.asDiagonal() * U.transpose();
     }
     return pc;
 }
@@ -392,6 +408,7 @@ RegistrationResult register_local(const PreparedCloud& src, const PreparedCloud&
         detail::register_ceres(src, tgt, T, opt, res, nt);
     } else {
         std::vector<int> corr;
+        std::vector<Eigen::Matrix3d> mahalanobis;  // GICP weights of the current pairs
         bool ok = true;
         res.status = "max_iterations";
         for (size_t stage = 0; stage < opt.max_correspondence_distances.size() && ok; ++stage) {
@@ -400,19 +417,25 @@ RegistrationResult register_local(const PreparedCloud& src, const PreparedCloud&
             bool stage_converged = false;
             for (int it = 0; it < opt.max_iterations; ++it) {
                 ++res.iterations;
-                detail::associate(src, tgt, T, d * d, corr, nt);
+                Eigen::Isometry3d T_new;
+                Normal nl;
                 int64_t m = 0;
-                for (int c : corr) m += c >= 0;
+                if (closed_form) {
+                    detail::associate(src, tgt, T, d * d, corr, nt);
+                    for (int c : corr) m += c >= 0;
+                } else {
+                    nl = detail::linearize(opt.method, src, tgt, T, corr, opt, true, nt, d * d,
+                                           &mahalanobis);
+                    m = nl.count;
+                }
                 if (m < need) {
                     res.status = "too_few_correspondences";
                     ok = false;
                     break;
                 }
-                Eigen::Isometry3d T_new;
                 if (closed_form) {
                     T_new = kabsch(src, tgt, T, corr, kernel, inv_s2);
                 } else {
-                    Normal nl = detail::linearize(opt.method, src, tgt, T, corr, opt, true, nt);
                     const double err = nl.error + add_prior(opt, T.linear(), &nl.H, &nl.b);
                     for (int k = 0; k < 6; ++k)
                         if (lock[k]) {
@@ -435,8 +458,8 @@ RegistrationResult register_local(const PreparedCloud& src, const PreparedCloud&
                             continue;
                         }
                         const Eigen::Isometry3d cand = apply(T, delta);
-                        const Normal ev =
-                            detail::linearize(opt.method, src, tgt, cand, corr, opt, false, nt);
+                        const Normal ev = detail::linearize(opt.method, src, tgt, cand, corr,
+                                                            opt, false, nt, -1, &mahalanobis);
                         const double e_new = ev.error + add_prior(opt, cand.linear(), nullptr, nullptr);
                         if (e_new <= err) {
                             T_new = cand;

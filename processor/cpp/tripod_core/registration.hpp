@@ -52,8 +52,8 @@ struct RegistrationOptions {
     /// Max correspondence distance per stage [m], coarse to fine (at least one).
     std::vector<double> max_correspondence_distances{1.0};
     int max_iterations = 64;         ///< per stage
-    double rotation_eps = 2e-4;      ///< convergence: rotation update below this [rad] ...
-    double translation_eps = 1e-4;   ///< ... and translation update below this [m]
+    double rotation_eps = 1e-3;      ///< convergence: rotation update below this [rad] ...
+    double translation_eps = 5e-4;   ///< ... and translation update below this [m]
     double point_sigma = 0.02;       ///< range noise assumed for the information matrix [m]
     Loss loss = Loss::kNone;
     double loss_scale = 0.1;         ///< robust kernel scale [m]

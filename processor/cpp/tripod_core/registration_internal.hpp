@@ -24,11 +24,17 @@ struct Normal {
 void associate(const PreparedCloud& src, const PreparedCloud& tgt, const Eigen::Isometry3d& T,
                double max_sq_dist, std::vector<int>& corr, int num_threads);
 
-/// Linearise the residuals of `method` at T over the given correspondences (left perturbation
+/// Linearise the residuals of `method` at T over the correspondences `corr` (left perturbation
 /// (exp(w) R, t + v)); with `with_jacobian` false only the cost is summed. Adds no prior.
+/// With `associate_sq_dist` > 0 the correspondences are found first, in the same pass
+/// (one parallel region per iteration), and written to `corr`. GICP only: with `mahalanobis`,
+/// a linearisation stores each pair's (C_q + R C_p R^T)^-1 there and a cost-only evaluation
+/// reuses it (the LM acceptance test then compares costs under the same weights).
 Normal linearize(Method method, const PreparedCloud& src, const PreparedCloud& tgt,
-                 const Eigen::Isometry3d& T, const std::vector<int>& corr,
-                 const RegistrationOptions& opt, bool with_jacobian, int num_threads);
+                 const Eigen::Isometry3d& T, std::vector<int>& corr,
+                 const RegistrationOptions& opt, bool with_jacobian, int num_threads,
+                 double associate_sq_dist = -1,
+                 std::vector<Eigen::Matrix3d>* mahalanobis = nullptr);
 
 /// Fill fitness, RMSE, information and condition of `res` at its pose.
 void finish_result(const PreparedCloud& src, const PreparedCloud& tgt, Method residual_model,

@@ -47,11 +47,16 @@ PointsXYZ voxel_downsample(const PointsXYZ& points, double voxel_size, int num_t
         origin = lo - Eigen::Vector3d::Constant(0.5 * voxel_size);
         offset = 0;
     }
+    // dense voxel key over the occupied box: ((ix - ix0) * ny + (iy - iy0)) * nz + (iz - iz0),
+    // lexicographic in (x, y, z) like the index itself, but only as many bits as needed
+    int64_t i0[3], extent[3];
     for (int k = 0; k < 3; ++k) {
         const double a = std::floor((lo[k] - origin[k]) / voxel_size) + offset;
         const double b = std::floor((hi[k] - origin[k]) / voxel_size) + offset;
         if (a < 0 || b > static_cast<double>(kMask))
             throw std::invalid_argument("cloud spans too many voxels (more than 2^21 per axis)");
+        i0[k] = static_cast<int64_t>(a);
+        extent[k] = static_cast<int64_t>(b) - i0[k] + 1;
     }
 
     // 1. key every finite point (parallel). Same arithmetic as Open3D: (p - origin) / size in
@@ -62,17 +67,33 @@ PointsXYZ voxel_downsample(const PointsXYZ& points, double voxel_size, int num_t
         const float* p = points.row(i).data();
         uint64_t key = ~uint64_t{0};
         if (finite3(p)) {
-            key = 0;
+            int64_t dense = 0;
             for (int k = 0; k < 3; ++k) {
-                const int64_t idx =
-                    static_cast<int64_t>(std::floor((p[k] - origin[k]) / voxel_size)) + offset;
-                key = (key << kBits) | static_cast<uint64_t>(idx & kMask);
+                int64_t idx =
+                    static_cast<int64_t>(std::floor((p[k] - origin[k]) / voxel_size)) + offset - i0[k];
+                idx = std::clamp<int64_t>(idx, 0, extent[k] - 1);  // guards rounding at the bounds
+                dense = dense * extent[k] + idx;
             }
+            key = static_cast<uint64_t>(dense);
         }
         keyed[i] = {key, i};
     }
-    // 2. sort by key (stable order inside a voxel keeps the sum deterministic)
-    std::sort(keyed.begin(), keyed.end());
+    // 2. stable LSD radix sort by key, 11-bit digits, skipping digits no key differs in; the
+    //    order inside a voxel stays the point order, which keeps the sums deterministic
+    {
+        uint64_t diff = 0;
+        for (const auto& e : keyed) diff |= e.first ^ keyed[0].first;
+        std::vector<std::pair<uint64_t, int64_t>> tmp(n);
+        std::vector<int64_t> count(2049);
+        for (int shift = 0; shift < 64; shift += 11) {
+            if (((diff >> shift) & 0x7FF) == 0) continue;
+            std::fill(count.begin(), count.end(), 0);
+            for (const auto& e : keyed) ++count[((e.first >> shift) & 0x7FF) + 1];
+            for (int d = 0; d < 2048; ++d) count[d + 1] += count[d];
+            for (const auto& e : keyed) tmp[count[(e.first >> shift) & 0x7FF]++] = e;
+            keyed.swap(tmp);
+        }
+    }
     int64_t valid = n;
     while (valid > 0 && keyed[valid - 1].first == ~uint64_t{0}) --valid;
 

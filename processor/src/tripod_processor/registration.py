@@ -239,8 +239,8 @@ def register(
     voxel_size: float | None = None,
     max_correspondence_distance: float | Sequence[float] | None = None,
     max_iterations: int = 64,
-    rotation_eps: float = 2e-4,
-    translation_eps: float = 1e-4,
+    rotation_eps: float = 1e-3,
+    translation_eps: float = 5e-4,
     loss: str = "none",
     loss_scale: float = 0.1,
     rotation_prior=None,
@@ -347,6 +347,8 @@ def register_global(
     confidence: float = 0.999,
     viewpoint_source: Sequence[float] = (0.0, 0.0, 0.0),
     viewpoint_target: Sequence[float] = (0.0, 0.0, 0.0),
+    rotation_prior=None,
+    rotation_tolerance: float = np.radians(30.0),
     seed: int = 0,
     num_threads: int = 0,
 ) -> GlobalResult:
@@ -379,6 +381,12 @@ def register_global(
         In (0, 1).
     viewpoint_source, viewpoint_target : (3,) sequence of float
         Sensor positions [m] (normal orientation).
+    rotation_prior : (3, 3) array_like, optional
+        Prior R_target_source, e.g. the IMU's relative orientation (yaw from the gyro included):
+        poses rotated more than ``rotation_tolerance`` away from it are rejected. Gravity alone
+        cannot tell a symmetric room from its 180 deg turned twin; this can.
+    rotation_tolerance : float
+        [rad], default 30 deg.
     seed : int
         Same seed, same result, whatever ``num_threads``.
     num_threads : int
@@ -408,6 +416,8 @@ def register_global(
         int(max_neighbors), float(inlier_distance or 1.5 * voxel_size), float(edge_length_ratio),
         bool(mutual_filter), int(max_iterations), float(confidence), us, ut,
         np.asarray(viewpoint_source, dtype=np.float64).reshape(3),
-        np.asarray(viewpoint_target, dtype=np.float64).reshape(3), int(seed), int(num_threads),
+        np.asarray(viewpoint_target, dtype=np.float64).reshape(3),
+        None if rotation_prior is None else np.asarray(rotation_prior, dtype=np.float64).reshape(3, 3),
+        float(rotation_tolerance), int(seed), int(num_threads),
     )
     return GlobalResult(**d)

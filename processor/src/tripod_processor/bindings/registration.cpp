@@ -116,7 +116,8 @@ TRIPOD_BINDING(registration) {
            int max_neighbors, double inlier_distance, double edge_length_ratio, bool mutual_filter,
            int64_t max_iterations, double confidence, const Eigen::Vector3d& up_source,
            const Eigen::Vector3d& up_target, const Eigen::Vector3d& viewpoint_source,
-           const Eigen::Vector3d& viewpoint_target, uint64_t seed, int num_threads) {
+           const Eigen::Vector3d& viewpoint_target, std::optional<Eigen::Matrix3d> R_prior,
+           double rotation_tolerance, uint64_t seed, int num_threads) {
             tripod::PointsXYZ s = to_eigen(source), t = to_eigen(target);
             tripod::GlobalOptions opt;
             opt.normal_radius = normal_radius;
@@ -131,6 +132,9 @@ TRIPOD_BINDING(registration) {
             opt.up_target = up_target;
             opt.viewpoint_source = viewpoint_source;
             opt.viewpoint_target = viewpoint_target;
+            opt.has_rotation_prior = R_prior.has_value();
+            if (R_prior) opt.R_prior = *R_prior;
+            opt.rotation_tolerance = rotation_tolerance;
             opt.seed = seed;
             opt.num_threads = num_threads;
             tripod::GlobalResult r;
@@ -152,6 +156,6 @@ TRIPOD_BINDING(registration) {
         "source"_a, "target"_a, "normal_radius"_a, "feature_radius"_a, "max_neighbors"_a,
         "inlier_distance"_a, "edge_length_ratio"_a, "mutual_filter"_a, "max_iterations"_a,
         "confidence"_a, "up_source"_a, "up_target"_a, "viewpoint_source"_a, "viewpoint_target"_a,
-        "seed"_a, "num_threads"_a,
+        "R_prior"_a.none(), "rotation_tolerance"_a, "seed"_a, "num_threads"_a,
         "FPFH + RANSAC global registration; returns a dict (see registration.register_global).");
 }
