@@ -63,6 +63,7 @@ class ZenohConfig(StrictModel):
     multicast_scouting: bool = False
     config_file: str = ""  # a zenoh JSON5 config as the base; the keys above override it
     queue_messages: int = Field(50_000, ge=1)  # live-path queue; beyond it messages are dropped
+    congestion_control: Literal["block", "drop"] = "block"  # see publisher.py
     publish_lidar: bool = True
 
 

@@ -4,7 +4,8 @@ control queryables, and a publishing thread behind a bounded queue.
 
 The receive loop never waits on the network: it hands batches to :meth:`LivePublisher.submit`,
 which drops (and counts in ``zenoh_dropped``) whatever does not fit in ``queue_messages``.
-Publishers use ``CongestionControl.DROP`` so a slow subscriber cannot block the thread either.
+With ``congestion_control: block`` (default) a slow subscriber makes zenoh wait, the queue fills
+and the overflow is counted exactly; with ``drop`` zenoh drops silently instead.
 Payloads are the very bytes recorded to MCAP (CDR, or JSON for status and events).
 """
 
@@ -68,7 +69,11 @@ class LivePublisher:
         self._control = control
         self.session = zenoh.open(build_zenoh_config(cfg))
         cdr, js = zenoh.Encoding.APPLICATION_CDR, zenoh.Encoding.APPLICATION_JSON
-        drop = zenoh.CongestionControl.DROP
+        # "block": a slow subscriber backs up into *our* bounded queue, where every dropped
+        # message is counted (zenoh_dropped); "drop": zenoh drops inside its own queues, which
+        # no counter sees. Either way only this thread waits, never reception or recording.
+        drop = (zenoh.CongestionControl.BLOCK if cfg.congestion_control == "block"
+                else zenoh.CongestionControl.DROP)
         decl = self.session.declare_publisher
         self._pubs = {
             topics.TOPIC_LIDAR_PACKETS: decl(
@@ -77,7 +82,8 @@ class LivePublisher:
                 topics.key_lidar_position(device_id), encoding=cdr, congestion_control=drop),
             topics.TOPIC_IMU: decl(topics.key_imu(device_id), encoding=cdr, congestion_control=drop),
             topics.TOPIC_STATUS: decl(
-                topics.key_status(device_id), encoding=js, congestion_control=drop),
+                topics.key_status(device_id), encoding=js,
+                congestion_control=zenoh.CongestionControl.DROP),
             topics.TOPIC_EVENTS: decl(
                 topics.key_events(device_id), encoding=js,
                 congestion_control=zenoh.CongestionControl.BLOCK),
