@@ -127,3 +127,32 @@ def test_status_message_is_valid_json_schema_shape(tmp_path):
         assert st.state == "recording" and st.file.endswith(".mcap")
         assert set(st.counts) >= {"lidar_data", "lidar_malformed", "record_dropped"}
         d.stop()
+
+
+def test_watch_prints_the_live_rates(tmp_path, capsys):
+    from tripod_daemon.main import main
+
+    port = free_tcp_port()
+    cfg = loopback_config(tmp_path, zenoh={"enabled": True, "listen": [f"tcp/127.0.0.1:{port}"]})
+    with RunningDaemon(cfg) as d:
+        import threading
+
+        stop = threading.Event()
+
+        def feed():
+            k = 0
+            s = udp_sender()
+            while not stop.is_set():
+                s.sendto(make_data_packet(k), d.data_addr)
+                k += 1
+                stop.wait(0.01)
+
+        t = threading.Thread(target=feed, daemon=True)
+        t.start()
+        assert main(["watch", "--connect", f"tcp/127.0.0.1:{port}", "--seconds", "2.5"]) == 0
+        stop.set()
+        t.join()
+        d.stop()
+    out = capsys.readouterr().out
+    assert "watching tripod/tripod0/**" in out
+    assert "lidar/packets" in out and "[recording" in out
