@@ -1,0 +1,332 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""Streaming pcap / pcapng reader and a pcap writer for UDP datagrams (VeloView-style captures).
+
+Reading never loads the file: records are yielded one at a time (constant memory). Link types:
+Ethernet (with 802.1Q VLAN tags), Linux cooked (SLL, SLL2), raw IP and BSD loopback; IPv4 and
+IPv6; UDP only. IPv4 fragments are counted and skipped (Velodyne packets are never fragmented).
+A file cut mid-record yields every whole record and sets ``stats.truncated``.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import struct
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import BinaryIO
+
+PCAP_MAGIC_US = 0xA1B2C3D4
+PCAP_MAGIC_NS = 0xA1B23C4D
+PCAPNG_SHB = 0x0A0D0D0A
+PCAPNG_BOM = 0x1A2B3C4D
+
+LINKTYPE_NULL = 0
+LINKTYPE_ETHERNET = 1
+LINKTYPE_RAW = 101
+LINKTYPE_RAW_ALT = (12, 14)
+LINKTYPE_LINUX_SLL = 113
+LINKTYPE_LINUX_SLL2 = 276
+
+
+class PcapFormatError(ValueError):
+    """Not a pcap/pcapng file, or a header too damaged to go on (one-line message)."""
+
+
+@dataclass(frozen=True, slots=True)
+class UdpDatagram:
+    """One UDP datagram of a capture. ``t_ns``: capture time (host_realtime of the capturer)."""
+
+    t_ns: int
+    src: str
+    src_port: int
+    dst: str
+    dst_port: int
+    payload: bytes
+
+
+@dataclass
+class PcapStats:
+    records: int = 0
+    udp: int = 0
+    skipped: dict = field(default_factory=dict)  # reason -> count
+    truncated: bool = False  # the file ends inside a record
+    format: str = ""
+
+    def skip(self, reason: str) -> None:
+        self.skipped[reason] = self.skipped.get(reason, 0) + 1
+
+
+def _parse_ip(frame: memoryview, off: int, stats: PcapStats, t_ns: int) -> UdpDatagram | None:
+    if len(frame) - off < 1:
+        stats.skip("short_frame")
+        return None
+    version = frame[off] >> 4
+    if version == 4:
+        if len(frame) - off < 20:
+            stats.skip("short_frame")
+            return None
+        ihl = (frame[off] & 0x0F) * 4
+        total_len = struct.unpack_from(">H", frame, off + 2)[0]
+        frag = struct.unpack_from(">H", frame, off + 6)[0]
+        proto = frame[off + 9]
+        if proto != 17:
+            stats.skip("not_udp")
+            return None
+        if frag & 0x3FFF:  # more-fragments flag or a fragment offset
+            stats.skip("ip_fragment")
+            return None
+        src = socket.inet_ntoa(bytes(frame[off + 12 : off + 16]))
+        dst = socket.inet_ntoa(bytes(frame[off + 16 : off + 20]))
+        udp = off + ihl
+        ip_end = off + total_len if total_len else len(frame)
+    elif version == 6:
+        if len(frame) - off < 40:
+            stats.skip("short_frame")
+            return None
+        if frame[off + 6] != 17:
+            stats.skip("not_udp")
+            return None
+        src = socket.inet_ntop(socket.AF_INET6, bytes(frame[off + 8 : off + 24]))
+        dst = socket.inet_ntop(socket.AF_INET6, bytes(frame[off + 24 : off + 40]))
+        udp = off + 40
+        ip_end = udp + struct.unpack_from(">H", frame, off + 4)[0]
+    else:
+        stats.skip("not_ip")
+        return None
+    if len(frame) - udp < 8:
+        stats.skip("short_frame")
+        return None
+    sport, dport, ulen = struct.unpack_from(">HHH", frame, udp)
+    end = udp + ulen if ulen >= 8 else ip_end
+    if end > len(frame):
+        stats.skip("snapped_payload")  # captured with a short snaplen
+        return None
+    stats.udp += 1
+    return UdpDatagram(t_ns, src, sport, dst, dport, bytes(frame[udp + 8 : end]))
+
+
+def _parse_frame(linktype: int, data: bytes, stats: PcapStats, t_ns: int) -> UdpDatagram | None:
+    frame = memoryview(data)
+    if linktype == LINKTYPE_ETHERNET:
+        off, ethertype = 14, struct.unpack_from(">H", frame, 12)[0] if len(frame) >= 14 else 0
+        while ethertype in (0x8100, 0x88A8) and len(frame) >= off + 4:
+            ethertype = struct.unpack_from(">H", frame, off + 2)[0]
+            off += 4
+        if ethertype not in (0x0800, 0x86DD):
+            stats.skip("not_ip")
+            return None
+    elif linktype == LINKTYPE_LINUX_SLL:
+        off = 16
+    elif linktype == LINKTYPE_LINUX_SLL2:
+        off = 20
+    elif linktype == LINKTYPE_NULL:
+        off = 4
+    elif linktype == LINKTYPE_RAW or linktype in LINKTYPE_RAW_ALT:
+        off = 0
+    else:
+        stats.skip(f"linktype_{linktype}")
+        return None
+    return _parse_ip(frame, off, stats, t_ns)
+
+
+def _read_exact(fh: BinaryIO, n: int) -> bytes:
+    return fh.read(n)
+
+
+def _iter_pcap(fh: BinaryIO, head: bytes, stats: PcapStats) -> Iterator[UdpDatagram]:
+    magic_le = struct.unpack_from("<I", head)[0]
+    if magic_le in (PCAP_MAGIC_US, PCAP_MAGIC_NS):
+        e = "<"
+    else:
+        e = ">"
+    magic = struct.unpack_from(e + "I", head)[0]
+    scale = 1 if magic == PCAP_MAGIC_NS else 1000
+    rest = _read_exact(fh, 20)
+    if len(rest) < 20:
+        raise PcapFormatError("pcap global header is truncated")
+    linktype = struct.unpack_from(e + "I", rest, 16)[0] & 0x0FFFFFFF
+    stats.format = "pcap"
+    rec = struct.Struct(e + "IIII")
+    while True:
+        h = _read_exact(fh, 16)
+        if not h:
+            return
+        if len(h) < 16:
+            stats.truncated = True
+            return
+        sec, frac, incl, _orig = rec.unpack(h)
+        if incl > 262144 * 4:
+            raise PcapFormatError(f"pcap record {stats.records} claims {incl} bytes: file is corrupt")
+        data = _read_exact(fh, incl)
+        if len(data) < incl:
+            stats.truncated = True
+            return
+        stats.records += 1
+        d = _parse_frame(linktype, data, stats, sec * 1_000_000_000 + frac * scale)
+        if d is not None:
+            yield d
+
+
+def _iter_pcapng(fh: BinaryIO, head: bytes, stats: PcapStats) -> Iterator[UdpDatagram]:
+    stats.format = "pcapng"
+    e = "<"
+    interfaces: list[tuple[int, int]] = []  # (linktype, ticks per second)
+    first = True
+    buf = head
+    while True:
+        h = buf if first else _read_exact(fh, 8)
+        if not h:
+            return
+        if len(h) < 8:
+            stats.truncated = True
+            return
+        if first:
+            bom = _read_exact(fh, 4)
+            if len(bom) < 4:
+                raise PcapFormatError("pcapng section header is truncated")
+            e = "<" if struct.unpack("<I", bom)[0] == PCAPNG_BOM else ">"
+            if struct.unpack(e + "I", bom)[0] != PCAPNG_BOM:
+                raise PcapFormatError("pcapng byte-order magic is wrong")
+            btype, blen = struct.unpack(e + "II", h)
+            body = bom + _read_exact(fh, blen - 12)
+            first = False
+        else:
+            btype, blen = struct.unpack(e + "II", h)
+            if blen < 12 or blen % 4 or blen > 1 << 24:
+                raise PcapFormatError(f"pcapng block of length {blen}: file is corrupt")
+            body = _read_exact(fh, blen - 8)
+            if len(body) < blen - 8:
+                stats.truncated = True
+                return
+        body = body[:-4]  # trailing block length
+        if btype == PCAPNG_SHB:
+            interfaces = []
+        elif btype == 1:  # interface description
+            linktype = struct.unpack_from(e + "H", body, 0)[0]
+            tps = 1_000_000
+            opt = 8
+            while opt + 4 <= len(body):
+                code, olen = struct.unpack_from(e + "HH", body, opt)
+                if code == 0:
+                    break
+                if code == 9 and olen >= 1:  # if_tsresol
+                    r = body[opt + 4]
+                    tps = 2 ** (r & 0x7F) if r & 0x80 else 10 ** r
+                opt += 4 + ((olen + 3) & ~3)
+            interfaces.append((linktype, tps))
+        elif btype in (6, 2):  # enhanced packet / obsolete packet
+            if btype == 6:
+                iface, th, tl, caplen = struct.unpack_from(e + "IIII", body, 0)
+                off = 20
+            else:
+                iface, _drops, th, tl, caplen = struct.unpack_from(e + "HHIII", body, 0)
+                off = 20
+            stats.records += 1
+            if iface >= len(interfaces):
+                stats.skip("unknown_interface")
+                continue
+            linktype, tps = interfaces[iface]
+            ticks = (th << 32) | tl
+            t_ns = ticks * 1_000_000_000 // tps
+            d = _parse_frame(linktype, body[off : off + caplen], stats, t_ns)
+            if d is not None:
+                yield d
+        elif btype == 3:  # simple packet: no timestamp
+            stats.records += 1
+            if not interfaces:
+                stats.skip("unknown_interface")
+                continue
+            d = _parse_frame(interfaces[0][0], body[4:], stats, 0)
+            if d is not None:
+                yield d
+
+
+def sniff_format(path: str | os.PathLike) -> str:
+    """'pcap', 'pcapng' or '' from the first bytes of a file."""
+    with open(path, "rb") as fh:
+        head = fh.read(4)
+    if len(head) < 4:
+        return ""
+    m_le = struct.unpack("<I", head)[0]
+    m_be = struct.unpack(">I", head)[0]
+    if PCAP_MAGIC_US in (m_le, m_be) or PCAP_MAGIC_NS in (m_le, m_be):
+        return "pcap"
+    if m_le == PCAPNG_SHB:
+        return "pcapng"
+    return ""
+
+
+class PcapReader:
+    """Iterate the UDP datagrams of a pcap/pcapng file.
+
+    >>> r = PcapReader("capture.pcap")
+    >>> for d in r: ...          # UdpDatagram(t_ns, src, src_port, dst, dst_port, payload)
+    >>> r.stats.truncated, r.stats.skipped
+    """
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = os.fspath(path)
+        if not os.path.isfile(self.path):
+            raise FileNotFoundError(f"no such file: {self.path}")
+        fmt = sniff_format(self.path)
+        if not fmt:
+            size = os.path.getsize(self.path)
+            what = "an empty file" if size == 0 else "not a pcap or pcapng file"
+            raise PcapFormatError(f"{self.path}: {what}")
+        self.format = fmt
+        self.stats = PcapStats()
+
+    def __iter__(self) -> Iterator[UdpDatagram]:
+        self.stats = PcapStats()
+        with open(self.path, "rb") as fh:
+            head = fh.read(8 if self.format == "pcapng" else 4)
+            if self.format == "pcap":
+                yield from _iter_pcap(fh, head, self.stats)
+            else:
+                yield from _iter_pcapng(fh, head, self.stats)
+
+
+def _ip_checksum(header: bytes) -> int:
+    s = sum(struct.unpack(">10H", header))
+    while s >> 16:
+        s = (s & 0xFFFF) + (s >> 16)
+    return ~s & 0xFFFF
+
+
+class PcapWriter:
+    """Write UDP datagrams as a nanosecond pcap with Ethernet/IPv4/UDP framing.
+
+    Defaults match a VLP-16: source 192.168.1.201, broadcast destination, the sensor's MAC OUI.
+    """
+
+    def __init__(self, path: str | os.PathLike, src_ip: str = "192.168.1.201",
+                 dst_ip: str = "255.255.255.255", src_mac: bytes = bytes.fromhex("60769f000001"),
+                 dst_mac: bytes = b"\xff" * 6):
+        self._fh = open(path, "wb")
+        self._fh.write(struct.pack("<IHHiIII", PCAP_MAGIC_NS, 2, 4, 0, 0, 65535, LINKTYPE_ETHERNET))
+        self._eth = dst_mac + src_mac + b"\x08\x00"
+        self._src = socket.inet_aton(src_ip)
+        self._dst = socket.inet_aton(dst_ip)
+        self._ident = 0
+        self.count = 0
+
+    def write_udp(self, t_ns: int, payload: bytes, src_port: int, dst_port: int) -> None:
+        ulen = 8 + len(payload)
+        self._ident = (self._ident + 1) & 0xFFFF
+        ip = struct.pack(">BBHHHBBH4s4s", 0x45, 0, 20 + ulen, self._ident, 0x4000, 64, 17, 0,
+                         self._src, self._dst)
+        ip = ip[:10] + struct.pack(">H", _ip_checksum(ip)) + ip[12:]
+        frame = self._eth + ip + struct.pack(">HHHH", src_port, dst_port, ulen, 0) + payload
+        sec, nsec = divmod(int(t_ns), 1_000_000_000)
+        self._fh.write(struct.pack("<IIII", sec, nsec, len(frame), len(frame)) + frame)
+        self.count += 1
+
+    def close(self) -> None:
+        self._fh.close()
+
+    def __enter__(self) -> "PcapWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
