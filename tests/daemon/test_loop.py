@@ -92,7 +92,7 @@ def test_sighup_rereads_config_and_starts_a_new_file(tmp_path):
         send_paced(udp_sender(), d.data_addr, [make_data_packet(k) for k in range(10)], 1000)
         assert d.wait_for(lambda: d.daemon.counts["lidar_data"] == 10)
         d.daemon.signal(signal.SIGHUP)
-        assert d.wait_for(lambda: len(d.daemon.recorder.files) == 1
+        assert d.wait_for(lambda: len(d.daemon.recorder.files) == 2
                           and "station_" in (d.daemon.recorder.file or ""))
         send_paced(udp_sender(), d.data_addr, [make_data_packet(k) for k in range(10, 15)], 1000)
         assert d.wait_for(lambda: d.daemon.counts["lidar_data"] == 15)

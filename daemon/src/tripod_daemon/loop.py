@@ -149,9 +149,12 @@ class Daemon:
             self.publisher.close()
             self.publisher = None
 
+    def _recorder_metadata(self) -> dict[str, str]:
+        return {"config": dump_config(self.cfg), "device_id": self.cfg.device_id}
+
     def _open_recorder(self) -> None:
-        meta = {"config": dump_config(self.cfg), "device_id": self.cfg.device_id}
-        self.recorder = Recorder(self.cfg.recording, self.counts, meta, self.free_space)
+        self.recorder = Recorder(self.cfg.recording, self.counts, self._recorder_metadata(),
+                                 self.free_space)
 
     # ---- the loop ---------------------------------------------------------------------------
     def run(self) -> int:
@@ -334,11 +337,12 @@ class Daemon:
                 self._open_imu()
         except Exception as exc:  # noqa: BLE001
             log.error("SIGHUP: applying the new config failed: %s", exc)
-        was_recording = self.recorder.active or new.recording.enabled
-        self.recorder.close("sighup")
-        self._open_recorder()
-        if was_recording:
-            self._start_recording("sighup")
+        record = self.recorder.active or new.recording.enabled
+        # the same writer thread finishes the file and starts the next with the new config,
+        # in queue order: nothing received before or after the reload is lost
+        self.recorder.reconfigure(new.recording, self._recorder_metadata(), record, "sighup")
+        if record:
+            self._event("start", "sighup")
         self.notifier.ready(self._status_line())
 
     # ---- status, watchdog, reconnect --------------------------------------------------------
