@@ -23,9 +23,12 @@ from tripod_shared.velodyne import (
     POS_PPS_OFFSET,
     POSITION_PACKET_SIZE,
     PPS_STATES,
-    RETURN_MODES,
     TIMESTAMP_OFFSET,
+    PacketKind,
+    check_data_packet,
+    check_position_packet,
     position_nmea,
+    position_timestamp_us,
 )
 
 from .clock import LidarClock
@@ -42,9 +45,6 @@ _ANC_SIZE = socket.CMSG_SPACE(_TIMESPEC.size)
 _U32 = struct.Struct("<I")
 _CDR_TIME = struct.Struct("<4siI")  # encapsulation header + builtin_interfaces/Time
 _CDR_LE = b"\x00\x01\x00\x00"
-_FLAGS_FF = b"\xff" * 12
-_FLAGS_EE = b"\xee" * 12
-_HOUR_US = 3600 * 1_000_000
 _CLOCK_EVERY = 8  # feed every 8th data packet to the clock estimator (enough for the envelope)
 
 #: a batch item: (MCAP topic, host_realtime ns, encoded message bytes)
@@ -123,11 +123,13 @@ class LidarInput:
         return self._drain_position(out)
 
     # The two drain loops are the hot path (~30,000 calls/s at 20x the dual-return rate):
-    # locals only, no function calls beyond recvmsg, one struct pack per packet.
+    # locals only; the checks are tripod_shared's (one source of truth for the layout).
     def _drain_data(self, out: list[Item]) -> int:
         recvmsg = self.data_sock.recvmsg
         append = out.append
         pack = _CDR_TIME.pack
+        check = check_data_packet
+        DATA, FOREIGN, MSG_TRUNC = PacketKind.DATA, PacketKind.FOREIGN, socket.MSG_TRUNC  # noqa: N806
         sources = self._sources
         products = self._products
         clock = self.clock
@@ -148,17 +150,12 @@ class LidarInput:
             if sources and addr[0] not in sources:
                 n_filtered += 1
                 continue
-            if (
-                len(data) != DATA_PACKET_SIZE
-                or flags & socket.MSG_TRUNC
-                or data[0:TIMESTAMP_OFFSET:100] != _FLAGS_FF
-                or data[1:TIMESTAMP_OFFSET:100] != _FLAGS_EE
-                or data[1204] not in RETURN_MODES
-            ):
-                n_bad += 1
-                continue
-            if data[1205] not in products:
-                n_foreign += 1
+            kind = check(data, products)  # size, 12 block flags, return mode, product
+            if kind is not DATA or flags & MSG_TRUNC:
+                if kind is FOREIGN and not flags & MSG_TRUNC:
+                    n_foreign += 1
+                else:
+                    n_bad += 1
                 continue
             n_good += 1
             n_bytes += DATA_PACKET_SIZE
@@ -193,13 +190,10 @@ class LidarInput:
             if self._sources and addr[0] not in self._sources:
                 c["lidar_filtered"] += 1
                 continue
-            if len(data) != POSITION_PACKET_SIZE or flags & socket.MSG_TRUNC:
+            if check_position_packet(data) is not PacketKind.POSITION or flags & socket.MSG_TRUNC:
                 c["lidar_malformed"] += 1
                 continue
-            toh_us = _U32.unpack_from(data, 198)[0]
-            if toh_us >= _HOUR_US:
-                c["lidar_malformed"] += 1
-                continue
+            toh_us = position_timestamp_us(data)
             c["lidar_position"] += 1
             c["lidar_bytes"] += POSITION_PACKET_SIZE
             out.append((topic, host_ns, _CDR_TIME.pack(_CDR_LE, *divmod(host_ns, NS_PER_S)) + data))
