@@ -41,7 +41,8 @@ log = logging.getLogger(__name__)
 SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
 SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)
 _TIMESPEC = struct.Struct("@qq")  # struct timespec on 64-bit Linux: tv_sec, tv_nsec
-_ANC_SIZE = socket.CMSG_SPACE(_TIMESPEC.size)
+SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)
+_ANC_SIZE = socket.CMSG_SPACE(_TIMESPEC.size) + socket.CMSG_SPACE(4)
 _U32 = struct.Struct("<I")
 _CDR_TIME = struct.Struct("<4siI")  # encapsulation header + builtin_interfaces/Time
 _CDR_LE = b"\x00\x01\x00\x00"
@@ -57,6 +58,9 @@ def open_udp_socket(address: str, port: int, rcvbuf: int) -> tuple[socket.socket
     try:
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+        # the kernel reports, with each datagram, how many it had to drop on this socket so far
+        # (only once there were any): loss is counted, never silent
+        sock.setsockopt(socket.SOL_SOCKET, SO_RXQ_OVFL, 1)
         try:
             sock.setsockopt(socket.SOL_SOCKET, SO_RCVBUFFORCE, rcvbuf)
         except OSError:  # no CAP_NET_ADMIN: capped by net.core.rmem_max
@@ -76,7 +80,8 @@ class LidarInput:
     Counters (``counts``): ``lidar_data``, ``lidar_position`` (good, recorded),
     ``lidar_malformed`` (wrong size, flags, mode, truncated), ``lidar_foreign`` (a Velodyne
     packet of a product not accepted), ``lidar_filtered`` (sender not in ``source_addresses``),
-    ``lidar_bytes``.
+    ``lidar_bytes``, ``lidar_kernel_drops`` (datagrams the kernel dropped because the receive
+    buffer was full: the loss no user-space counter could otherwise see).
     """
 
     def __init__(self, cfg: LidarConfig, counts: Counters, clock: LidarClock | None = None):
@@ -84,7 +89,7 @@ class LidarInput:
         self.counts = counts
         self.clock = clock or LidarClock()
         for k in ("lidar_data", "lidar_position", "lidar_malformed", "lidar_foreign",
-                  "lidar_filtered", "lidar_bytes"):
+                  "lidar_filtered", "lidar_bytes", "lidar_kernel_drops"):
             counts.setdefault(k, 0)
         self.data_sock, self.data_rcvbuf = open_udp_socket(
             cfg.bind_address, cfg.data_port, cfg.receive_buffer_bytes)
@@ -104,6 +109,7 @@ class LidarInput:
         self._sources = frozenset(cfg.source_addresses)
         self._products = frozenset(cfg.accept_products)
         self._n_data = 0
+        self._drops = [0, 0]  # kernel drop counters of the data and position sockets
 
     @property
     def data_port(self) -> int:
@@ -145,6 +151,8 @@ class LidarInput:
             if anc:
                 sec, nsec = _TIMESPEC.unpack_from(anc[0][2])
                 host_ns = sec * NS_PER_S + nsec
+                if len(anc) > 1:
+                    self._kernel_drops(anc, 0)
             else:
                 host_ns = time.time_ns()
             if sources and addr[0] not in sources:
@@ -185,6 +193,8 @@ class LidarInput:
             if anc:
                 sec, nsec = _TIMESPEC.unpack_from(anc[0][2])
                 host_ns = sec * NS_PER_S + nsec
+                if len(anc) > 1:
+                    self._kernel_drops(anc, 1)
             else:
                 host_ns = time.time_ns()
             if self._sources and addr[0] not in self._sources:
@@ -201,6 +211,13 @@ class LidarInput:
                 toh_us, host_ns, PPS_STATES.get(data[POS_PPS_OFFSET], "unknown"),
                 position_nmea(data))
         return n
+
+    def _kernel_drops(self, anc, which: int) -> None:
+        """Record the kernel's cumulative drop count of socket ``which`` (SO_RXQ_OVFL)."""
+        for level, kind, data in anc:
+            if level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(data) >= 4:
+                self._drops[which] = _U32.unpack_from(data)[0]
+                self.counts["lidar_kernel_drops"] = self._drops[0] + self._drops[1]
 
     def close(self) -> None:
         for s in self.sockets():
