@@ -11,6 +11,7 @@ Payloads are the very bytes recorded to MCAP (CDR, or JSON for status and events
 
 from __future__ import annotations
 
+import gc
 import json
 import logging
 import queue
@@ -164,14 +165,29 @@ class LivePublisher:
                 pass
 
     def close(self) -> None:
+        """Stop the thread, undeclare everything and close the session, then drop every zenoh
+        object now: a zenoh object (holding our Python callbacks) left for the interpreter's
+        final clean-up can be dropped from a Rust thread after Python stopped, which aborts."""
         self._q.put(_STOP)
         self._thread.join(5)
+        if self._thread.is_alive():
+            log.warning("zenoh publisher thread still busy; closing the session under it")
         for q in self._queryables:
             try:
                 q.undeclare()
+            except Exception:  # noqa: BLE001
+                pass
+        for p in self._pubs.values():
+            try:
+                p.undeclare()
             except Exception:  # noqa: BLE001
                 pass
         try:
             self.session.close()
         except Exception:  # noqa: BLE001
             pass
+        self._queryables.clear()
+        self._pubs = {}
+        self.session = None
+        self._status_reply = self._control = None
+        gc.collect()
