@@ -8,7 +8,6 @@ import time
 
 import zenoh
 
-from tripod_shared import topics
 from tripod_shared.recording import RecordingReader
 
 from daemon_helpers import (

@@ -21,7 +21,7 @@ import time
 from collections.abc import Callable
 from datetime import datetime, timezone
 
-from tripod_shared import messages, topics
+from tripod_shared import messages
 from tripod_shared.recording import RecordingWriter
 
 from .config import RecordingConfig
