@@ -156,3 +156,24 @@ def test_watch_prints_the_live_rates(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "watching tripod/tripod0/**" in out
     assert "lidar/packets" in out and "[recording" in out
+
+
+def test_zenoh_endpoint_in_use_keeps_recording(tmp_path):
+    import socket
+
+    blocker = socket.socket()
+    blocker.bind(("127.0.0.1", 0))
+    blocker.listen(1)
+    port = blocker.getsockname()[1]
+    try:
+        cfg = loopback_config(tmp_path, zenoh={"enabled": True,
+                                               "listen": [f"tcp/127.0.0.1:{port}"]})
+        with RunningDaemon(cfg) as d:
+            assert d.daemon.publisher is None and "zenoh unavailable" in d.daemon.zenoh_error
+            send_paced(udp_sender(), d.data_addr, [make_data_packet(k) for k in range(50)], 1000)
+            assert d.wait_for(lambda: d.daemon.counts["lidar_data"] == 50)
+            assert d.wait_for(lambda: b"zenoh unavailable" in d.daemon.status_json())
+            assert d.stop() == 0
+    finally:
+        blocker.close()
+    assert len(list(RecordingReader(d.daemon.recorder.files[0]).lidar_packets())) == 50
