@@ -50,7 +50,7 @@ def test_fuzzed_datagrams_are_counted_and_good_ones_recorded(tmp_path):
     expected = {"lidar_malformed": 0, "lidar_foreign": 0}
     for payload, where in bad:
         expected[where] += 1
-        # the daemon's inline checks agree with the shared classifier
+        # the generator's expectation agrees with the shared classifier the daemon uses
         if len(payload) == 1206:
             want = PacketKind.FOREIGN if where == "lidar_foreign" else PacketKind.MALFORMED
             assert check_data_packet(payload, (0x22, 0x21)) == want

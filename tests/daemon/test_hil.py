@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from tripod_shared import messages, tfp, topics, witmotion
+from tripod_shared import messages, tfp, witmotion
 from tripod_shared.recording import RecordingReader
 from tripod_shared.velodyne import DATA_PORT, POSITION_PORT
 

@@ -121,3 +121,23 @@ def test_port_in_use_is_an_error_not_a_crash():
             LidarInput(cfg, Counters())
     finally:
         blocker.close()
+
+
+def test_kernel_drops_are_counted():
+    inp = _input(receive_buffer_bytes=65536)  # a tiny buffer: ~30 packets fit
+    try:
+        s = udp_sender()
+        n = 400
+        for k in range(n):  # nobody reads meanwhile: the kernel must drop most
+            s.sendto(make_data_packet(k), ("127.0.0.1", inp.data_port))
+        time.sleep(0.05)
+        items = _drain_all(inp, inp.data_sock, n, timeout=1.0)
+        received = len(items)
+        assert received < n
+        # the next datagram after the overflow carries the count
+        s.sendto(make_data_packet(n), ("127.0.0.1", inp.data_port))
+        time.sleep(0.05)
+        _drain_all(inp, inp.data_sock, received + 1, timeout=1.0)
+        assert inp.counts["lidar_kernel_drops"] == n - received
+    finally:
+        inp.close()

@@ -92,7 +92,7 @@ def test_sighup_rereads_config_and_starts_a_new_file(tmp_path):
         send_paced(udp_sender(), d.data_addr, [make_data_packet(k) for k in range(10)], 1000)
         assert d.wait_for(lambda: d.daemon.counts["lidar_data"] == 10)
         d.daemon.signal(signal.SIGHUP)
-        assert d.wait_for(lambda: len(d.daemon.recorder.files) == 1
+        assert d.wait_for(lambda: len(d.daemon.recorder.files) == 2
                           and "station_" in (d.daemon.recorder.file or ""))
         send_paced(udp_sender(), d.data_addr, [make_data_packet(k) for k in range(10, 15)], 1000)
         assert d.wait_for(lambda: d.daemon.counts["lidar_data"] == 15)
@@ -127,3 +127,53 @@ def test_status_message_is_valid_json_schema_shape(tmp_path):
         assert st.state == "recording" and st.file.endswith(".mcap")
         assert set(st.counts) >= {"lidar_data", "lidar_malformed", "record_dropped"}
         d.stop()
+
+
+def test_watch_prints_the_live_rates(tmp_path, capsys):
+    from tripod_daemon.main import main
+
+    port = free_tcp_port()
+    cfg = loopback_config(tmp_path, zenoh={"enabled": True, "listen": [f"tcp/127.0.0.1:{port}"]})
+    with RunningDaemon(cfg) as d:
+        import threading
+
+        stop = threading.Event()
+
+        def feed():
+            k = 0
+            s = udp_sender()
+            while not stop.is_set():
+                s.sendto(make_data_packet(k), d.data_addr)
+                k += 1
+                stop.wait(0.01)
+
+        t = threading.Thread(target=feed, daemon=True)
+        t.start()
+        assert main(["watch", "--connect", f"tcp/127.0.0.1:{port}", "--seconds", "2.5"]) == 0
+        stop.set()
+        t.join()
+        d.stop()
+    out = capsys.readouterr().out
+    assert "watching tripod/tripod0/**" in out
+    assert "lidar/packets" in out and "[recording" in out
+
+
+def test_zenoh_endpoint_in_use_keeps_recording(tmp_path):
+    import socket
+
+    blocker = socket.socket()
+    blocker.bind(("127.0.0.1", 0))
+    blocker.listen(1)
+    port = blocker.getsockname()[1]
+    try:
+        cfg = loopback_config(tmp_path, zenoh={"enabled": True,
+                                               "listen": [f"tcp/127.0.0.1:{port}"]})
+        with RunningDaemon(cfg) as d:
+            assert d.daemon.publisher is None and "zenoh unavailable" in d.daemon.zenoh_error
+            send_paced(udp_sender(), d.data_addr, [make_data_packet(k) for k in range(50)], 1000)
+            assert d.wait_for(lambda: d.daemon.counts["lidar_data"] == 50)
+            assert d.wait_for(lambda: b"zenoh unavailable" in d.daemon.status_json())
+            assert d.stop() == 0
+    finally:
+        blocker.close()
+    assert len(list(RecordingReader(d.daemon.recorder.files[0]).lidar_packets())) == 50

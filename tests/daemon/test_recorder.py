@@ -105,8 +105,11 @@ def test_not_recording_ignores_data_and_mark_says_so(tmp_path):
         rec.submit(_items(0, 10))
         assert rec.mark("nothing open") is False
         assert rec.start() and rec.mark("station 1")
-        rec.stop("done")
-        assert rec.state == "idle" and rec.file is None
+        rec.stop("done")  # returns at once; the writer finishes the file in queue order
+        end = time.monotonic() + 5
+        while rec.file is not None and time.monotonic() < end:
+            time.sleep(0.01)
+        assert rec.state == "idle" and rec.file is None and not rec.active
     finally:
         rec.close()
     events = list(RecordingReader(rec.files[0]).events())

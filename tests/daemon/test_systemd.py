@@ -88,3 +88,26 @@ def test_notifier_abstract_socket_and_watchdog_env():
 def test_notify_to_vanished_socket_is_not_fatal(tmp_path):
     n = Notifier({"NOTIFY_SOCKET": str(tmp_path / "gone.sock")})
     assert n.notify("STATUS=x") is False
+
+
+def test_journald_stream_gets_priority_prefixes(tmp_path, monkeypatch):
+    import logging
+    import os
+
+    from tripod_daemon.systemd import setup_logging
+
+    path = tmp_path / "journal"
+    with open(path, "w") as fh:
+        st = os.fstat(fh.fileno())
+        monkeypatch.setenv("JOURNAL_STREAM", f"{st.st_dev}:{st.st_ino}")
+        setup_logging("info", stream=fh)
+        logging.getLogger("tripod_daemon.test").warning("disk almost full")
+        logging.getLogger("tripod_daemon.test").debug("not shown at info")
+    assert path.read_text() == "<4>tripod_daemon.test: disk almost full\n"
+    # a terminal (or any other stream) gets plain timestamped lines instead
+    other = tmp_path / "other"
+    with open(other, "w") as fh:
+        setup_logging("info", stream=fh)
+        logging.getLogger("tripod_daemon.test").error("boom")
+    line = other.read_text()
+    assert "ERROR tripod_daemon.test: boom" in line and not line.startswith("<")

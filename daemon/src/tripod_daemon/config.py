@@ -58,11 +58,12 @@ class ImuConfig(StrictModel):
 class ZenohConfig(StrictModel):
     enabled: bool = True
     mode: Literal["peer", "client", "router"] = "peer"
-    listen: list[str] = []  # e.g. tcp/0.0.0.0:7447; empty: zenoh's default
+    listen: list[str] = ["tcp/0.0.0.0:7447"]  # where subscribers connect; []: zenoh's default
     connect: list[str] = []  # e.g. tcp/192.168.1.10:7447
     multicast_scouting: bool = False
     config_file: str = ""  # a zenoh JSON5 config as the base; the keys above override it
     queue_messages: int = Field(50_000, ge=1)  # live-path queue; beyond it messages are dropped
+    congestion_control: Literal["block", "drop"] = "block"  # see publisher.py
     publish_lidar: bool = True
 
 

@@ -81,6 +81,8 @@ class Daemon:
         self._last_status: messages.Status | None = None
         self._status_text = b"{}"
         self._last_status_mono = time.monotonic()
+        self.zenoh_error = ""
+        self._zenoh_retry_mono = 0.0
 
     # ---- called from any thread -------------------------------------------------------------
     def signal(self, signum: int) -> None:
@@ -137,21 +139,34 @@ class Daemon:
             self._sel.register(self.imu.fileno(), selectors.EVENT_READ, "imu")
 
     def _open_publisher(self) -> None:
+        """Open the Zenoh session. A failure (endpoint in use, bad zenoh config file) leaves
+        the daemon recording without the live path; the tick retries every 10 s."""
         self.publisher = None
-        if self.cfg.zenoh.enabled:
+        self.zenoh_error = ""
+        if not self.cfg.zenoh.enabled:
+            return
+        self._zenoh_retry_mono = time.monotonic() + 10.0
+        try:
             from .publisher import LivePublisher  # zenoh loads a Rust runtime: only when used
 
             self.publisher = LivePublisher(
                 self.cfg.zenoh, self.cfg.device_id, self.counts, self.status_json, self.control)
+        except Exception as exc:  # noqa: BLE001 - zenoh.ZError and the like
+            self.zenoh_error = f"zenoh unavailable: {exc}"
+            self.counts.add("zenoh_open_failures")
+            log.error("%s (recording goes on; retrying every 10 s)", self.zenoh_error)
 
     def _close_publisher(self) -> None:
         if self.publisher is not None:
             self.publisher.close()
             self.publisher = None
 
+    def _recorder_metadata(self) -> dict[str, str]:
+        return {"config": dump_config(self.cfg), "device_id": self.cfg.device_id}
+
     def _open_recorder(self) -> None:
-        meta = {"config": dump_config(self.cfg), "device_id": self.cfg.device_id}
-        self.recorder = Recorder(self.cfg.recording, self.counts, meta, self.free_space)
+        self.recorder = Recorder(self.cfg.recording, self.counts, self._recorder_metadata(),
+                                 self.free_space)
 
     # ---- the loop ---------------------------------------------------------------------------
     def run(self) -> int:
@@ -334,17 +349,20 @@ class Daemon:
                 self._open_imu()
         except Exception as exc:  # noqa: BLE001
             log.error("SIGHUP: applying the new config failed: %s", exc)
-        was_recording = self.recorder.active or new.recording.enabled
-        self.recorder.close("sighup")
-        self._open_recorder()
-        if was_recording:
-            self._start_recording("sighup")
+        record = self.recorder.active or new.recording.enabled
+        # the same writer thread finishes the file and starts the next with the new config,
+        # in queue order: nothing received before or after the reload is lost
+        self.recorder.reconfigure(new.recording, self._recorder_metadata(), record, "sighup")
+        if record:
+            self._event("start", "sighup")
         self.notifier.ready(self._status_line())
 
     # ---- status, watchdog, reconnect --------------------------------------------------------
     def _tick(self, force: bool = False) -> None:
         self._imu_check()
         now_mono = time.monotonic()
+        if self.zenoh_error and now_mono >= self._zenoh_retry_mono:
+            self._open_publisher()
         if force or now_mono - self._last_status_mono >= self.cfg.status.interval_s * 0.95:
             self._last_status_mono = now_mono
             self._publish_status()
@@ -361,9 +379,9 @@ class Daemon:
         if self.imu is not None:
             clocks["imu"] = self.imu.clock_summary()
             counts["imu_connected"] = int(self.imu.connected)
-        msg = rec.message
-        if self.imu is not None and self.imu.last_error:
-            msg = (msg + "; " if msg else "") + self.imu.last_error
+        msg = "; ".join(m for m in (
+            rec.message, self.imu.last_error if self.imu is not None else "", self.zenoh_error,
+        ) if m)
         st = messages.Status(
             time.time_ns(), state=rec.state, recording=rec.active, file=rec.file, counts=counts,
             rates=rates, message=msg, clocks=clocks)

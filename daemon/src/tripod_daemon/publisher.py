@@ -4,12 +4,14 @@ control queryables, and a publishing thread behind a bounded queue.
 
 The receive loop never waits on the network: it hands batches to :meth:`LivePublisher.submit`,
 which drops (and counts in ``zenoh_dropped``) whatever does not fit in ``queue_messages``.
-Publishers use ``CongestionControl.DROP`` so a slow subscriber cannot block the thread either.
+With ``congestion_control: block`` (default) a slow subscriber makes zenoh wait, the queue fills
+and the overflow is counted exactly; with ``drop`` zenoh drops silently instead.
 Payloads are the very bytes recorded to MCAP (CDR, or JSON for status and events).
 """
 
 from __future__ import annotations
 
+import gc
 import json
 import logging
 import queue
@@ -68,7 +70,11 @@ class LivePublisher:
         self._control = control
         self.session = zenoh.open(build_zenoh_config(cfg))
         cdr, js = zenoh.Encoding.APPLICATION_CDR, zenoh.Encoding.APPLICATION_JSON
-        drop = zenoh.CongestionControl.DROP
+        # "block": a slow subscriber backs up into *our* bounded queue, where every dropped
+        # message is counted (zenoh_dropped); "drop": zenoh drops inside its own queues, which
+        # no counter sees. Either way only this thread waits, never reception or recording.
+        drop = (zenoh.CongestionControl.BLOCK if cfg.congestion_control == "block"
+                else zenoh.CongestionControl.DROP)
         decl = self.session.declare_publisher
         self._pubs = {
             topics.TOPIC_LIDAR_PACKETS: decl(
@@ -77,7 +83,8 @@ class LivePublisher:
                 topics.key_lidar_position(device_id), encoding=cdr, congestion_control=drop),
             topics.TOPIC_IMU: decl(topics.key_imu(device_id), encoding=cdr, congestion_control=drop),
             topics.TOPIC_STATUS: decl(
-                topics.key_status(device_id), encoding=js, congestion_control=drop),
+                topics.key_status(device_id), encoding=js,
+                congestion_control=zenoh.CongestionControl.DROP),
             topics.TOPIC_EVENTS: decl(
                 topics.key_events(device_id), encoding=js,
                 congestion_control=zenoh.CongestionControl.BLOCK),
@@ -158,14 +165,29 @@ class LivePublisher:
                 pass
 
     def close(self) -> None:
+        """Stop the thread, undeclare everything and close the session, then drop every zenoh
+        object now: a zenoh object (holding our Python callbacks) left for the interpreter's
+        final clean-up can be dropped from a Rust thread after Python stopped, which aborts."""
         self._q.put(_STOP)
         self._thread.join(5)
+        if self._thread.is_alive():
+            log.warning("zenoh publisher thread still busy; closing the session under it")
         for q in self._queryables:
             try:
                 q.undeclare()
+            except Exception:  # noqa: BLE001
+                pass
+        for p in self._pubs.values():
+            try:
+                p.undeclare()
             except Exception:  # noqa: BLE001
                 pass
         try:
             self.session.close()
         except Exception:  # noqa: BLE001
             pass
+        self._queryables.clear()
+        self._pubs = {}
+        self.session = None
+        self._status_reply = self._control = None
+        gc.collect()

@@ -21,7 +21,7 @@ import time
 from collections.abc import Callable
 from datetime import datetime, timezone
 
-from tripod_shared import messages, topics
+from tripod_shared import messages
 from tripod_shared.recording import RecordingWriter
 
 from .config import RecordingConfig
@@ -119,21 +119,40 @@ class Recorder:
         return cmd.result
 
     def start(self, reason: str = "start") -> bool:
-        """Open a new file (if not recording). True when recording afterwards."""
+        """Open a new file (if not recording). True when recording afterwards.
+
+        Waits for the writer thread (opening a file takes milliseconds; while not recording
+        the queue is empty, so nothing is ahead of the command)."""
+        if self.active:
+            return True
         ok = bool(self._command("start", reason))
         self.active = ok
         return ok
 
+    # The calls below never wait for the writer: under load its queue may hold seconds of
+    # data, and the receive loop must not stop reading the sockets meanwhile.
     def stop(self, reason: str = "stop") -> None:
+        """Finish the current file after what is queued before this call."""
         self.active = False
-        self._command("stop", reason)
+        self._command("stop", reason, wait=None)
 
     def rotate(self, reason: str = "rotate") -> None:
-        """Finish the current file and start the next one (SIGHUP)."""
-        self._command("rotate", reason)
+        """Finish the current file and start the next one (split on demand)."""
+        self._command("rotate", reason, wait=None)
+
+    def reconfigure(self, cfg: RecordingConfig, metadata: dict[str, str] | None = None,
+                    record: bool = True, reason: str = "reload") -> None:
+        """Finish the current file, take the new config, and (``record``) start a new file."""
+        self._command("reconfigure", (cfg, dict(metadata or self.metadata), record, reason),
+                      wait=None)
+        self.active = record
 
     def mark(self, label: str, host_ns: int | None = None) -> bool:
-        return bool(self._command("mark", (label, host_ns or time.time_ns())))
+        """Write a station mark into the recording; False when not recording."""
+        if not self.active:
+            return False
+        self._command("mark", (label, host_ns or time.time_ns()), wait=None)
+        return True
 
     def close(self, reason: str = "shutdown", timeout: float = 30.0) -> None:
         """Write everything queued, finish the file, end the thread."""
@@ -207,6 +226,13 @@ class Recorder:
                 if self._writer is not None:
                     self._close_file(cmd.arg)
                     self._open_file(cmd.arg)
+            elif cmd.name == "reconfigure":
+                cfg, meta, record, reason = cmd.arg
+                self._close_file(reason)
+                self.cfg, self.metadata = cfg, meta
+                self.state, self.message = "idle", ""
+                if record:
+                    self._open_file(reason)
             elif cmd.name == "mark":
                 label, ns = cmd.arg
                 if self._writer is not None:

@@ -38,7 +38,8 @@ class RateMeter:
 def status_line(state: str, rates: dict, counts: dict, file: str | None) -> str:
     """One short line for systemd STATUS= (shown by ``systemctl status``)."""
     drops = (
-        counts.get("record_dropped", 0) + counts.get("zenoh_dropped", 0)
+        counts.get("lidar_kernel_drops", 0) + counts.get("record_dropped", 0)
+        + counts.get("zenoh_dropped", 0)
     )
     bad = counts.get("lidar_malformed", 0) + counts.get("lidar_foreign", 0)
     return (

@@ -85,12 +85,22 @@ class _JournalPrefix(logging.Formatter):
         return f"<{_JOURNAL_PRIORITY.get(record.levelno, 6)}>" + super().format(record)
 
 
+def _stderr_is_journal(stream) -> bool:
+    """True when ``stream`` is the journald stream systemd connected (JOURNAL_STREAM=dev:ino)."""
+    want = os.environ.get("JOURNAL_STREAM", "")
+    try:
+        st = os.fstat(stream.fileno())
+    except (OSError, ValueError, AttributeError):
+        return False
+    return want == f"{st.st_dev}:{st.st_ino}"
+
+
 def setup_logging(level: str = "info", stream=None) -> None:
     """Plain lines on stderr; under journald (JOURNAL_STREAM set) with priority prefixes."""
     stream = stream or sys.stderr
     handler = logging.StreamHandler(stream)
     fmt = "%(name)s: %(message)s"
-    if os.environ.get("JOURNAL_STREAM"):
+    if _stderr_is_journal(stream):
         handler.setFormatter(_JournalPrefix(fmt))
     else:
         handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s " + fmt))
