@@ -25,7 +25,7 @@ from .config import ReconstructConfig
 from .fragments import Fragment, build_fragment
 from .inputs import Recording, RecordingError, read_recording
 from .odometry import CloudCache
-from .placement import Extrinsic, ImuOrientation, host_to_lidar_offset_ns, pose_world_lidar
+from .placement import Extrinsic, ImuOrientation, fit_clock_map, pose_world_lidar
 from .slam import SlamResult, inv, run_odometry, run_slam
 from .stations import Segmentation, segment_stations
 
@@ -94,15 +94,21 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
         raise RecordingError(f"{recording_path}: only {len(rec.lidar)} lidar packets")
 
     # 2. clocks and placement model
-    delta = host_to_lidar_offset_ns(rec.lidar)
+    clock = fit_clock_map(rec.lidar)
+    delta = clock.host_minus_lidar_ns
+    if clock.rate != 1.0:
+        notes_clock = [f"host clock runs {clock.rate:.4f}x the lidar's (a replay at that rate?); "
+                       "IMU and marks mapped with the fitted rate"]
+    else:
+        notes_clock = []
     pc = cfg.placement
     ext = Extrinsic.from_config(pc.extrinsic.q_imu_lidar, pc.extrinsic.lever_arm_m)
-    notes = list(rec.notes)
+    notes = list(rec.notes) + notes_clock
     if pc.extrinsic.q_imu_lidar is None:
         ext.source = "default"
         notes.append("no lidar–IMU mount rotation given: identity assumed (calibration of the "
                      "mount from data is not implemented; pass placement.extrinsic)")
-    orient = ImuOrientation(rec.imu, delta, int(round((pc.imu_time_offset_s or 0.0) * 1e9)))
+    orient = ImuOrientation(rec.imu, clock, int(round((pc.imu_time_offset_s or 0.0) * 1e9)))
     imu_t = orient.t_ns
     if imu_t[0] > rec.lidar.lidar_ns[0] + 1e9 or imu_t[-1] < rec.lidar.lidar_ns[-1] - 1e9:
         notes.append("IMU samples do not cover the whole lidar recording; orientation is held "
@@ -110,7 +116,7 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
 
     # 3. stations
     n_windows = int((rec.lidar.lidar_ns[-1] - rec.lidar.lidar_ns[0]) / 0.5e9)
-    marks = [(h - delta, label) for h, label in rec.marks]
+    marks = [(int(clock.to_lidar(np.array([h]))[0]), label) for h, label in rec.marks]
     with _Stage(times, "stations", n_windows, quiet) as bar:
         seg = segment_stations(rec.lidar, orient, ext, cfg.stations, marks, progress=bar)
     notes += seg.notes

@@ -39,6 +39,46 @@ def host_to_lidar_offset_ns(lidar: LidarPackets) -> int:
     return int(np.percentile(d, 1.0))
 
 
+@dataclass(frozen=True)
+class ClockMap:
+    """host_realtime → lidar time: lidar = lidar_ref + (host − host_ref − latency) / rate.
+
+    ``rate`` is the host clock's speed against the lidar's (1 for live data up to ppm drift;
+    a replay at 4x into the daemon gives 4). ``latency_ns`` is the receive latency floor.
+    """
+
+    host_ref_ns: int
+    lidar_ref_ns: int
+    rate: float = 1.0
+    latency_ns: int = 0
+
+    def to_lidar(self, host_ns: np.ndarray) -> np.ndarray:
+        h = np.asarray(host_ns, dtype=np.int64) - self.host_ref_ns - self.latency_ns
+        return self.lidar_ref_ns + np.round(h / self.rate).astype(np.int64)
+
+    @property
+    def host_minus_lidar_ns(self) -> int:
+        return int(self.host_ref_ns + self.latency_ns - self.lidar_ref_ns)
+
+
+def fit_clock_map(lidar: LidarPackets) -> ClockMap:
+    """Fit the host clock against the lidar's from the packets' two stamps.
+
+    The rate is a least-squares slope (robust to the latency's jitter over a recording of many
+    seconds); the latency floor is the 1st percentile of the residuals, as for a constant offset.
+    """
+    h0, l0 = int(lidar.host_ns[0]), int(lidar.lidar_ns[0])
+    x = (lidar.lidar_ns - l0).astype(np.float64)
+    y = (lidar.host_ns - h0).astype(np.float64)
+    rate = 1.0
+    if len(x) > 100 and x[-1] - x[0] > 1e9:
+        rate = float(np.polyfit(x, y, 1)[0])
+        if abs(rate - 1.0) < 1e-3:  # crystal drift only: keep the offset model exact
+            rate = 1.0
+    lat = int(np.percentile(y - rate * x, 1.0))
+    return ClockMap(h0, l0, rate, lat)
+
+
 @dataclass
 class Extrinsic:
     """Mounting of the lidar on the head: R_imu_lidar (3, 3) and lever arm ℓ (3,) [m] in the IMU
@@ -71,15 +111,21 @@ class ImuOrientation:
     Parameters
     ----------
     imu : ImuTrack
-    host_minus_lidar_ns : int
-        From :func:`host_to_lidar_offset_ns`.
+    host_minus_lidar_ns : int or ClockMap
+        A constant offset (:func:`host_to_lidar_offset_ns`) or a fitted :func:`fit_clock_map`.
     time_offset_ns : int
         IMU latency correction added after the clock mapping (estimated or configured).
     """
 
-    def __init__(self, imu: ImuTrack, host_minus_lidar_ns: int, time_offset_ns: int = 0):
+    def __init__(self, imu: ImuTrack, host_minus_lidar_ns: "int | ClockMap",
+                 time_offset_ns: int = 0):
         self.imu = imu
-        self.host_minus_lidar_ns = int(host_minus_lidar_ns)
+        if isinstance(host_minus_lidar_ns, ClockMap):
+            clock = host_minus_lidar_ns
+        else:
+            clock = ClockMap(0, -int(host_minus_lidar_ns))
+        self.clock = clock
+        self.host_minus_lidar_ns = clock.host_minus_lidar_ns
         self.time_offset_ns = int(time_offset_ns)
         q = imu.q_wxyz.copy()
         # one hemisphere along the track, so neighbours slerp the short way
@@ -87,7 +133,7 @@ class ImuOrientation:
             if np.dot(q[k], q[k - 1]) < 0:
                 q[k] = -q[k]
         self._q = q
-        self._base_t = imu.host_ns - self.host_minus_lidar_ns
+        self._base_t = clock.to_lidar(imu.host_ns)
 
     @property
     def t_ns(self) -> np.ndarray:
@@ -96,8 +142,8 @@ class ImuOrientation:
 
     def with_offset(self, time_offset_ns: int) -> "ImuOrientation":
         o = ImuOrientation.__new__(ImuOrientation)
-        o.imu, o.host_minus_lidar_ns, o._q, o._base_t = (
-            self.imu, self.host_minus_lidar_ns, self._q, self._base_t)
+        o.imu, o.clock, o.host_minus_lidar_ns, o._q, o._base_t = (
+            self.imu, self.clock, self.host_minus_lidar_ns, self._q, self._base_t)
         o.time_offset_ns = int(time_offset_ns)
         return o
 

@@ -1,0 +1,130 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""Reconstruction benchmark: ``tripod reconstruct`` on simulated captures against ground truth,
+with KISS-ICP run on the same de-skewed fragments as the peer.
+
+Per scene (12 stations each, range noise 3 cm, IMU noise and yaw drift on): station ATE before
+(odometry) and after SLAM, odometry drift in % of the path, map-to-mesh distance (median, p95),
+time per stage and the processing / recording time ratio, and KISS-ICP's ATE when it registers the
+fragments in order (frame-to-map, constant-velocity model, no de-skew: the fragments already are).
+
+    .venv/bin/python bench/reconstruct.py                 # room, corridor, two_rooms; 12 stations
+    .venv/bin/python bench/reconstruct.py --scenes room --stations 6
+Captures are cached under --work (default /tmp/tripod-bench-reconstruct) by scene/stations/seed.
+KISS-ICP is a bench-only peer (the processor's ``bench`` extra).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def simulate_cached(work: Path, scene: str, stations: int, seed: int) -> Path:
+    from tripod_processor.sim import SimConfig, simulate
+
+    d = work / f"{scene}-{stations}-{seed}"
+    if not (d / "meta.json").is_file():
+        simulate(SimConfig.model_validate({"scene": scene, "stations": stations, "seed": seed}), d)
+    return d
+
+
+def kiss_icp_ate(fragments, t_ns, truth_t, truth_T) -> tuple[float, float, str]:
+    """KISS-ICP over the fragments in order → (ATE cm, ATE deg, status)."""
+    try:
+        from kiss_icp.config import KISSConfig
+        from kiss_icp.kiss_icp import KissICP
+    except ImportError:
+        return float("nan"), float("nan"), "kiss-icp not installed"
+    from tripod_processor.reconstruction import evaluation as ev
+
+    cfg = KISSConfig()
+    cfg.data.deskew = False
+    cfg.data.max_range = 30.0
+    cfg.data.min_range = 0.4
+    cfg.mapping.voxel_size = 0.1
+    kiss = KissICP(cfg)
+    poses = []
+    for f in fragments:
+        kiss.register_frame(np.asarray(f.points, dtype=np.float64), np.zeros(len(f.points)))
+        poses.append(np.asarray(kiss.last_pose).copy())
+    T_true = ev.interpolate_poses(truth_t, truth_T, t_ns)
+    e = ev.pose_errors(np.array(poses), T_true)
+    return e.ate_m * 100, e.ate_deg, "ok"
+
+
+def run_scene(work: Path, scene: str, stations: int, seed: int) -> dict:
+    from tripod_shared.config_io import load_config
+
+    from tripod_processor.reconstruction.config import ReconstructConfig
+    from tripod_processor.reconstruction.evaluation import evaluate_run, load_sim_truth
+    from tripod_processor.reconstruction.pipeline import reconstruct
+    from tripod_processor.reconstruction.placement import load_extrinsic_file
+
+    t0 = time.perf_counter()
+    cap = simulate_cached(work, scene, stations, seed)
+    sim_s = time.perf_counter() - t0
+    q, lever = load_extrinsic_file(cap / "gt" / "calibration.json")
+    cfg = load_config(ReconstructConfig, overrides={"placement.extrinsic.q_imu_lidar": q,
+                                                    "placement.extrinsic.lever_arm_m": lever,
+                                                    "output.report": False})
+    out = work / f"{scene}-{stations}-{seed}-out"
+    cpu0 = time.process_time()
+    res = reconstruct(cap, out, cfg, quiet=True)
+    cpu = time.process_time() - cpu0
+    truth_t, truth_T = load_sim_truth(cap)
+    acc = evaluate_run(out, truth_t, truth_T, cap / "mesh.ply")
+    k_cm, k_deg, k_status = kiss_icp_ate(res.fragments, res.station_t_ns, truth_t, truth_T)
+    return {"scene": scene, "stations_true": stations, "stations": len(res.fragments),
+            "disconnected": len(res.slam.disconnected), "recording_s": res.recording.duration_s,
+            "processing_s": res.processing_s, "processing_cpu_s": cpu, "stage_s": res.stage_s,
+            "sim_s": sim_s, "kiss_ate_cm": k_cm, "kiss_ate_deg": k_deg, "kiss": k_status,
+            "loops": sum(e.kind == "loop" for e in res.slam.edges),
+            "rejected": res.slam.graph_result.rejected if res.slam.graph_result else 0, **acc}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenes", nargs="+", default=["room", "corridor", "two_rooms"])
+    ap.add_argument("--stations", type=int, default=12)
+    ap.add_argument("--seed", type=int, default=3)
+    ap.add_argument("--work", type=Path, default=Path("/tmp/tripod-bench-reconstruct"))
+    ap.add_argument("--json", type=Path, help="also write the rows as JSON")
+    args = ap.parse_args()
+    args.work.mkdir(parents=True, exist_ok=True)
+    rows = [run_scene(args.work, s, args.stations, args.seed) for s in args.scenes]
+
+    from rich.console import Console
+    from rich.table import Table
+
+    t = Table(title=f"tripod reconstruct on simulated captures ({args.stations} stations, "
+                    f"seed {args.seed}, {os.cpu_count()} CPUs, load {os.getloadavg()[0]:.1f})")
+    for c in ("scene", "stations", "ATE odometry", "ATE SLAM", "drift", "map→mesh med/p95",
+              "KISS-ICP ATE", "loops (rej.)", "time per stage [s]", "proc/rec (CPU)"):
+        t.add_column(c, justify="right" if c != "scene" else "left")
+    for r in rows:
+        stages = " ".join(f"{k[:4]} {v:.1f}" for k, v in r["stage_s"].items())
+        t.add_row(
+            r["scene"], f"{r['stations']}/{r['stations_true']}",
+            f"{r['ate_odometry_cm']:.2f} cm {r['ate_odometry_deg']:.3f}°",
+            f"{r['ate_cm']:.2f} cm {r['ate_deg']:.3f}°",
+            f"{r['odometry_drift_pct']:.3f} % of {r['path_m']:.0f} m",
+            f"{r['map_to_mesh_median_cm']:.2f} / {r['map_to_mesh_p95_cm']:.2f} cm",
+            f"{r['kiss_ate_cm']:.1f} cm {r['kiss_ate_deg']:.2f}°",
+            f"{r['loops']} ({r['rejected']})", stages,
+            f"{r['processing_s'] / r['recording_s']:.3f} "
+            f"({r['processing_cpu_s'] / r['recording_s']:.3f})")
+    Console().print(t)
+    print("goals: ATE <= 2 cm / 0.2 deg after SLAM; map-to-mesh median <= 1.5 cm; drift <= 0.5 %; "
+          "processing < 0.1 x recording time on 2 cores")
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=2, default=float) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
