@@ -115,6 +115,26 @@ def test_outlier_loop_edge_is_rejected():
     assert _errors(res_naive.T_world_node, truth)[0] > 5 * t_err
 
 
+def test_wrong_odometry_edge_is_outvoted_by_loops_but_bridges_stay():
+    rng = np.random.default_rng(6)
+    truth = _square_loop()
+    loops = ((2, 5), (3, 6), (2, 6), (3, 5), (0, 8), (4, 12))
+    chained, edges = _graph(truth, rng, loops=loops)
+    # odometry 3 -> 4 is wrong by 20 cm (a bad match through a door)
+    edges[3] = pg.Edge(3, 4, edges[3].T_i_j @ _T([0, 0, 0.01], [0.2, 0, 0]), edges[3].information)
+    clean = pg.optimize(chained, [e for k, e in enumerate(edges) if k != 3])
+    res = pg.optimize(chained, edges, robust_odometry=True, reject_odometry=True)
+    assert not res.edge_inlier[3] and res.rejected == 1
+    # as good as if the wrong edge had never been there
+    assert _errors(res.T_world_node, truth)[0] < 1.05 * _errors(clean.T_world_node, truth)[0]
+    naive = pg.optimize(chained, edges, loss="none", max_rejection_rounds=0)
+    assert _errors(naive.T_world_node, truth)[0] > 1.5 * _errors(clean.T_world_node, truth)[0]
+    # without loops around it, the same edge is a bridge: it is kept (the graph stays whole)
+    bridge = [e for e in edges if not e.is_loop]
+    res2 = pg.optimize(chained, bridge, robust_odometry=True, reject_odometry=True)
+    assert res2.edge_inlier.all()
+
+
 def test_gravity_priors_fix_tilt_drift():
     truth = _square_loop()
     rng = np.random.default_rng(4)

@@ -5,6 +5,7 @@
 #include <omp.h>
 
 #include <cmath>
+#include <functional>
 #include <memory>
 #include <stdexcept>
 
@@ -125,6 +126,28 @@ Eigen::Matrix<double, 6, 6> sqrt_information(const Eigen::Matrix<double, 6, 6>& 
     return es.eigenvectors() * ev.asDiagonal() * es.eigenvectors().transpose();
 }
 
+// Whether the nodes used by the inlier edges stay connected when edge `skip` is left out.
+bool connected_without(int n, const std::vector<PoseGraphEdge>& edges,
+                       const std::vector<unsigned char>& inlier, size_t skip) {
+    std::vector<int> parent(n);
+    for (int i = 0; i < n; ++i) parent[i] = i;
+    std::function<int(int)> find = [&](int x) { return parent[x] == x ? x : parent[x] = find(parent[x]); };
+    std::vector<bool> used(n, false);
+    for (size_t k = 0; k < edges.size(); ++k) {
+        if (!inlier[k]) continue;
+        used[edges[k].from] = used[edges[k].to] = true;
+        if (k == skip) continue;
+        parent[find(edges[k].from)] = find(edges[k].to);
+    }
+    int root = -1;
+    for (int i = 0; i < n; ++i) {
+        if (!used[i]) continue;
+        if (root < 0) root = find(i);
+        else if (find(i) != root) return false;
+    }
+    return true;
+}
+
 bool finite_pose(const Pose3d& T) {
     return T.p.allFinite() && T.q.coeffs().allFinite() && T.q.norm() > 1e-9;
 }
@@ -241,10 +264,12 @@ PoseGraphResult optimize_pose_graph(const std::vector<Pose3d>& initial,
         int worst = -1;
         double worst_chi2 = options.outlier_chi2;
         for (size_t k = 0; k < edges.size(); ++k) {
-            if (result.edge_inlier[k] && edges[k].is_loop && result.edge_chi2[k] > worst_chi2) {
-                worst = static_cast<int>(k);
-                worst_chi2 = result.edge_chi2[k];
-            }
+            if (!result.edge_inlier[k] || result.edge_chi2[k] <= worst_chi2) continue;
+            if (!edges[k].is_loop &&
+                !(options.reject_odometry && connected_without(n, edges, result.edge_inlier, k)))
+                continue;
+            worst = static_cast<int>(k);
+            worst_chi2 = result.edge_chi2[k];
         }
         if (worst < 0) break;
         result.edge_inlier[worst] = 0;

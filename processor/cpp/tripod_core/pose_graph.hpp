@@ -54,6 +54,9 @@ struct PoseGraphOptions {
     /// rejected and the graph solved again. 22.46 is the 99.9 % quantile of chi2(6).
     double outlier_chi2 = 22.46;
     int max_rejection_rounds = 5;
+    /// Odometry edges may be rejected too, but only when the graph stays connected without
+    /// them (a wrong odometry edge is outvoted by the loops around it).
+    bool reject_odometry = false;
 };
 
 struct PoseGraphResult {

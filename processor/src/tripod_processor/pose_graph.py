@@ -115,6 +115,7 @@ def optimize(
     fixed_node: int = 0,
     outlier_chi2: float = 22.46,
     max_rejection_rounds: int = 20,
+    reject_odometry: bool = False,
 ) -> GraphResult:
     """Optimise a pose graph.
 
@@ -135,6 +136,9 @@ def optimize(
     outlier_chi2 : float
         A loop edge whose chi2 (6 dof) exceeds this after a solve is rejected (worst first, one
         per round) and the graph solved again; 22.46 is chi2(6)'s 99.9 % quantile.
+    robust_odometry, reject_odometry : bool
+        Odometry edges through the robust loss too; and rejectable like loops when the graph
+        stays connected without them (a wrong odometry edge outvoted by the loops around it).
 
     Returns
     -------
@@ -155,7 +159,7 @@ def optimize(
     out = _ext.optimize_pose_graph(
         poses, pairs, rel, info, loops, g_nodes, g_up, g_sigma, loss, float(loss_scale),
         bool(robust_odometry), int(max_iterations), int(num_threads), int(fixed_node),
-        float(outlier_chi2), int(max_rejection_rounds),
+        float(outlier_chi2), int(max_rejection_rounds), bool(reject_odometry),
     )
     return GraphResult(
         T_world_node=np.array(out["T_world_node"]),

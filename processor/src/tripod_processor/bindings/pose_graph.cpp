@@ -39,7 +39,8 @@ TRIPOD_BINDING(pose_graph) {
         [](PosesIn T_world_node, PairsIn edge_nodes, PosesIn T_from_to, InfoIn information,
            FlagsIn is_loop, IdxIn gravity_nodes, Vec3In gravity_up, VecIn gravity_sigma,
            const std::string& loss, double loss_scale, bool robust_odometry, int max_iterations,
-           int num_threads, int fixed_node, double outlier_chi2, int max_rejection_rounds) {
+           int num_threads, int fixed_node, double outlier_chi2, int max_rejection_rounds,
+           bool reject_odometry) {
             const size_t n = T_world_node.shape(0), m_edges = edge_nodes.shape(0);
             if (T_from_to.shape(0) != m_edges || information.shape(0) != m_edges ||
                 is_loop.shape(0) != m_edges)
@@ -74,6 +75,7 @@ TRIPOD_BINDING(pose_graph) {
             opt.fixed_node = fixed_node;
             opt.outlier_chi2 = outlier_chi2;
             opt.max_rejection_rounds = max_rejection_rounds;
+            opt.reject_odometry = reject_odometry;
 
             tripod::PoseGraphResult res;
             {
@@ -105,5 +107,6 @@ TRIPOD_BINDING(pose_graph) {
         nb::arg("gravity_up"), nb::arg("gravity_sigma"), nb::arg("loss"), nb::arg("loss_scale"),
         nb::arg("robust_odometry"), nb::arg("max_iterations"), nb::arg("num_threads"),
         nb::arg("fixed_node"), nb::arg("outlier_chi2"), nb::arg("max_rejection_rounds"),
+        nb::arg("reject_odometry"),
         "Pose-graph optimisation in Ceres (private: use tripod_processor.pose_graph).");
 }

@@ -21,6 +21,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -80,8 +81,24 @@ class _Daemon:
             except socket.timeout:
                 continue
             if "READY=1" in msg.split("\n"):
+                # keep reading WATCHDOG/STATUS as systemd would: a full socket blocks the sender
+                self._drain = threading.Thread(target=self._drain_notify, daemon=True)
+                self._drain.start()
                 return True
         return False
+
+    def _drain_notify(self) -> None:
+        self.last_status = ""
+        while True:
+            try:
+                msg = self.sock.recv(4096).decode(errors="replace")
+            except socket.timeout:
+                continue
+            except OSError:
+                return
+            for line in msg.split("\n"):
+                if line.startswith("STATUS="):
+                    self.last_status = line[7:]
 
     def stop(self, timeout: float = 300.0) -> int:
         if self.proc.poll() is None:

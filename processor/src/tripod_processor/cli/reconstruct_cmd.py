@@ -36,9 +36,9 @@ def results_table(summary: dict, title: str = "tripod reconstruct"):
     disc = summary["disconnected_stations"]
     t.add_row("stations", f"{summary['stations']}" + (f" ({len(disc)} disconnected: {disc})"
                                                      if disc else ""))
-    t.add_row("edges (odometry / loop / rejected)",
-              f"{summary['odometry_edges']} / {summary['loop_edges']} / "
-              f"{summary['loop_edges_rejected']}")
+    t.add_row("edges: odometry / loop (rejected)",
+              f"{summary['odometry_edges']} ({summary.get('odometry_edges_rejected', 0)}) / "
+              f"{summary['loop_edges']} ({summary['loop_edges_rejected']})")
     t.add_row("IMU time offset", f"{summary['imu_time_offset_ms']:.2f} ms")
     t.add_row("extrinsic", summary["extrinsic"]["source"])
     t.add_row("map points", f"{summary['map_points']:,}")

@@ -61,8 +61,9 @@ class OdometryConfig(StrictModel):
     point_sigma_m: float = Field(default=0.03, gt=0)
     #: weight of the IMU rotation prior [deg] (its yaw drifts during a carry)
     rotation_prior_sigma_deg: float = Field(default=3.0, gt=0)
-    #: coarse-to-fine voxels [m]; the max correspondence distance is 3x the voxel
-    voxels_m: list[float] = Field(default_factory=lambda: [0.5, 0.25, 0.1], min_length=1)
+    #: coarse-to-fine voxels [m] of the core's registration (the max correspondence distance is
+    #: 3x the voxel); every start runs the first two, the best one the rest
+    voxels_m: list[float] = Field(default_factory=lambda: [0.6, 0.3], min_length=1)
     #: hold z of the translation at the prior (the original system's z-lock); off by default
     lock_z: bool = False
     #: grid cell [m] of the top-down correlation that seeds the translation
@@ -70,6 +71,11 @@ class OdometryConfig(StrictModel):
     #: floor of the edge standard deviations [m], [deg] (registration information is capped)
     sigma_floor_m: float = Field(default=0.003, gt=0)
     sigma_floor_deg: float = Field(default=0.03, gt=0)
+    #: finish every pair with point-to-plane ICP on oriented normals (6 cm voxels): surfaces
+    #: seen from opposite sides (a wall between two rooms) are never paired
+    oriented_refine: bool = True
+    #: a loop closure registered from the map's guess is kept when it moves less than this [m]
+    guess_radius_m: float = Field(default=0.5, gt=0)
     #: below this overlap (fitness) a pair is taken as not registered
     min_fitness: float = Field(default=0.3, ge=0, le=1)
 
@@ -82,6 +88,9 @@ class SlamConfig(StrictModel):
     loss: Literal["none", "huber", "cauchy", "soft_l1"] = "cauchy"
     loss_scale: float = Field(default=4.74, gt=0)
     outlier_chi2: float = Field(default=22.46, gt=0)
+    #: odometry edges are robust and rejectable too (when the graph stays connected without
+    #: them): loops around a wrong odometry edge outvote it
+    robust_odometry: bool = True
     #: tilt sigma of the IMU's gravity priors [deg]
     gravity_sigma_deg: float = Field(default=0.1, gt=0)
 

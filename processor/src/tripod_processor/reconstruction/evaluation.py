@@ -163,6 +163,19 @@ def load_sim_truth(sim_dir) -> tuple[np.ndarray, np.ndarray]:
     return t + int(clocks.get("lidar_clock_offset_ns", 0)), T
 
 
+def same_hour(truth_t_ns: np.ndarray, t_ns: np.ndarray) -> np.ndarray:
+    """Truth times moved by whole hours onto our time line.
+
+    Lidar time carries only µs past the hour; its hour comes from GPRMC or the recording host's
+    clock. A capture recorded by the daemon later (a replay) keeps every µs-past-the-hour but
+    gets the replay's hour, so truth and result differ by a whole number of hours.
+    """
+    hour = 3_600_000_000_000
+    k = int(np.round((int(t_ns[0]) - int(truth_t_ns[0])) / hour)) if len(t_ns) else 0
+    inside = truth_t_ns[0] <= t_ns[0] <= truth_t_ns[-1]
+    return truth_t_ns if inside else truth_t_ns + k * hour
+
+
 def evaluate_run(outdir, truth_t_ns: np.ndarray, truth_T: np.ndarray,
                  mesh_path=None) -> dict:
     """Accuracy of a finished run (its stations.tum, stations_odometry.tum, map.ply) against a
@@ -175,6 +188,7 @@ def evaluate_run(outdir, truth_t_ns: np.ndarray, truth_T: np.ndarray,
     out = Path(outdir)
     t, T_opt = read_tum(out / "stations.tum")
     _, T_odo = read_tum(out / "stations_odometry.tum")
+    truth_t_ns = same_hour(truth_t_ns, t)
     T_true = interpolate_poses(truth_t_ns, truth_T, t)
     e_odo = pose_errors(T_odo, T_true)
     e_opt = pose_errors(T_opt, T_true)

@@ -50,7 +50,8 @@ class LidarPackets:
 
 @dataclass
 class ImuTrack:
-    """IMU orientation samples: host_ns (K,) int64 at the read, q_world_imu (K, 4) w, x, y, z."""
+    """IMU orientation samples in arrival order: host_ns (K,) int64 at the read (non-decreasing;
+    several samples of one read share a stamp), q_world_imu (K, 4) w, x, y, z."""
 
     host_ns: np.ndarray
     q_wxyz: np.ndarray
@@ -272,10 +273,9 @@ def _imu_track(t, q) -> ImuTrack | None:
     norm = np.linalg.norm(quat, axis=1)
     ok = np.isfinite(norm) & (norm > 0.5)
     host, quat = host[ok], quat[ok] / norm[ok, None]
-    order = np.argsort(host, kind="stable")
+    order = np.argsort(host, kind="stable")  # equal stamps (several samples per read) stay
     host, quat = host[order], quat[order]
-    keep = np.concatenate([[True], np.diff(host) > 0])  # drop duplicate stamps
-    return ImuTrack(host[keep], quat[keep]) if keep.sum() >= 2 else None
+    return ImuTrack(host, quat) if len(host) >= 2 else None
 
 
 def read_imu_log(path: str | os.PathLike) -> ImuTrack:

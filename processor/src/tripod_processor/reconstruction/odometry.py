@@ -64,6 +64,17 @@ class CloudCache:
         self.point_sigma, self.num_threads = point_sigma, num_threads
         self._c: dict = {}
 
+    def oriented(self, key, points: np.ndarray, voxel: float):
+        """(points (N,3) float64, normals facing the fragment's sensor, k-d tree) at ``voxel``."""
+        from scipy.spatial import cKDTree
+
+        k = ("oriented", key, voxel)
+        if k not in self._c:
+            p = voxel_downsample(points, voxel, self.num_threads).astype(np.float64)
+            n, ok = _oriented_normals(p, self.num_threads)
+            self._c[k] = (p[ok], n[ok], cKDTree(p[ok]))
+        return self._c[k]
+
     def get(self, key, points: np.ndarray, voxel: float):
         from .. import registration as reg
 
@@ -106,6 +117,78 @@ def icp_refine(source: np.ndarray, target: np.ndarray, T_init: np.ndarray,
     info = _cap_information(information_target_frame(res.information, T), cfg)
     ok = res.fitness >= cfg.min_fitness and res.status != "too_few_correspondences"
     return PairResult(T, float(res.fitness), float(res.inlier_rmse), info, ok)
+
+
+# ---- final refinement: point-to-plane with oriented normals --------------------------------------
+def _oriented_normals(points: np.ndarray, num_threads: int) -> tuple[np.ndarray, np.ndarray]:
+    """Unit normals facing the fragment's own sensor (its origin), and their validity."""
+    from .. import _ext
+    from ..preprocess import as_cloud
+
+    n, _cov, _curv, valid = _ext.estimate_normals(as_cloud(points), 12, 0.0,
+                                                  np.zeros(3), int(num_threads))
+    return np.asarray(n, dtype=np.float64), np.asarray(valid, dtype=bool)
+
+
+def oriented_refine(source: np.ndarray, target: np.ndarray, T_init: np.ndarray,
+                    cfg: OdometryConfig, num_threads: int = 0, voxel: float = 0.06,
+                    max_dist: float = 0.15, iterations: int = 10, max_source: int = 40_000,
+                    cache: "CloudCache | None" = None, keys=("source", "target")
+                    ) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """Point-to-plane ICP that only pairs surfaces seen from the same side (the last stage).
+
+    A wall seen from both rooms of a door is two faces a wall's thickness apart; without the
+    normals' orientation, registration pairs the faces across the wall and splits the
+    difference. Normals here face each fragment's sensor (the fragment origin), and a pair
+    whose normals disagree (dot < 0.5) is no correspondence.
+
+    Returns (T_target_source, information (6, 6) in the pose graph's convention, fitness,
+    inlier RMSE [m]).
+    """
+    cache = cache or CloudCache(cfg.point_sigma_m, num_threads)
+    src, n_s, _ = cache.oriented(keys[0], source, voxel)
+    tgt, n_t, tree = cache.oriented(keys[1], target, voxel)
+    if len(src) > max_source:  # the target stays dense; a sample of the source is enough
+        sel = np.random.default_rng(0).choice(len(src), max_source, replace=False)
+        src, n_s = src[sel], n_s[sel]
+    T = np.asarray(T_init, dtype=np.float64).copy()
+    sigma = cfg.point_sigma_m
+    H = np.zeros((6, 6))
+    fit, rmse = 0.0, np.inf
+    for _ in range(iterations):
+        p = src @ T[:3, :3].T + T[:3, 3]
+        ns = n_s @ T[:3, :3].T
+        d, j = tree.query(p, k=1, distance_upper_bound=max_dist, workers=-1)
+        m = np.isfinite(d)
+        m[m] &= np.einsum("ij,ij->i", ns[m], n_t[j[m]]) > 0.5
+        if m.sum() < 100:
+            break
+        q, n, pp = tgt[j[m]], n_t[j[m]], p[m]
+        r = np.einsum("ij,ij->i", n, pp - q)
+        # Huber weights at 2 sigma
+        w = np.minimum(1.0, 2 * sigma / np.maximum(np.abs(r), 1e-9))
+        J = np.hstack([n, np.cross(pp, n)])  # d r / d(δt, δω) for T <- exp(δ) T (target frame)
+        H = (J * w[:, None]).T @ J
+        g = (J * w[:, None]).T @ r
+        try:
+            delta = -np.linalg.solve(H + 1e-9 * np.eye(6), g)
+        except np.linalg.LinAlgError:
+            break
+        from scipy.spatial.transform import Rotation
+
+        D = np.eye(4)
+        D[:3, :3] = Rotation.from_rotvec(delta[3:]).as_matrix()
+        D[:3, 3] = delta[:3]
+        T = D @ T
+        fit = float(m.mean())
+        rmse = float(np.sqrt(np.mean(r**2)))
+        if np.linalg.norm(delta[:3]) < 1e-5 and np.linalg.norm(delta[3:]) < 1e-6:
+            break
+    # information of (δt target frame, δω target frame) → (e_t target, e_r source): ω_t = R ω_s
+    M = np.eye(6)
+    M[3:, 3:] = T[:3, :3]
+    info = M.T @ (H / max(rmse, sigma) ** 2) @ M
+    return T, info, fit, rmse
 
 
 # ---- translation seed: top-down correlation of the gravity-aligned fragments ------------------
@@ -179,21 +262,33 @@ def register_fragments(source: np.ndarray, target: np.ndarray, R_world_source: n
         T[:3, :3] = R_ts
         T[:3, 3] = R_world_target.T @ d
         candidates.append((f"topdown{k}", T))
-    # every start through the coarse stages; only the best one through the fine stages
+    # every start through the coarse stages; only the best one through the fine stages. A
+    # guess from the map (loop closures) wins when it converges close to itself: in rooms that
+    # look alike, a far seed can fit better and be wrong.
     n_coarse = max(1, min(2, len(cfg.voxels_m) - 1))
     coarse_v, fine_v = cfg.voxels_m[:n_coarse], cfg.voxels_m[n_coarse:]
     best: PairResult | None = None
     for name, T0 in candidates:
         r = icp_refine(source, target, T0, cfg, num_threads, coarse_v, cache, keys, R_ts)
         r.seed = name
+        if name == "guess" and r.ok:
+            D = np.linalg.inv(T0) @ r.T_target_source
+            ang = np.degrees(np.arccos(np.clip((np.trace(D[:3, :3]) - 1) / 2, -1, 1)))
+            if np.linalg.norm(D[:3, 3]) < cfg.guess_radius_m and ang < 5.0:
+                best = r
+                break
         if best is None or (r.fitness, -r.rmse) > (best.fitness, -best.rmse):
             best = r
-        if name == "guess" and r.fitness > 0.7:
-            break  # a good start from the map: no need to search
     assert best is not None
     if fine_v:
         seed = best.seed
         best = icp_refine(source, target, best.T_target_source, cfg, num_threads, fine_v, cache,
                           keys, R_ts)
         best.seed = seed
+    if best.ok and cfg.oriented_refine:
+        T, info, fit, rmse = oriented_refine(source, target, best.T_target_source, cfg,
+                                             num_threads, cache=cache, keys=keys)
+        D = np.linalg.inv(best.T_target_source) @ T
+        if np.linalg.norm(D[:3, 3]) < 0.3 and fit > 0.5 * best.fitness:
+            best = PairResult(T, best.fitness, rmse, _cap_information(info, cfg), True, best.seed)
     return best

@@ -271,7 +271,14 @@ def summary(res: ReconstructResult) -> dict:
     slam = res.slam
     loops = [e for e in slam.edges if e.kind == "loop"]
     g = slam.graph_result
-    rejected = int(g.rejected) if g else 0
+    # graph edges are the edges between stations of the map, in order
+    main = set(int(k) for k in np.flatnonzero(slam.component == 0))
+    in_graph = [e for e in slam.edges if e.i in main and e.j in main]
+    rej = {"loop": 0, "odometry": 0}
+    if g is not None:
+        for e, ok in zip(in_graph, g.edge_inlier):
+            if not ok:
+                rej["loop" if e.kind == "loop" else "odometry"] += 1
     return {
         "recording": res.recording.source,
         "recording_s": res.recording.duration_s,
@@ -291,7 +298,8 @@ def summary(res: ReconstructResult) -> dict:
         "odometry_edges": sum(e.kind == "odometry" for e in slam.edges),
         "loop_candidates": slam.loop_candidates,
         "loop_edges": len(loops),
-        "loop_edges_rejected": rejected,
+        "loop_edges_rejected": rej["loop"],
+        "odometry_edges_rejected": rej["odometry"],
         "graph_converged": bool(g.converged) if g else None,
         "map_points": res.map_points,
         "truncated": res.recording.truncated,

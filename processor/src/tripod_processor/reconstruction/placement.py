@@ -79,6 +79,43 @@ def fit_clock_map(lidar: LidarPackets) -> ClockMap:
     return ClockMap(h0, l0, rate, lat)
 
 
+def dejitter_periodic(host_ns: np.ndarray, max_gap_s: float = 0.5) -> np.ndarray:
+    """Stamps of a periodic sensor without the host's read jitter.
+
+    An IMU reports at a fixed rate of its own oscillator, but each sample is stamped when the
+    host happens to read it (serial buffering, scheduling, several samples per read: jitter of
+    milliseconds). Within each run (split where nothing came for ``max_gap_s``, e.g. a replug),
+    sample k is fitted as t0 + k·P by least squares and put at the latency floor (1st percentile
+    of the residuals): the jitter goes, the smallest latency stays. A run whose residuals spread
+    over more than 5 periods has lost samples; its raw stamps are kept.
+    """
+    t = np.asarray(host_ns, dtype=np.int64)
+    out = t.astype(np.float64).copy()
+    breaks = np.flatnonzero(np.diff(t) > max_gap_s * 1e9) + 1
+    start = 0
+    for end in list(breaks) + [len(t)]:
+        n = end - start
+        if n >= 50:
+            k = np.arange(n, dtype=np.float64)
+            y = (t[start:end] - t[start]).astype(np.float64)
+            P, c = np.polyfit(k, y, 1)
+            r = y - (P * k + c)
+            if P > 0 and np.percentile(r, 99) - np.percentile(r, 1) < 5 * P:
+                out[start:end] = t[start] + c + np.percentile(r, 1.0) + P * k
+        start = end
+    out = np.round(out).astype(np.int64)
+    # strictly increasing for interpolation (raw stamps may repeat: several samples per read)
+    return _strictly_increasing(out)
+
+
+def _strictly_increasing(t: np.ndarray) -> np.ndarray:
+    out = t.copy()
+    for k in range(1, len(out)):
+        if out[k] <= out[k - 1]:
+            out[k] = out[k - 1] + 1
+    return out
+
+
 @dataclass
 class Extrinsic:
     """Mounting of the lidar on the head: R_imu_lidar (3, 3) and lever arm ℓ (3,) [m] in the IMU
@@ -133,7 +170,7 @@ class ImuOrientation:
             if np.dot(q[k], q[k - 1]) < 0:
                 q[k] = -q[k]
         self._q = q
-        self._base_t = clock.to_lidar(imu.host_ns)
+        self._base_t = clock.to_lidar(dejitter_periodic(imu.host_ns))
 
     @property
     def t_ns(self) -> np.ndarray:

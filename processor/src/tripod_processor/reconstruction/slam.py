@@ -152,7 +152,8 @@ def run_slam(frags: list[Fragment], T_odom: np.ndarray, odom_edges: list[pg.Edge
     if graph.edges:
         gres = graph.optimize(loss=scfg.loss, loss_scale=scfg.loss_scale,
                               outlier_chi2=scfg.outlier_chi2, num_threads=num_threads,
-                              fixed_node=0)
+                              fixed_node=0, robust_odometry=scfg.robust_odometry,
+                              reject_odometry=scfg.robust_odometry)
         for k in members:
             T_opt[k] = gres.T_world_node[index[k]]
     disconnected = [k for k in range(n) if comp[k] != main]
