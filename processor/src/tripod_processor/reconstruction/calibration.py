@@ -111,3 +111,84 @@ def estimate_time_offset(lidar: LidarPackets, stations: list[Station], orient: I
         "station": st.index, "offsets_s": [e[0] for e in evals],
         "spread_m": [e[1] for e in evals], "best_s": best, "best_spread_m": f_best,
         "zero_spread_m": f_zero}
+
+
+def _rotvec(R: np.ndarray) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_matrix(R).as_rotvec()
+
+
+def calibrate_mount(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
+                    num_threads: int = 0, step_s: float = 0.3, window_s: float = 0.1,
+                    max_pairs: int = 16) -> tuple[Extrinsic, dict]:
+    """The lidar's mount on the IMU (R_imu_lidar, lever arm) from the data (hand-eye).
+
+    While the head turns at a station, the lidar's motion between two short windows, measured by
+    registering them (A, lidar frame), and the IMU's (B, IMU frame) are one rigid motion seen in
+    two frames: the rotation axes satisfy a = R_lidar_imu·b, and the lidar's translation
+    t_A = R_lidar_imu·(B − I)·ℓ for the lever arm ℓ (pivot → lidar, IMU frame). Rotation: Kabsch
+    on the axis pairs, or the shortest rotation taking b onto a when every turn is about one axis
+    (a pan). What a single axis leaves open — a turn about the pan axis, a shift along it — does
+    not change the fragments (see the reconstruction README), so it is set to zero.
+    Returns (Extrinsic with source "calibrated", diagnostics).
+    """
+    from scipy.spatial.transform import Rotation
+
+    from .. import registration as reg
+
+    st = most_turning_station(stations, orient)
+    t0 = st.start_ns
+    times = np.arange(t0, st.end_ns - int(window_s * 1e9), int(step_s * 1e9), dtype=np.int64)
+    clouds = []
+    for t in times:
+        a, b = np.searchsorted(lidar.lidar_ns, [t, t + int(window_s * 1e9)])
+        pts = decode_points(lidar, int(a), int(b), min_range=0.5, max_range=40.0)
+        clouds.append(np.stack([pts["x"], pts["y"], pts["z"]], 1))
+    A_list, B_list = [], []
+    for k in range(min(len(times) - 1, max_pairs)):
+        if len(clouds[k]) < 500 or len(clouds[k + 1]) < 500:
+            continue
+        R_a = orient.rotation_at(np.array([times[k] + int(window_s * 0.5e9)]))[0]
+        R_b = orient.rotation_at(np.array([times[k + 1] + int(window_s * 0.5e9)]))[0]
+        B = R_a.T @ R_b
+        try:
+            r = reg.register(clouds[k + 1], clouds[k], method="gicp", voxel_size=0.1,
+                             max_correspondence_distance=[1.0, 0.3, 0.15],
+                             num_threads=num_threads)
+        except ValueError:
+            continue
+        if r.fitness < 0.5:
+            continue
+        A_list.append(r.T_target_source)
+        B_list.append(B)
+    if len(A_list) < 3:
+        raise ValueError("too few usable turns to calibrate the lidar mount from the data")
+    a = np.array([_rotvec(A[:3, :3]) for A in A_list])
+    b = np.array([_rotvec(B) for B in B_list])
+    # weights: bigger turns are better measured
+    w = np.linalg.norm(b, axis=1)
+    H = (b * w[:, None]).T @ a  # Σ w b aᵀ
+    U, S, Vt = np.linalg.svd(H)
+    if S[1] > 0.2 * S[0]:  # turns about at least two axes: the full rotation
+        D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+        R_li = Vt.T @ D @ U.T
+    else:  # one axis: the shortest rotation taking the mean b onto the mean a
+        bb = (b * w[:, None]).sum(0)
+        aa = (a * w[:, None]).sum(0)
+        bb /= np.linalg.norm(bb)
+        aa /= np.linalg.norm(aa)
+        ax = np.cross(bb, aa)
+        s, c = np.linalg.norm(ax), float(bb @ aa)
+        R_li = np.eye(3) if s < 1e-12 else Rotation.from_rotvec(
+            ax / s * np.arctan2(s, c)).as_matrix()
+    R_il = R_li.T
+    # lever arm: (B − I) ℓ = R_il t_A, least squares (minimum norm along the unseen axis)
+    M = np.concatenate([B - np.eye(3) for B in B_list])
+    y = np.concatenate([R_il @ A[:3, 3] for A in A_list])
+    ell, *_ = np.linalg.lstsq(M, y, rcond=0.05)
+    resid = [np.degrees(Rotation.from_matrix(A[:3, :3].T @ (R_li @ B @ R_il)).magnitude())
+             for A, B in zip(A_list, B_list)]
+    return Extrinsic(R_il, ell, "calibrated"), {
+        "station": st.index, "pairs": len(A_list), "axis_singular_values": S.tolist(),
+        "rotation_residual_deg_median": float(np.median(resid))}

@@ -104,10 +104,6 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
     pc = cfg.placement
     ext = Extrinsic.from_config(pc.extrinsic.q_imu_lidar, pc.extrinsic.lever_arm_m)
     notes = list(rec.notes) + notes_clock
-    if pc.extrinsic.q_imu_lidar is None:
-        ext.source = "default"
-        notes.append("no lidar–IMU mount rotation given: identity assumed (calibration of the "
-                     "mount from data is not implemented; pass placement.extrinsic)")
     orient = ImuOrientation(rec.imu, clock, int(round((pc.imu_time_offset_s or 0.0) * 1e9)))
     imu_t = orient.t_ns
     if imu_t[0] > rec.lidar.lidar_ns[0] + 1e9 or imu_t[-1] < rec.lidar.lidar_ns[-1] - 1e9:
@@ -123,6 +119,26 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
     if not seg.stations:
         raise RecordingError(f"{recording_path}: no station found (no period where the tripod "
                              f"stands for {cfg.stations.min_station_s:g} s)")
+
+    # 3b. the mount rotation from the data (hand-eye) when not given; the segmentation above
+    # used identity, good enough to find still periods when the IMU sits near the lidar's axes
+    calib_info: dict = {}
+    if pc.extrinsic.q_imu_lidar is None:
+        from .calibration import calibrate_mount
+
+        with _Stage(times, "mount calib", None, quiet):
+            try:
+                cal, calib_info = calibrate_mount(rec.lidar, seg.stations, orient, threads)
+                ext = Extrinsic(cal.R_imu_lidar, ext.lever_arm_m, "calibrated rotation")
+                notes.append("lidar-IMU mount rotation calibrated from the data (hand-eye, "
+                             f"median residual {calib_info['rotation_residual_deg_median']:.2f}°)"
+                             "; lever arm " + ("from the config" if pc.extrinsic.lever_arm_m
+                                               else "not given: 0 (fragments blur by up to "
+                                               "twice the real lever arm)"))
+            except ValueError as exc:
+                ext.source = "default"
+                notes.append(f"mount calibration failed ({exc}): identity assumed")
+        orient = ImuOrientation(rec.imu, clock, orient.time_offset_ns)
 
     # 4. IMU time offset (from the data unless configured)
     info: dict = {}
