@@ -297,3 +297,25 @@ def test_config_errors_name_the_key(tmp_path):
     p = tmp_path / "c.yaml"
     p.write_text(proc.stdout)
     assert load_config(ReconstructConfig, p) == ReconstructConfig()
+
+
+def test_mount_rotation_calibrated_from_the_data(capture):
+    """Hand-eye on sweep pairs recovers the mount up to the turn about the pan axis, which the
+    fragments cannot see (and need not)."""
+    from tripod_processor.reconstruction.calibration import calibrate_mount
+    from tripod_processor.reconstruction.config import StationConfig
+    from tripod_processor.reconstruction.placement import fit_clock_map
+    from tripod_processor.reconstruction.stations import segment_stations
+
+    path, truth = capture
+    rec = read_recording(path)
+    o = ImuOrientation(rec.imu, fit_clock_map(rec.lidar))
+    seg = segment_stations(rec.lidar, o, Extrinsic(truth.R_imu_lidar, truth.lever_arm_m),
+                           StationConfig())
+    ext, info = calibrate_mount(rec.lidar, seg.stations, o)
+    assert ext.source == "calibrated" and info["pairs"] >= 3
+    pan_axis_imu = np.array([0.0, 0.0, 1.0])  # the head pans about the IMU's z here
+    a_true = truth.R_imu_lidar.T @ pan_axis_imu  # the pan axis in the lidar frame
+    a_est = ext.R_imu_lidar.T @ pan_axis_imu
+    assert np.degrees(np.arccos(np.clip(a_true @ a_est, -1, 1))) < 0.5
+    assert np.degrees(np.arccos(np.clip(a_true @ np.array([0, 0, 1.0]), -1, 1))) > 20  # not trivial
