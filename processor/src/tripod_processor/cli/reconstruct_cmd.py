@@ -42,11 +42,13 @@ def results_table(summary: dict, title: str = "tripod reconstruct"):
     t.add_row("IMU time offset", f"{summary['imu_time_offset_ms']:.2f} ms")
     t.add_row("extrinsic", summary["extrinsic"]["source"])
     t.add_row("map points", f"{summary['map_points']:,}")
+    cpu = summary.get("stage_cpu_s", {})
     for k, v in summary["stage_s"].items():
-        t.add_row(f"  time: {k}", f"{v:.2f} s")
+        t.add_row(f"  time: {k}", f"{v:.2f} s wall, {cpu.get(k, float('nan')):.2f} s CPU")
     t.add_row("processing / recording time",
               f"{summary['processing_s']:.1f} s / {rec_s:.1f} s = "
-              f"{summary['processing_s'] / max(rec_s, 1e-9):.3f}")
+              f"{summary['processing_s'] / max(rec_s, 1e-9):.3f} "
+              f"(CPU {summary.get('processing_cpu_s', float('nan')) / max(rec_s, 1e-9):.3f})")
     for key in ("ate_cm", "ate_deg", "map_to_mesh_median_cm"):
         if key in summary:
             t.add_row(key, f"{summary[key]:.3f}")

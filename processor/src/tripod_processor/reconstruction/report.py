@@ -184,8 +184,8 @@ def write_report(res, cfg: ReconstructConfig) -> Path:
         f"lever arm {np.round(s['extrinsic']['lever_arm_m'], 4).tolist()} m "
         f"({s['extrinsic']['source']}) |",
         f"| map points | {s['map_points']} |",
-        f"| processing | {s['processing_s']:.1f} s ({s['processing_s'] / max(s['recording_s'], 1e-9):.3f} "
-        "of the recording time) |",
+        f"| processing | {s['processing_s']:.1f} s wall, {s['processing_cpu_s']:.1f} s CPU "
+        f"({s['processing_s'] / max(s['recording_s'], 1e-9):.3f} of the recording time) |",
         f"| horizontal plane fit | {med('horizontal')} |",
         f"| vertical plane fit | {med('vertical')} |", "",
         "## Map and trajectory", "", "![top-down](report_topdown.png)", "",
