@@ -1,7 +1,9 @@
 # SPDX-License-Identifier: BSD-3-Clause
 """Velodyne VLP-16 packets → frames (one rotation each) of points with per-point fields.
 
-The points come from velodyne-decoder (``velodyne_decoder.ScanDecoder``, C++); this module only
+The points come from tripod's batch decoder (:mod:`.native_decoder`, C++, one call per chunk of
+packets, proven equal to velodyne-decoder 3.1 point for point) or, with ``decoder:
+velodyne_decoder``, from velodyne-decoder itself (``velodyne_decoder.ScanDecoder``); this module
 groups packets, tells the sensor apart, splits rotations, stamps points and reports what it met.
 
 Frames
@@ -23,9 +25,10 @@ Time
     µs-past-the-hour, put on the hour nearest the host time, unwrapped across hours; the time of
     the frame's first firing). Each point has ``time_offset_ns`` (int32, lidar clock) since
     ``stamp_device_ns``, from the firing timing of the VLP-16 manual (55.296 µs per firing
-    sequence, 2.304 µs per laser) as velodyne-decoder computes it; it comes back as float32
-    seconds, so offsets are good to about ±30 ns. velodyne-decoder is handed the lidar clock as
-    its packet stamps, so point times never depend on the host clock's jitter.
+    sequence, 2.304 µs per laser) as velodyne-decoder computes it. The native decoder gives it
+    exactly (integer ns from the packet's device time); velodyne-decoder gives float32 seconds,
+    so on that path offsets are good to about ±30 ns. Point times never depend on the host
+    clock's jitter (velodyne-decoder too is handed the lidar clock as its packet stamps).
 
 Azimuth
     velodyne-decoder interpolates each laser's azimuth by its firing time; VeloView (the version
@@ -38,9 +41,10 @@ Sensor
     an early-firmware VLP-16: the data packet period decides (VLP-16 1327 µs, or 664 µs in dual
     return; HDL-32E 553 µs). Other sensors are refused with :class:`DecodeError`.
 
-Memory stays constant: packets are decoded in chunks of ``chunk_packets`` (one call into
-velodyne-decoder each), and at most one chunk of points plus the open frame is held; each point
-is copied once, from velodyne-decoder's output into its frame.
+Memory stays constant: packets are decoded in chunks of ``chunk_packets`` (one decoder call
+each), and at most one chunk of points plus the open frame is held. A frame wholly inside a
+native chunk is a slice of the decoder's output (no copy); any other point is copied once, from
+the decoder's output into its frame.
 """
 
 from __future__ import annotations
@@ -56,20 +60,9 @@ from pydantic import Field
 from tripod_shared import velodyne as vl
 from tripod_shared.config_io import StrictModel
 
+from .native_decoder import POINT_DTYPE, CalibrationError, NativeVlp16Decoder
 from .packet_sources import PacketSource, SourceError, open_source
 
-#: Per-point fields of a frame: packed little-endian, 20 bytes (4-byte fields aligned, which
-#: makes filling it twice as fast as a 19-byte record); a PLY/PCD body is this array's bytes.
-POINT_DTYPE = np.dtype([
-    ("x", "<f4"),  # [m], sensor frame "lidar" (x forward, y left, z up)
-    ("y", "<f4"),
-    ("z", "<f4"),
-    ("time_offset_ns", "<i4"),  # since the frame's stamp_device_ns, lidar clock
-    ("intensity", "u1"),  # calibrated reflectivity 0..255
-    ("ring", "u1"),  # laser index ordered by elevation, 0 = lowest (-15° on a VLP-16)
-    ("laser", "u1"),  # laser index in firing order (VeloView's laser_id, the packet's channel)
-    ("return_type", "u1"),  # 1 strongest, 2 last, 3 both (velodyne_decoder.ReturnMode)
-])
 #: VLP-16 firing order of each ring: lasers alternate -15°, +1°, -13°, +3°, ...
 _LASER_OF_RING = np.array([0, 2, 4, 6, 8, 10, 12, 14, 1, 3, 5, 7, 9, 11, 13, 15], np.uint8)
 
@@ -103,8 +96,15 @@ class DecodeConfig(StrictModel):
         0.2, gt=0, description="a silence longer than this [s] starts a new frame")
     gap_factor: float = Field(
         1.5, gt=1, description="a packet interval above this many packet periods is a gap")
+    decoder: Literal["native", "velodyne_decoder"] = Field(
+        "native", description="native: tripod's batch decoder (C++, one call per chunk, "
+        "proven equal to velodyne-decoder 3.1 by the tests); velodyne_decoder: its "
+        "ScanDecoder, fed packet by packet through its Python binding (slower)")
+    num_threads: int = Field(
+        1, ge=0, description="threads of the native decoder per chunk (0: all cores); one "
+        "is enough: it decodes ~3 µs a packet, the rest of the stream is the bottleneck")
     chunk_packets: int = Field(
-        256, ge=1, description="packets per call into velodyne-decoder (speed vs memory)")
+        256, ge=1, description="packets per decoder call (speed vs memory)")
     detect_packets: int = Field(
         32, ge=2, description="data packets looked at to tell the sensor and its period")
     max_gaps_listed: int = Field(100, ge=0, description="gaps itemised in the report")
@@ -375,6 +375,8 @@ class FrameDecoder:
         self._model = None
         self._sensor_product = None
         self._scan_decoder = None
+        self._native: NativeVlp16Decoder | None = None
+        self._view: np.ndarray | None = None  # a frame wholly inside one native chunk
         self._patch_product = False
         self._prev_az = -1  # azimuth of the last block seen
         self._prev_dev_ns = None  # lidar clock of the last packet (unwrapped, absolute)
@@ -420,9 +422,18 @@ class FrameDecoder:
         # velodyne-decoder insists on the product byte of the model: an early VLP-16 says 0x21
         self._patch_product = product != _PRODUCT_OF[sensor]
         self._expected_product = _PRODUCT_OF[sensor]
-        self._scan_decoder = vd.ScanDecoder(vd.Config(
-            model=self._model, calibration=_calibration(cfg.calibration, sensor),
-            min_range=cfg.min_range_m, max_range=cfg.max_range_m, timestamp_first_packet=True))
+        calibration = _calibration(cfg.calibration, sensor)
+        if cfg.decoder == "native":
+            try:
+                self._native = NativeVlp16Decoder(
+                    calibration, model=self._model, min_range_m=cfg.min_range_m,
+                    max_range_m=cfg.max_range_m, num_threads=cfg.num_threads)
+            except CalibrationError as exc:
+                raise DecodeError(str(exc)) from None
+        else:
+            self._scan_decoder = vd.ScanDecoder(vd.Config(
+                model=self._model, calibration=calibration, min_range=cfg.min_range_m,
+                max_range=cfg.max_range_m, timestamp_first_packet=True))
         self._period_ns = int(round((period or vl.VLP16_PACKET_PERIOD_US["single"]) * 1000))
 
     def _position(self, payload: bytes) -> None:
@@ -545,40 +556,34 @@ class FrameDecoder:
         long_gap = np.flatnonzero(dt > cfg.max_gap_in_frame_s * 1e9)
         split[long_gap * 12] = True  # (a no-op at the stream start: no frame is open)
         self._prev_az = int(az_flat[-1])
-        # ---- decode with velodyne-decoder ----------------------------------------------------
+        # ---- decode --------------------------------------------------------------------------
         dual = self._return_mode_byte == vl.RETURN_DUAL
-        rel_ns = dev_ns - dev_ns[0]
-        # velodyne-decoder gets the lidar clock as its packet stamps (seconds past the stream's
-        # first hour: small doubles), so point times do not depend on the host clock.
-        stamps_s = ((dev_ns - self._t0_ns) * 1e-9).tolist()
         split_blocks = np.flatnonzero(split)
-        split_pk = split_blocks // 12
-        split_blk = split_blocks % 12
-        split_rel_ns = rel_ns[split_pk] + ((split_blk // 2) if dual else split_blk) * _BLOCK_NS
-        ordered = k == 1 or bool((np.diff(rel_ns) >= _PACKET_SPAN_NS[dual] + 2000).all())
-        if ordered:
-            # packets in time order, their firings never overlap: point times increase, so a
-            # frame boundary is where they pass the first firing of the boundary block
-            raw = self._decode_chunk(batch, stamps_s)
-            t_s = raw["time"]  # float32 [s] since packet 0 of the chunk
-            cuts = np.searchsorted(t_s, ((split_rel_ns - 1000) * 1e-9).astype(np.float32))
-        else:
-            # out of order or overlapping: decode packet by packet and place each point by
-            # its packet and its firing time inside the packet (exact, slower)
-            raw, owner = self._decode_each(batch, stamps_s)
-            within_ns = np.rint(raw["time"].astype(np.float64) * 1e9).astype(np.int64)
-            unit = (within_ns + 1000) // _BLOCK_NS  # block, or block pair in dual return
-            block = owner * 12 + (np.clip(unit, 0, 5) * 2 if dual else np.clip(unit, 0, 11))
-            cuts = np.searchsorted(block, split_blocks, side="left")
-            t_s = (rel_ns[owner] + within_ns) * 1e-9
-        # ---- cut into frames (points come in packet, block, firing order) --------------------
-        starts = np.concatenate(([0], split_blocks))
+        starts = np.concatenate(([0], split_blocks))  # segments: [starts[s], ends[s]) blocks
         ends = np.concatenate((split_blocks, [k * 12]))
-        pstarts = np.concatenate(([0], cuts))
-        pends = np.concatenate((cuts, [len(raw)]))
-
-        chunk_dev0 = int(dev_ns[0])
         continued = self._frame_open  # the first segment goes on with a frame of the last chunk
+        if self._native is not None:
+            # one call for the chunk; every point is attributed to its block, so the frames
+            # are cut at block boundaries exactly, whatever the packet order, and each point's
+            # time offset comes out relative to its frame's first firing (exact integer ns)
+            blk = starts % 12
+            seg_ref_ns = dev_ns[starts // 12] + ((blk // 2) if dual else blk) * _BLOCK_NS
+            if continued:
+                seg_ref_ns[0] = self._frame_dev_ns
+            out = self._native.decode(arr, dev_ns, starts, seg_ref_ns)
+            raw = out.points
+            pstarts = out.block_first_point[starts]
+            pends = out.block_first_point[ends]
+            if out.time_offset_clipped:
+                rep.warn("a frame spans more than 2.1 s: its time offsets are clipped")
+            ordered = True
+            t_s = None
+        else:
+            raw, t_s, pstarts, pends, ordered = self._decode_velodyne_decoder(
+                batch, dev_ns, split_blocks, dual)
+        # ---- cut into frames (points come in packet, block, firing order) --------------------
+        chunk_dev0 = int(dev_ns[0])
+        last_seg = len(starts) - 1
         for seg, (b0, b1, q0, q1) in enumerate(zip(starts, ends, pstarts, pends)):
             if seg > 0:
                 yield from self._close_frame()
@@ -599,14 +604,22 @@ class FrameDecoder:
             lo = first_pk - 1 if (seg == 0 and continued and b0 == 0) else first_pk
             self._frame_gaps += int(((gap_idx > lo) & (gap_idx <= last_pk)).sum())
             self._frame_az1 = int(az_flat[b1 - 1])
+            if t_s is None and self._n == 0 and seg < last_seg and not (seg == 0 and continued):
+                # a whole frame inside this chunk: the decoder's output is the frame, no copy
+                self._view = raw[q0:q1]
+                continue
             if q1 > q0:
-                # one copy per point: velodyne-decoder's output straight into the frame
+                # one copy per point: the decoder's output straight into the frame
                 n, m = self._n, q1 - q0
                 if n + m > len(self._buf):
                     grown = np.empty(max(2 * len(self._buf), n + m), POINT_DTYPE)
                     grown[:n] = self._buf[:n]
                     self._buf = grown
                 part = self._buf[n : n + m]
+                if t_s is None:
+                    part[...] = raw[q0:q1]
+                    self._n = n + m
+                    continue
                 src = raw[q0:q1]
                 part["x"], part["y"], part["z"] = src["x"], src["y"], src["z"]
                 part["intensity"] = src["intensity"]  # 0..255: velodyne-decoder clamps it
@@ -625,6 +638,37 @@ class FrameDecoder:
                 self._n = n + m
         self._packet_index += k
         rep.packets += k
+
+    def _decode_velodyne_decoder(self, batch, dev_ns, split_blocks, dual):
+        """The chunk through velodyne-decoder: points, their float32 time [s] since packet 0,
+        the first and end point of each segment, and whether the packets were in order."""
+        k = len(batch)
+        rel_ns = dev_ns - dev_ns[0]
+        # velodyne-decoder gets the lidar clock as its packet stamps (seconds past the stream's
+        # first hour: small doubles), so point times do not depend on the host clock.
+        stamps_s = ((dev_ns - self._t0_ns) * 1e-9).tolist()
+        split_pk = split_blocks // 12
+        split_blk = split_blocks % 12
+        split_rel_ns = rel_ns[split_pk] + ((split_blk // 2) if dual else split_blk) * _BLOCK_NS
+        ordered = k == 1 or bool((np.diff(rel_ns) >= _PACKET_SPAN_NS[dual] + 2000).all())
+        if ordered:
+            # packets in time order, their firings never overlap: point times increase, so a
+            # frame boundary is where they pass the first firing of the boundary block
+            raw = self._decode_chunk(batch, stamps_s)
+            t_s = raw["time"]  # float32 [s] since packet 0 of the chunk
+            cuts = np.searchsorted(t_s, ((split_rel_ns - 1000) * 1e-9).astype(np.float32))
+        else:
+            # out of order or overlapping: decode packet by packet and place each point by
+            # its packet and its firing time inside the packet (exact, slower)
+            raw, owner = self._decode_each(batch, stamps_s)
+            within_ns = np.rint(raw["time"].astype(np.float64) * 1e9).astype(np.int64)
+            unit = (within_ns + 1000) // _BLOCK_NS  # block, or block pair in dual return
+            block = owner * 12 + (np.clip(unit, 0, 5) * 2 if dual else np.clip(unit, 0, 11))
+            cuts = np.searchsorted(block, split_blocks, side="left")
+            t_s = (rel_ns[owner] + within_ns) * 1e-9
+        pstarts = np.concatenate(([0], cuts))
+        pends = np.concatenate((cuts, [len(raw)]))
+        return raw, t_s, pstarts, pends, ordered
 
     def _packet_vector(self, batch: list[tuple[int, bytes]], stamps_s: list[float]):
         pv = vd.PacketVector()
@@ -655,10 +699,13 @@ class FrameDecoder:
     def _close_frame(self) -> Iterator[Frame]:
         if not self._frame_open:
             return
-        # the frame keeps its buffer; the next one gets a fresh buffer sized after this one
-        pts = self._buf[: self._n]
-        self._buf = np.empty(max(_FIRST_CAPACITY, self._n + self._n // 8), POINT_DTYPE)
-        self._n = 0
+        if self._view is not None:  # a frame the native decoder gave whole
+            pts, self._view = self._view, None
+        else:
+            # the frame keeps its buffer; the next one gets a fresh buffer sized after this one
+            pts = self._buf[: self._n]
+            self._buf = np.empty(max(_FIRST_CAPACITY, self._n + self._n // 8), POINT_DTYPE)
+            self._n = 0
         self._frame_open = False
         f = Frame(self._frame_index, pts, self._frame_host_ns, self._frame_dev_ns,
                   self._frame_packets, self._frame_az0 / 100.0, self._frame_az1 / 100.0,
