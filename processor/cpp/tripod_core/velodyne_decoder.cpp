@@ -174,6 +174,9 @@ PacketStatus Vlp16Decoder::decode_packet(const std::uint8_t* raw, std::int64_t s
             z = distance * sin_vert_angle;
             intensity = (float)raw_intensity;
         } else {
+            // velodyne-decoder 3.1's full model (measured against it, see native_decoder.py):
+            // the VLP-16 manual's vertical offset (z only), horizontal offset, and the
+            // two-point distance correction when both dist_correction_x and _y are set
             const auto& c = calibration_.lasers[laser];
             distance += c.dist_correction;
             if (!(distance >= config_.min_range_m && distance <= config_.max_range_m)) return;
@@ -181,7 +184,7 @@ PacketStatus Vlp16Decoder::decode_packet(const std::uint8_t* raw, std::int64_t s
             const float vert_offset = c.vert_offset_correction;
             float distance_corr_x = 0, distance_corr_y = 0;
             if (c.two_pt_correction_available) {
-                const float xy_distance = distance * cos_vert_angle - vert_offset * sin_vert_angle;
+                const float xy_distance = distance * cos_vert_angle;
                 const float xx = std::abs(xy_distance * sin_rot_angle - horiz_offset * cos_rot_angle);
                 const float yy = std::abs(xy_distance * cos_rot_angle + horiz_offset * sin_rot_angle);
                 distance_corr_x = (c.dist_correction - c.dist_correction_x) * (xx - 2.4f) /
@@ -194,17 +197,19 @@ PacketStatus Vlp16Decoder::decode_packet(const std::uint8_t* raw, std::int64_t s
                 distance_corr_y -= c.dist_correction;
             }
             const float distance_x = distance + distance_corr_x;
-            float xy_distance = distance_x * cos_vert_angle - vert_offset * sin_vert_angle;
+            float xy_distance = distance_x * cos_vert_angle;
             const float xs = xy_distance * sin_rot_angle - horiz_offset * cos_rot_angle;
             const float distance_y = distance + distance_corr_y;
-            xy_distance = distance_y * cos_vert_angle - vert_offset * sin_vert_angle;
+            xy_distance = distance_y * cos_vert_angle;
             const float ys = xy_distance * cos_rot_angle + horiz_offset * sin_rot_angle;
-            z = distance_y * sin_vert_angle + vert_offset * cos_vert_angle;
+            const float distance_z = (distance_x + distance_y) / 2;
+            z = distance_z * sin_vert_angle + vert_offset;
             x = ys;  // the Velodyne manual's frame turned to ROS's
             y = -xs;
             const float min_intensity = (float)c.min_intensity;
             const float max_intensity = (float)c.max_intensity;
-            const float focal_offset = sqr(1 - c.focal_distance / 13100.f);
+            // focal distance in the calibration's unit, the formula's in 1/100 of it
+            const float focal_offset = sqr(1 - c.focal_distance * 100 / 13100.f);
             const float raw_intensity_f = raw_intensity;
             const float raw_distance_f = raw_distance;
             intensity = raw_intensity_f +

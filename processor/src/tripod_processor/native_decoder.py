@@ -80,6 +80,9 @@ def calibration_table(calibration: vd.Calibration) -> tuple[np.ndarray, float, n
             "(VLP-16 / Puck Hi-Res) calibration")
     table = np.array([[float(lz.get(c, _DEFAULTS.get(c, 0))) for c in CALIBRATION_COLUMNS]
                       for lz in lasers], dtype=np.float64)
+    # velodyne-decoder 3.1 neither reads nor writes two_pt_correction_available: it applies
+    # the two-point correction where both dist_correction_x and dist_correction_y are set
+    table[:, 3] = (table[:, 4] != 0) & (table[:, 5] != 0)
     vert = table[:, 1].astype(np.float32)
     rings = np.empty(16, np.uint8)
     rings[np.argsort(vert, kind="stable")] = np.arange(16, dtype=np.uint8)
