@@ -1,9 +1,11 @@
 // SPDX-License-Identifier: BSD-3-Clause
-// Batch VLP-16 decoder. Every float operation below follows velodyne-decoder 3.1
+// Batch VLP-16 decoder. Every float operation below follows velodyne-decoder 3.x
 // (src/packet_decoder.cpp: buildTimings, setupSinCosCache, setupCalibrationCache,
-// unpack_16_32_beam, unpackPointDual, unpackPoint) in the same order and precision, so that the
-// results are bit-equal; this file is compiled with -ffp-contract=off for the same reason (a
-// fused multiply-add would round differently from the reference wheel).
+// unpack_16_32_beam, unpackPointDual, unpackPoint; time_conversion.cpp) in the same order and
+// precision, so that the results are bit-equal to the 3.1 wheel; this file is compiled with
+// -ffp-contract=off for the same reason (a fused multiply-add would round differently). Where
+// 3.1 differs from the 3.x source at hand (the full calibration model), its behaviour was
+// measured term by term and is noted there.
 #include "tripod_core/velodyne_decoder.hpp"
 
 #include <omp.h>
@@ -19,7 +21,7 @@ namespace {
 
 constexpr int kBlockSize = 100;             // flag (2) + azimuth (2) + 32 x (distance 2, intensity 1)
 constexpr std::uint8_t kFlag0 = 0xFF, kFlag1 = 0xEE;  // block flag of lasers 0..31 (bank 0)
-constexpr std::uint8_t kLastReturn = 0x38, kDualReturn = 0x39;
+constexpr std::uint8_t kStrongestReturn = 0x37, kLastReturn = 0x38, kDualReturn = 0x39;
 constexpr std::uint8_t kStrongest = 1, kLast = 2, kBoth = 3;  // velodyne_decoder.ReturnMode
 constexpr std::size_t kReturnModeOffset = 1204;
 constexpr int kRotationMaxUnits = 36000;    // [0.01 deg]
@@ -123,7 +125,8 @@ bool Vlp16Decoder::azimuth_in_range(std::uint16_t azimuth) const {
 }
 
 PacketStatus Vlp16Decoder::decode_packet(const std::uint8_t* raw, std::int64_t stamp_ns,
-                                         float rel_packet_stamp_s, std::int64_t flat_block0,
+                                         float rel_packet_stamp_s, std::uint8_t single_type,
+                                         std::int64_t flat_block0,
                                          const std::int64_t* seg_first_block,
                                          const std::int64_t* seg_ref_ns, std::size_t n_segments,
                                          PacketOut out, int& n_points, bool& clipped) const {
@@ -138,7 +141,6 @@ PacketStatus Vlp16Decoder::decode_packet(const std::uint8_t* raw, std::int64_t s
         wrap_int((int)read_u16(raw + 11 * kBlockSize + 2) - (int)read_u16(raw + 2));
     const float duration = timing_s_[dual_return ? 11 / 2 : 11][0] - timing_s_[0][0];
     const float rotation_rate = (float)azimuth_diff / duration;
-    const std::uint8_t single_type = return_mode == kLastReturn ? kLast : kStrongest;
 
     // segment (frame) of the packet's first block; advanced as the blocks go
     std::size_t seg = 0;
@@ -148,7 +150,7 @@ PacketStatus Vlp16Decoder::decode_packet(const std::uint8_t* raw, std::int64_t s
             seg_first_block);
         seg = seg ? seg - 1 : 0;
     }
-    const std::int64_t default_ref = stamp_ns;  // unused when segments are given
+    const std::int64_t default_ref = seg_ref_ns[0];  // the batch's single segment
 
     auto emit = [&](int laser, std::uint16_t azimuth, float time_s, std::int32_t t_ns_in_packet,
                     std::int64_t ref_ns, const std::uint8_t* m, std::uint8_t rtype,
@@ -174,35 +176,40 @@ PacketStatus Vlp16Decoder::decode_packet(const std::uint8_t* raw, std::int64_t s
             z = distance * sin_vert_angle;
             intensity = (float)raw_intensity;
         } else {
-            // velodyne-decoder 3.1's full model (measured against it, see native_decoder.py):
-            // the VLP-16 manual's vertical offset (z only), horizontal offset, and the
-            // two-point distance correction when both dist_correction_x and _y are set
+            // velodyne-decoder 3.1's full model (its source is not at hand: the terms below were
+            // measured against it one at a time, see tests/processor/test_native_decoder.py)
             const auto& c = calibration_.lasers[laser];
             distance += c.dist_correction;
             if (!(distance >= config_.min_range_m && distance <= config_.max_range_m)) return;
             const float horiz_offset = c.horiz_offset_correction;
             const float vert_offset = c.vert_offset_correction;
-            float distance_corr_x = 0, distance_corr_y = 0;
+            // two-point correction: the distance correction interpolated between the near (x:
+            // 2.4 m, y: 1.93 m) and far (25.04 m) calibration points by the point's |x| and |y|
+            // in the sensor frame; 3.1 adds the whole correction to the raw distance and takes
+            // their mean for z (measured: this matches 3.1 to one float32 ulp on a few points
+            // in a thousand, exactly on the rest; the default VLP-16 tables have no two-point
+            // values)
+            const float raw_m = raw_distance * calibration_.distance_resolution_m;
+            float distance_x = distance, distance_y = distance, distance_z = distance;
             if (c.two_pt_correction_available) {
                 const float xy_distance = distance * cos_vert_angle;
-                const float xx = std::abs(xy_distance * sin_rot_angle - horiz_offset * cos_rot_angle);
-                const float yy = std::abs(xy_distance * cos_rot_angle + horiz_offset * sin_rot_angle);
-                distance_corr_x = (c.dist_correction - c.dist_correction_x) * (xx - 2.4f) /
-                                      (25.04f - 2.4f) +
-                                  c.dist_correction_x;
-                distance_corr_x -= c.dist_correction;
-                distance_corr_y = (c.dist_correction - c.dist_correction_y) * (yy - 1.93f) /
-                                      (25.04f - 1.93f) +
-                                  c.dist_correction_y;
-                distance_corr_y -= c.dist_correction;
+                const float xx = std::abs(xy_distance * sin_rot_angle);
+                const float yy = std::abs(xy_distance * cos_rot_angle);
+                const float corr_x = (c.dist_correction - c.dist_correction_x) * (xx - 2.4f) /
+                                         (25.04f - 2.4f) +
+                                     c.dist_correction_x;
+                const float corr_y = (c.dist_correction - c.dist_correction_y) * (yy - 1.93f) /
+                                         (25.04f - 1.93f) +
+                                     c.dist_correction_y;
+                distance_x = raw_m + corr_x;
+                distance_y = raw_m + corr_y;
+                distance_z = raw_m + (corr_x + corr_y) / 2;
             }
-            const float distance_x = distance + distance_corr_x;
             float xy_distance = distance_x * cos_vert_angle;
             const float xs = xy_distance * sin_rot_angle - horiz_offset * cos_rot_angle;
-            const float distance_y = distance + distance_corr_y;
             xy_distance = distance_y * cos_vert_angle;
             const float ys = xy_distance * cos_rot_angle + horiz_offset * sin_rot_angle;
-            const float distance_z = (distance_x + distance_y) / 2;
+            // the VLP-16 manual's vertical offset: z only
             z = distance_z * sin_vert_angle + vert_offset;
             x = ys;  // the Velodyne manual's frame turned to ROS's
             y = -xs;
@@ -285,11 +292,26 @@ PacketStatus Vlp16Decoder::decode_packet(const std::uint8_t* raw, std::int64_t s
 Vlp16Batch Vlp16Decoder::decode(const std::uint8_t* packets, std::size_t n_packets,
                                 const std::int64_t* stamps_ns, const std::int64_t* seg_first_block,
                                 const std::int64_t* seg_ref_ns, std::size_t n_segments,
-                                bool with_time_s, int num_threads) const {
+                                bool with_time_s, int num_threads,
+                                std::uint8_t return_type_before) const {
     Vlp16Batch out;
     out.status.assign(n_packets, PacketStatus::ok);
     out.block_first_point.assign(n_packets * kBlocksPerPacket + 1, 0);
+    out.return_type_after = return_type_before;
     if (n_packets == 0) return out;
+    // Return type of single-return points: velodyne-decoder keeps the last return mode it
+    // recognised (0x37 strongest, 0x38 last, 0x39 dual) and labels a packet with another mode
+    // byte after it; a sequential scan, so that the packets can then go in parallel
+    std::vector<std::uint8_t> single_type(n_packets);
+    std::uint8_t state = return_type_before;
+    for (std::size_t k = 0; k < n_packets; ++k) {
+        const std::uint8_t mode = packets[k * kVelodynePacketSize + kReturnModeOffset];
+        if (mode == kStrongestReturn) state = kStrongest;
+        else if (mode == kLastReturn) state = kLast;
+        else if (mode == kDualReturn) state = kBoth;
+        single_type[k] = state;
+    }
+    out.return_type_after = state;
     // Each packet decodes into its own slot of kMaxPointsPerPacket; each thread then packs its
     // slots to the front of its range, and the ranges are moved together. new T[] of a trivial
     // type leaves the memory untouched: no page is written twice.
@@ -309,6 +331,9 @@ Vlp16Batch Vlp16Decoder::decode(const std::uint8_t* packets, std::size_t n_packe
                              (double)stamps_ns[k] * 1e-9);
     };
     const double stamp0_s = with_time_s ? device_s(0) : 0.0;
+    // without segments: one, referenced to packet 0's stamp
+    const std::int64_t single_ref = stamps_ns[0];
+    const std::int64_t* refs = n_segments ? seg_ref_ns : &single_ref;
 
 #pragma omp parallel num_threads(num_threads) reduction(|| : clipped_any)
     {
@@ -325,8 +350,9 @@ Vlp16Batch Vlp16Decoder::decode(const std::uint8_t* packets, std::size_t n_packe
                          block_counts.data() + k * kBlocksPerPacket};
             int n = 0;
             out.status[k] = decode_packet(packets + k * kVelodynePacketSize, stamps_ns[k], rel,
+                                          single_type[k],
                                           static_cast<std::int64_t>(k) * kBlocksPerPacket,
-                                          seg_first_block, seg_ref_ns, n_segments, po, n, clipped);
+                                          seg_first_block, refs, n_segments, po, n, clipped);
             write += static_cast<std::size_t>(n);
         }
         thread_count[t] = write - thread_begin[t];

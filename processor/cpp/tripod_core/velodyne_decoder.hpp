@@ -63,6 +63,10 @@ struct Vlp16Point {
 };
 static_assert(sizeof(Vlp16Point) == 20, "Vlp16Point must be packed to 20 bytes");
 
+/// Return type velodyne-decoder 3.1 gives single-return points before it has seen a packet
+/// with a known return mode byte (measured: 63).
+constexpr std::uint8_t kReturnTypeUnknown = 63;
+
 /// What became of one packet of a batch.
 enum class PacketStatus : std::uint8_t {
     ok = 0,
@@ -80,6 +84,7 @@ struct Vlp16Batch {
     std::vector<std::int64_t> block_first_point;
     std::vector<PacketStatus> status;      ///< one per packet
     bool time_offset_clipped = false;      ///< a time offset did not fit in int32
+    std::uint8_t return_type_after = kReturnTypeUnknown;  ///< state after the last packet
 };
 
 /// Decoder of VLP-16 / Puck Hi-Res data packets, many at a time.
@@ -109,10 +114,14 @@ public:
     ///                       device_k is the packet's time past the hour put on the hour of
     ///                       its stamp (stamps_ns * 1e-9 s), as velodyne-decoder's TimePair
     /// @param num_threads    0 = all available
+    /// @param return_type_before  return type of single-return packets whose mode byte is not
+    ///                       a known one: the type of the last known mode before them (pass the
+    ///                       previous batch's return_type_after to continue a stream)
     Vlp16Batch decode(const std::uint8_t* packets, std::size_t n_packets,
                       const std::int64_t* stamps_ns, const std::int64_t* seg_first_block,
                       const std::int64_t* seg_ref_ns, std::size_t n_segments, bool with_time_s,
-                      int num_threads = 0) const;
+                      int num_threads = 0,
+                      std::uint8_t return_type_before = kReturnTypeUnknown) const;
 
     const Vlp16Calibration& calibration() const { return calibration_; }
     const Vlp16DecoderConfig& config() const { return config_; }
@@ -125,7 +134,8 @@ private:
     };
     /// Decode one packet into `out`; returns its status and the number of points.
     PacketStatus decode_packet(const std::uint8_t* raw, std::int64_t stamp_ns,
-                               float rel_packet_stamp_s, std::int64_t flat_block0,
+                               float rel_packet_stamp_s, std::uint8_t single_type,
+                               std::int64_t flat_block0,
                                const std::int64_t* seg_first_block, const std::int64_t* seg_ref_ns,
                                std::size_t n_segments, PacketOut out, int& n_points,
                                bool& clipped) const;

@@ -48,6 +48,10 @@ CALIBRATION_COLUMNS = (
 _DEFAULTS = {"max_intensity": 255, "min_intensity": 0}
 PACKET_SIZE = 1206
 
+#: Return type of single-return points before any packet with a known return mode byte
+#: (velodyne-decoder 3.1's value; a packet with an unknown byte gets the type of the last
+#: known mode, so the decoder carries it from chunk to chunk)
+RETURN_TYPE_UNKNOWN = 63
 #: ``NativeBatch.status`` values
 STATUS_OK, STATUS_BAD_BLOCK_HEADER = 0, 1
 
@@ -142,6 +146,7 @@ class NativeVlp16Decoder:
             calibration = vd.Calibration.default_calibs[model]
         table, resolution, rings = calibration_table(calibration)
         self.num_threads = int(num_threads)
+        self._return_type = RETURN_TYPE_UNKNOWN  # velodyne-decoder's state across packets
         self._dec = _ext._Vlp16Decoder(table, resolution, rings, float(min_range_m),
                                        float(max_range_m), float(min_angle_deg),
                                        float(max_angle_deg))
@@ -149,7 +154,8 @@ class NativeVlp16Decoder:
     def decode(self, packets: np.ndarray, stamps_ns: np.ndarray,
                seg_first_block: np.ndarray | None = None, seg_ref_ns: np.ndarray | None = None,
                with_time_s: bool = False) -> NativeBatch:
-        """Decode a chunk of packets in one call.
+        """Decode a chunk of packets in one call (the next chunk of a stream goes on from it:
+        velodyne-decoder's return-mode state is carried over).
 
         Parameters
         ----------
@@ -172,11 +178,13 @@ class NativeVlp16Decoder:
         if seg_first_block is not None:
             seg_first_block = np.ascontiguousarray(seg_first_block, dtype=np.int64)
             seg_ref_ns = np.ascontiguousarray(seg_ref_ns, dtype=np.int64)
-        pts, time_s, first, status, clipped = self._dec.decode(
-            packets, stamps_ns, seg_first_block, seg_ref_ns, with_time_s, self.num_threads)
+        pts, time_s, first, status, clipped, self._return_type = self._dec.decode(
+            packets, stamps_ns, seg_first_block, seg_ref_ns, with_time_s, self.num_threads,
+            self._return_type)
         return NativeBatch(pts.view(POINT_DTYPE).reshape(-1), time_s, first, status,
                            bool(clipped))
 
 
-__all__ = ["CALIBRATION_COLUMNS", "POINT_DTYPE", "STATUS_BAD_BLOCK_HEADER", "STATUS_OK",
+__all__ = ["CALIBRATION_COLUMNS", "POINT_DTYPE", "RETURN_TYPE_UNKNOWN", "STATUS_BAD_BLOCK_HEADER",
+           "STATUS_OK",
            "CalibrationError", "NativeBatch", "NativeVlp16Decoder", "calibration_table"]

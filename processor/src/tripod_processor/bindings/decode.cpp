@@ -81,7 +81,7 @@ TRIPOD_BINDING(decode) {
             "decode",
             [](const tripod::Vlp16Decoder& self, PacketsIn packets, I64In stamps_ns,
                nb::object seg_first_block, nb::object seg_ref_ns, bool with_time_s,
-               int num_threads) {
+               int num_threads, std::uint8_t return_type_before) {
                 const std::size_t n = packets.shape(0);
                 if (stamps_ns.shape(0) != n)
                     throw std::invalid_argument("stamps_ns must have one entry per packet");
@@ -103,7 +103,7 @@ TRIPOD_BINDING(decode) {
                 {
                     nb::gil_scoped_release release;
                     b = self.decode(packets.data(), n, stamps_ns.data(), seg_b, seg_r, n_seg,
-                                    with_time_s, num_threads);
+                                    with_time_s, num_threads, return_type_before);
                 }
                 const std::size_t np = b.num_points;
                 auto* pts = reinterpret_cast<std::uint8_t*>(b.points.release());
@@ -124,14 +124,16 @@ TRIPOD_BINDING(decode) {
                 for (std::size_t k = 0; k < n; ++k) st[k] = static_cast<std::uint8_t>(b.status[k]);
                 nb::ndarray<nb::numpy, std::uint8_t, nb::ndim<1>> status(st, {n}, owner_of(st));
                 return nb::make_tuple(points, time_s, block_first, status,
-                                      b.time_offset_clipped);
+                                      b.time_offset_clipped, b.return_type_after);
             },
             nb::arg("packets"), nb::arg("stamps_ns"), nb::arg("seg_first_block") = nb::none(),
             nb::arg("seg_ref_ns") = nb::none(), nb::arg("with_time_s") = false,
             nb::arg("num_threads") = 0,
+            nb::arg("return_type_before") = tripod::kReturnTypeUnknown,
             "Decode (N, 1206) uint8 packets stamped (N,) int64 [ns]. Returns (points (M, 20) "
             "uint8 = POINT_DTYPE records, time_s (M,) float32 velodyne-decoder time since "
             "packet 0 [s] or empty, block_first_point (N*12+1,) int64, status (N,) uint8: "
             "0 ok, 1 bad block header (the blocks before it kept), "
-            "time_offset_clipped).");
+            "time_offset_clipped, return_type_after (pass it as return_type_before of the next "
+            "chunk)).");
 }
