@@ -19,7 +19,7 @@
 namespace tripod {
 namespace {
 
-constexpr int kBlockSize = 100;             // flag (2) + azimuth (2) + 32 x (distance 2, intensity 1)
+constexpr int kBlockSize = 100;  // flag (2) + azimuth (2) + 32 x (distance 2, intensity 1)
 constexpr std::uint8_t kFlag0 = 0xFF, kFlag1 = 0xEE;  // block flag of lasers 0..31 (bank 0)
 constexpr std::uint8_t kStrongestReturn = 0x37, kLastReturn = 0x38, kDualReturn = 0x39;
 constexpr std::uint8_t kStrongest = 1, kLast = 2, kBoth = 3;  // velodyne_decoder.ReturnMode

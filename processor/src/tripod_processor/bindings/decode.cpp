@@ -11,7 +11,8 @@ using namespace tripod_bind;
 
 namespace {
 
-using PacketsIn = nb::ndarray<const std::uint8_t, nb::shape<-1, 1206>, nb::c_contig, nb::device::cpu>;
+using PacketsIn =
+    nb::ndarray<const std::uint8_t, nb::shape<-1, 1206>, nb::c_contig, nb::device::cpu>;
 using I64In = nb::ndarray<const std::int64_t, nb::shape<-1>, nb::c_contig, nb::device::cpu>;
 using F64Table = nb::ndarray<const double, nb::shape<16, 12>, nb::c_contig, nb::device::cpu>;
 using U8Out = nb::ndarray<nb::numpy, std::uint8_t, nb::ndim<2>>;
