@@ -54,7 +54,11 @@ inline std::uint16_t wrap_int(int azimuth) {
     return static_cast<std::uint16_t>((azimuth + 36000) % 36000);
 }
 inline std::uint16_t wrap_float(float azimuth) {
-    return static_cast<std::uint16_t>(std::lround(azimuth + 36000) % 36000);
+    // std::lround(azimuth + 36000) without the libm call: the float sum is >= 0 here (block
+    // azimuth >= 0, rotation rate >= 0), and for a float v >= 0, (double)v + 0.5 is exact, so
+    // truncating it rounds half away from zero exactly as lround does
+    const float v = azimuth + 36000;
+    return static_cast<std::uint16_t>(static_cast<long>(static_cast<double>(v) + 0.5) % 36000);
 }
 
 template <typename T>
