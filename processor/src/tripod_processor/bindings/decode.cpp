@@ -4,6 +4,7 @@
 #include <nanobind/stl/tuple.h>
 
 #include "common.hpp"
+#include "tripod_core/pcap_scan.hpp"
 #include "tripod_core/velodyne_decoder.hpp"
 
 namespace nb = nanobind;
@@ -50,9 +51,59 @@ tripod::Vlp16Calibration calibration_from(const F64Table& t, double distance_res
     return c;
 }
 
+/// Move a vector into a numpy array owned by a capsule (no copy).
+template <typename T>
+nb::ndarray<nb::numpy, T> vector_to_numpy(std::vector<T>&& v, std::initializer_list<size_t> shape) {
+    auto* heap = new std::vector<T>(std::move(v));
+    nb::capsule owner(heap, [](void* p) noexcept { delete static_cast<std::vector<T>*>(p); });
+    return nb::ndarray<nb::numpy, T>(heap->data(), shape.size(), shape.begin(), owner);
+}
+
 }  // namespace
 
 TRIPOD_BINDING(decode) {
+    m.def(
+        "_scan_pcap_records",
+        [](nb::ndarray<const std::uint8_t, nb::ndim<1>, nb::c_contig, nb::device::cpu> buf,
+           bool big_endian, bool nanosecond, std::uint32_t linktype, std::size_t data_size,
+           std::uint32_t max_record_bytes) {
+            tripod::PcapLayout layout{big_endian, nanosecond, linktype};
+            tripod::PcapScan s;
+            {
+                nb::gil_scoped_release release;
+                s = tripod::scan_pcap_records(buf.data(), buf.shape(0), layout, data_size,
+                                              max_record_bytes);
+            }
+            const size_t nd = s.data_t_ns.size(), no = s.other_t_ns.size(),
+                         ns = s.slow_t_ns.size();
+            std::vector<std::int64_t> other(no * 4), slow(ns * 3);
+            for (size_t i = 0; i < no; ++i) {
+                other[4 * i] = s.other_t_ns[i];
+                other[4 * i + 1] = s.other_offset[i];
+                other[4 * i + 2] = s.other_length[i];
+                other[4 * i + 3] = s.other_port[i];
+            }
+            for (size_t i = 0; i < ns; ++i) {
+                slow[3 * i] = s.slow_t_ns[i];
+                slow[3 * i + 1] = s.slow_offset[i];
+                slow[3 * i + 2] = s.slow_length[i];
+            }
+            return nb::make_tuple(
+                s.consumed, s.records, s.oversize ? s.oversize_bytes : 0u,
+                vector_to_numpy(std::move(s.data), {nd, data_size}),
+                vector_to_numpy(std::move(s.data_t_ns), {nd}),
+                vector_to_numpy(std::move(s.data_port), {nd}),
+                vector_to_numpy(std::move(other), {no, 4}),
+                vector_to_numpy(std::move(slow), {ns, 3}));
+        },
+        nb::arg("buf"), nb::arg("big_endian"), nb::arg("nanosecond"), nb::arg("linktype"),
+        nb::arg("data_size"), nb::arg("max_record_bytes"),
+        "Scan whole classic-pcap records at the start of buf (uint8). Returns (consumed bytes, "
+        "records, oversize record bytes or 0, data (n, data_size) uint8 payloads of plain "
+        "Ethernet/IPv4/UDP records, data_t_ns (n,) int64, data_port (n,) uint16, other (k, 4) "
+        "int64 [t_ns, payload offset, length, port] of other plain payloads, slow (m, 3) int64 "
+        "[t_ns, frame offset, length] of records to parse in Python).");
+
     nb::class_<tripod::Vlp16Decoder>(m, "_Vlp16Decoder",
                                      "Batch VLP-16 / Puck Hi-Res decoder equal to "
                                      "velodyne-decoder 3.1 (private: use tripod_processor.decode)")
