@@ -61,7 +61,7 @@ from tripod_shared import velodyne as vl
 from tripod_shared.config_io import StrictModel
 
 from .native_decoder import POINT_DTYPE, CalibrationError, NativeVlp16Decoder
-from .packet_sources import PacketSource, SourceError, open_source
+from .packet_sources import PacketBatch, PacketSource, SourceError, group_packets, open_source
 
 #: VLP-16 firing order of each ring: lasers alternate -15°, +1°, -13°, +3°, ...
 _LASER_OF_RING = np.array([0, 2, 4, 6, 8, 10, 12, 14, 1, 3, 5, 7, 9, 11, 13, 15], np.uint8)
@@ -104,7 +104,8 @@ class DecodeConfig(StrictModel):
         1, ge=0, description="threads of the native decoder per chunk (0: all cores); one "
         "is enough: it decodes ~3 µs a packet, the rest of the stream is the bottleneck")
     chunk_packets: int = Field(
-        256, ge=1, description="packets per decoder call (speed vs memory)")
+        1024, ge=1, description="packets per decoder call (speed vs memory: a chunk's points "
+        "take up to 7.9 MB at 1024)")
     detect_packets: int = Field(
         32, ge=2, description="data packets looked at to tell the sensor and its period")
     max_gaps_listed: int = Field(100, ge=0, description="gaps itemised in the report")
@@ -339,35 +340,51 @@ class FrameDecoder:
     # ---------------------------------------------------------------------------------------
     def decode(self, packets: Iterable[tuple[int, bytes]]) -> Iterator[Frame]:
         """Frames of a packet stream, in order; the last (partial) frame comes at the end."""
+        yield from self.decode_batches(group_packets(packets, self.config.chunk_packets))
+
+    def decode_batches(self, batches: Iterable[PacketBatch]) -> Iterator[Frame]:
+        """:meth:`decode` of a stream given as :class:`~.packet_sources.PacketBatch` es (the
+        sources' fast path: data packets arrive as arrays, cut here into decoder chunks)."""
         cfg = self.config
         self.report = rep = DecodeReport()
         self._state_reset()
-        pending: list[tuple[int, bytes]] = []
+        pend_host: list[np.ndarray] = []  # data packets not decoded yet, in arrays
+        pend_data: list[np.ndarray] = []
+        n_pend = 0
         detecting = True
-        data_size, pos_size = vl.DATA_PACKET_SIZE, vl.POSITION_PACKET_SIZE
+        pos_size = vl.POSITION_PACKET_SIZE
         chunk = cfg.chunk_packets
-        for host_ns, payload in packets:
-            n = len(payload)
-            if n == data_size:
-                pending.append((host_ns, payload))
-                if detecting:
-                    if len(pending) < cfg.detect_packets:
-                        continue
-                    self._detect(pending)
-                    detecting = False
-                if len(pending) >= chunk:
-                    yield from self._process(pending)
-                    pending = []
-            elif n == pos_size:
-                self._position(payload)
-            else:
-                rep.skip("wrong_size")
+        for batch in batches:
+            for _host_ns, payload in batch.others:
+                if len(payload) == pos_size:
+                    self._position(payload)
+                else:
+                    rep.skip("wrong_size")
+            if not len(batch.host_ns):
+                continue
+            pend_host.append(batch.host_ns)
+            pend_data.append(batch.data)
+            n_pend += len(batch.host_ns)
+            if detecting:
+                if n_pend < cfg.detect_packets:
+                    continue
+                self._detect(np.concatenate(pend_data)[: cfg.detect_packets])
+                detecting = False
+            if n_pend < chunk:
+                continue
+            host = np.concatenate(pend_host) if len(pend_host) > 1 else pend_host[0]
+            data = np.concatenate(pend_data) if len(pend_data) > 1 else pend_data[0]
+            full = n_pend - n_pend % chunk
+            for i in range(0, full, chunk):  # row slices of a C-contiguous array: no copy
+                yield from self._process(host[i : i + chunk], data[i : i + chunk])
+            pend_host, pend_data = [host[full:]], [data[full:]]
+            n_pend -= full
         if detecting:
-            if not pending:
+            if not n_pend:
                 raise DecodeError("no Velodyne data packets (1206-byte UDP payloads) found")
-            self._detect(pending)
-        if pending:
-            yield from self._process(pending)
+            self._detect(np.concatenate(pend_data)[: cfg.detect_packets])
+        if n_pend:
+            yield from self._process(np.concatenate(pend_host), np.concatenate(pend_data))
         yield from self._finish()
 
     # ---------------------------------------------------------------------------------------
@@ -397,9 +414,9 @@ class FrameDecoder:
         self._last_nmea = ""
         self._last_parsed: tuple = ("", False, None, "")
 
-    def _detect(self, first: list[tuple[int, bytes]]) -> None:
+    def _detect(self, first: np.ndarray) -> None:
         cfg, rep = self.config, self.report
-        good = [p for _, p in first if vl.check_data_packet(
+        good = [p for p in map(bytes, first) if vl.check_data_packet(
             p, accept_products=tuple(vl.PRODUCTS)) == vl.PacketKind.DATA]
         if not good:
             raise DecodeError("no well-formed Velodyne data packets at the start of the input")
@@ -483,11 +500,10 @@ class FrameDecoder:
         return kind, bool(info.fix_available), position, utc
 
     # ---------------------------------------------------------------------------------------
-    def _process(self, batch: list[tuple[int, bytes]]) -> Iterator[Frame]:
-        """Decode one chunk of data packets and emit the frames it completes."""
+    def _process(self, host_ns: np.ndarray, arr: np.ndarray) -> Iterator[Frame]:
+        """Decode one chunk of data packets ((k,) int64 host_ns, (k, 1206) uint8) and emit the
+        frames it completes."""
         rep, cfg = self.report, self.config
-        buf = np.frombuffer(b"".join([p for _, p in batch]), dtype=np.uint8)
-        arr = buf.reshape(len(batch), vl.DATA_PACKET_SIZE)
         blocks = arr[:, :1200].reshape(-1, 12, 100)
         ok = (blocks[:, :, 0] == 0xFF).all(1) & (blocks[:, :, 1] == 0xEE).all(1)
         ret = arr[:, vl.RETURN_MODE_OFFSET]
@@ -500,11 +516,11 @@ class FrameDecoder:
         ok &= prod_ok
         if not ok.all():
             keep = np.flatnonzero(ok)
-            batch = [batch[i] for i in keep]
+            host_ns = host_ns[keep]
             arr = arr[keep]
             blocks = blocks[keep]
             ret = ret[keep]
-        k = len(batch)
+        k = len(arr)
         if k == 0:
             return
         if (ret != self._return_mode_byte).any():
@@ -512,7 +528,7 @@ class FrameDecoder:
         # ---- device clock, unwrapped over hours and put on the host's hour -------------------
         toh_ns = arr[:, 1200:1204].copy().view("<u4").ravel().astype(np.int64) * 1000
         if self._hour_base_ns is None:
-            h0 = batch[0][0]
+            h0 = int(host_ns[0])
             self._hour_base_ns = ((h0 - int(toh_ns[0]) + HOUR_NS // 2) // HOUR_NS) * HOUR_NS
             self._t0_ns = self._hour_base_ns
             self._prev_toh_ns = int(toh_ns[0])
@@ -580,7 +596,7 @@ class FrameDecoder:
             t_s = None
         else:
             raw, t_s, pstarts, pends, ordered = self._decode_velodyne_decoder(
-                batch, dev_ns, split_blocks, dual)
+                arr, dev_ns, split_blocks, dual)
         # ---- cut into frames (points come in packet, block, firing order) --------------------
         chunk_dev0 = int(dev_ns[0])
         last_seg = len(starts) - 1
@@ -593,7 +609,7 @@ class FrameDecoder:
                 pk = b0 // 12
                 blk = b0 % 12
                 self._frame_open = True
-                self._frame_host_ns = batch[pk][0]
+                self._frame_host_ns = int(host_ns[pk])
                 blk_time = (blk // 2) * _BLOCK_NS if dual else blk * _BLOCK_NS
                 self._frame_dev_ns = int(dev_ns[pk]) + blk_time
                 self._frame_packets = 0
@@ -639,10 +655,15 @@ class FrameDecoder:
         self._packet_index += k
         rep.packets += k
 
-    def _decode_velodyne_decoder(self, batch, dev_ns, split_blocks, dual):
+    def _decode_velodyne_decoder(self, arr, dev_ns, split_blocks, dual):
         """The chunk through velodyne-decoder: points, their float32 time [s] since packet 0,
         the first and end point of each segment, and whether the packets were in order."""
-        k = len(batch)
+        k = len(arr)
+        if self._patch_product:
+            # velodyne-decoder insists on the product byte of the model
+            arr = arr.copy()
+            arr[:, vl.PRODUCT_ID_OFFSET] = self._expected_product
+        batch = [p.tobytes() for p in arr]
         rel_ns = dev_ns - dev_ns[0]
         # velodyne-decoder gets the lidar clock as its packet stamps (seconds past the stream's
         # first hour: small doubles), so point times do not depend on the host clock.
@@ -670,16 +691,12 @@ class FrameDecoder:
         pends = np.concatenate((cuts, [len(raw)]))
         return raw, t_s, pstarts, pends, ordered
 
-    def _packet_vector(self, batch: list[tuple[int, bytes]], stamps_s: list[float]):
+    @staticmethod
+    def _packet_vector(batch: list[bytes], stamps_s: list[float]):
         pv = vd.PacketVector()
         append, packet = pv.append, vd.VelodynePacket
-        if self._patch_product:
-            tail = bytes([self._expected_product])
-            for (_h, p), st in zip(batch, stamps_s):
-                append(packet(st, p[:-1] + tail))
-        else:
-            for (_h, p), st in zip(batch, stamps_s):
-                append(packet(st, p))
+        for p, st in zip(batch, stamps_s):
+            append(packet(st, p))
         return pv
 
     def _decode_chunk(self, batch, stamps_s) -> np.ndarray:
@@ -736,7 +753,7 @@ class DecodeRun:
 
     def __iter__(self) -> Iterator[Frame]:
         try:
-            yield from self.decoder.decode(self.source)
+            yield from self.decoder.decode_batches(self.source.batches())
         finally:
             rep, src = self.decoder.report, self.source.report
             for reason, n in src.skipped.items():
