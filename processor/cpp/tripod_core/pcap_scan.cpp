@@ -57,6 +57,7 @@ PcapScan scan_pcap_records(const std::uint8_t* buf, std::size_t len, const PcapL
                     out.data.insert(out.data.end(), buf + p0, buf + p0 + plen);
                     out.data_t_ns.push_back(t_ns);
                     out.data_port.push_back(port);
+                    out.data_record.push_back(static_cast<std::int64_t>(out.records));
                 } else {
                     out.other_t_ns.push_back(t_ns);
                     out.other_offset.push_back(static_cast<std::int64_t>(p0));
@@ -69,6 +70,7 @@ PcapScan scan_pcap_records(const std::uint8_t* buf, std::size_t len, const PcapL
             out.slow_t_ns.push_back(t_ns);
             out.slow_offset.push_back(static_cast<std::int64_t>(start));
             out.slow_length.push_back(static_cast<std::int32_t>(incl));
+            out.slow_record.push_back(static_cast<std::int64_t>(out.records));
         }
         ++out.records;
         pos = end_rec;

@@ -29,14 +29,15 @@ struct PcapScan {
     std::vector<std::uint8_t> data;
     std::vector<std::int64_t> data_t_ns;  ///< capture time [ns] (host_realtime of the capturer)
     std::vector<std::uint16_t> data_port; ///< UDP destination port
+    std::vector<std::int64_t> data_record; ///< index of the record in this scan
 
     /// plain records with another payload size (position packets, ...): where the payload is
     std::vector<std::int64_t> other_t_ns, other_offset;
     std::vector<std::int32_t> other_length;
     std::vector<std::uint16_t> other_port;
 
-    /// records off the plain path: where the captured frame is
-    std::vector<std::int64_t> slow_t_ns, slow_offset;
+    /// records off the plain path: where the captured frame is, and the record's index
+    std::vector<std::int64_t> slow_t_ns, slow_offset, slow_record;
     std::vector<std::int32_t> slow_length;
 };
 

@@ -353,16 +353,27 @@ def _iter_pcap_batches(fh: BinaryIO, head: bytes, stats: PcapStats, data_size: i
             chunk = fh.read(_BUF_SIZE)
             eof = len(chunk) < _BUF_SIZE
             buf = buf + chunk if buf else chunk
-        (consumed, records, oversize, data, data_t_ns, data_port, other,
+        (consumed, records, oversize, data, data_t_ns, data_port, data_rec, other,
          slow) = _ext._scan_pcap_records(np.frombuffer(buf, np.uint8), e == ">",
                                          magic == PCAP_MAGIC_NS, linktype, data_size,
                                          _MAX_RECORD_BYTES)
         stats.udp += len(data_t_ns) + len(other)
         others = [(t, port, buf[off : off + n]) for t, off, n, port in other.tolist()]
-        for t, off, n in slow.tolist():
+        slow_data = []  # data payloads of records off the plain path: put in file order
+        for t, off, n, rec in slow.tolist():
             d = _parse_frame(linktype, buf[off : off + n], stats, t)
-            if d is not None:
+            if d is None:
+                continue
+            if len(d.payload) == data_size:
+                slow_data.append((rec, d))
+            else:
                 others.append((d.t_ns, d.dst_port, d.payload))
+        if slow_data:
+            at = np.searchsorted(data_rec, [rec for rec, _ in slow_data])
+            data = np.insert(data, at, np.frombuffer(b"".join(d.payload for _, d in slow_data),
+                                                    np.uint8).reshape(-1, data_size), axis=0)
+            data_t_ns = np.insert(data_t_ns, at, [d.t_ns for _, d in slow_data])
+            data_port = np.insert(data_port, at, [d.dst_port for _, d in slow_data])
         stats.records += records
         if records:
             yield PayloadBatch(data, data_t_ns, data_port, others)

@@ -76,7 +76,7 @@ TRIPOD_BINDING(decode) {
             }
             const size_t nd = s.data_t_ns.size(), no = s.other_t_ns.size(),
                          ns = s.slow_t_ns.size();
-            std::vector<std::int64_t> other(no * 4), slow(ns * 3);
+            std::vector<std::int64_t> other(no * 4), slow(ns * 4);
             for (size_t i = 0; i < no; ++i) {
                 other[4 * i] = s.other_t_ns[i];
                 other[4 * i + 1] = s.other_offset[i];
@@ -84,25 +84,28 @@ TRIPOD_BINDING(decode) {
                 other[4 * i + 3] = s.other_port[i];
             }
             for (size_t i = 0; i < ns; ++i) {
-                slow[3 * i] = s.slow_t_ns[i];
-                slow[3 * i + 1] = s.slow_offset[i];
-                slow[3 * i + 2] = s.slow_length[i];
+                slow[4 * i] = s.slow_t_ns[i];
+                slow[4 * i + 1] = s.slow_offset[i];
+                slow[4 * i + 2] = s.slow_length[i];
+                slow[4 * i + 3] = s.slow_record[i];
             }
             return nb::make_tuple(
                 s.consumed, s.records, s.oversize ? s.oversize_bytes : 0u,
                 vector_to_numpy(std::move(s.data), {nd, data_size}),
                 vector_to_numpy(std::move(s.data_t_ns), {nd}),
                 vector_to_numpy(std::move(s.data_port), {nd}),
+                vector_to_numpy(std::move(s.data_record), {nd}),
                 vector_to_numpy(std::move(other), {no, 4}),
-                vector_to_numpy(std::move(slow), {ns, 3}));
+                vector_to_numpy(std::move(slow), {ns, 4}));
         },
         nb::arg("buf"), nb::arg("big_endian"), nb::arg("nanosecond"), nb::arg("linktype"),
         nb::arg("data_size"), nb::arg("max_record_bytes"),
         "Scan whole classic-pcap records at the start of buf (uint8). Returns (consumed bytes, "
         "records, oversize record bytes or 0, data (n, data_size) uint8 payloads of plain "
-        "Ethernet/IPv4/UDP records, data_t_ns (n,) int64, data_port (n,) uint16, other (k, 4) "
-        "int64 [t_ns, payload offset, length, port] of other plain payloads, slow (m, 3) int64 "
-        "[t_ns, frame offset, length] of records to parse in Python).");
+        "Ethernet/IPv4/UDP records, data_t_ns (n,) int64, data_port (n,) uint16, data_record "
+        "(n,) int64 record index, other (k, 4) int64 [t_ns, payload offset, length, port] of "
+        "other plain payloads, slow (m, 4) int64 [t_ns, frame offset, length, record index] of "
+        "records to parse in Python).");
 
     nb::class_<tripod::Vlp16Decoder>(m, "_Vlp16Decoder",
                                      "Batch VLP-16 / Puck Hi-Res decoder equal to "
