@@ -12,7 +12,7 @@ is long enough to time. Rows:
   on a copy of the pcap whose product byte says VLP-16 when the capture says 0x21 (its reader
   refuses 0x21 for a configured VLP-16).
 * tripod's native batch decoder raw: ``NativeVlp16Decoder.decode`` over the same packets in
-  memory, as (256, 1206) uint8 chunks (the C++ core, one call per chunk, one thread).
+  memory, as (chunk_packets, 1206) uint8 chunks (the C++ core, one call per chunk, one thread).
 * tripod decode, frames only: ``decode_file(pcap)`` iterated (read pcap, decode, split, stamp),
   with each decoder (``decoder: native``, the default, and ``decoder: velodyne_decoder``).
 * tripod decode end to end: ``tripod decode PCAP -o DIR`` in-process (also writes one binary PLY
@@ -176,8 +176,8 @@ def main(argv: list[str] | None = None) -> int:
                          ("velodyne-decoder raw (StreamDecoder, as_pcl_structs)",
                           lambda: raw(True)),
                          ("velodyne-decoder read_pcap (dpkt + StreamDecoder)", vd_read_pcap),
-                         ("tripod native batch decoder raw (C++, 256-packet chunks)",
-                          native_raw),
+                         (f"tripod native batch decoder raw (C++, {cfg.chunk_packets}-packet "
+                          "chunks)", native_raw),
                          ("tripod decode, frames only, decoder: velodyne_decoder",
                           lambda: frames_only("velodyne_decoder")),
                          ("tripod decode, frames only, decoder: native",
