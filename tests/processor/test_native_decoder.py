@@ -6,6 +6,8 @@ with range and angle filters, and on malformed packets."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import velodyne_decoder as vd
@@ -309,3 +311,17 @@ def test_native_time_offsets_are_exact(velodyne_dir):
         assert t[0] >= 0 and np.all(np.diff(t) >= 0)
         r = (t + f.stamp_device_ns) % 1000
         assert (allowed[:, f.points["laser"].astype(np.int64)] == r).any(axis=0).all()
+
+
+def test_cli_decoder_option(velodyne_dir, capsys):
+    from tripod_processor.cli import main
+
+    path = velodyne_dir / "mrpt-vlp16-gps.pcap"
+    summaries = []
+    for decoder in ("native", "velodyne_decoder"):
+        assert main(["decode", str(path), "--summary", "--decoder", decoder]) == 0
+        summaries.append(json.loads(capsys.readouterr().out))
+    assert summaries[0] == summaries[1] and summaries[0]["points"] > 70_000
+    code = main(["decode", str(path), "--summary", "--decoder", "bogus"])
+    _out, err = capsys.readouterr()
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "decoder" in err
