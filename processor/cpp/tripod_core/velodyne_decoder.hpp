@@ -90,12 +90,16 @@ struct Vlp16Batch {
 /// Decoder of VLP-16 / Puck Hi-Res data packets, many at a time.
 ///
 /// It replicates velodyne-decoder 3.1's `PacketDecoder::unpack` for the 16-laser models
-/// (`unpack_16_32_beam` and `unpackPoint`) operation for operation in float32, so that x, y, z,
-/// the float time, intensity, ring, return type, the order of the points and the returns it
-/// drops are the same: per-laser azimuth interpolated by firing time from the packet's mean
-/// rotation rate (first to last block), sin/cos tables in 0.01 deg steps, the range filter on
-/// the (corrected) distance, dual-return pairs giving one "both" point when the two distances
-/// are equal. Packets are independent, so a batch is decoded in parallel (OpenMP).
+/// (`unpack_16_32_beam`, `unpackPointDual`, `unpackPoint`) operation for operation in float32,
+/// so that x, y, z, the float time, intensity, ring, return type, the order of the points and
+/// the returns it drops are the same: per-laser azimuth interpolated by firing time from the
+/// packet's mean rotation rate (first to last block), sin/cos tables in 0.01 deg steps, the
+/// range filter on the (corrected) distance, the azimuth filter, dual-return pairs giving one
+/// "both" point when the two distances are equal, single-return points typed by the last known
+/// return mode. The one known difference: with a two-point distance correction (an "advanced"
+/// calibration term no VLP-16 table has) a few points in a thousand differ by one float32 ulp.
+/// velodyne-decoder's `column` field is not produced. Packets are independent once the
+/// return-mode state is known, so a batch is decoded in parallel (OpenMP).
 class Vlp16Decoder {
 public:
     Vlp16Decoder(const Vlp16Calibration& calibration, const Vlp16DecoderConfig& config);

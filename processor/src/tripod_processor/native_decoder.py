@@ -7,8 +7,10 @@ angles, offsets and distance corrections, the range and angle filters, the dual-
 operation for operation in float32, and is held equal to it by the tests
 (``tests/processor/test_native_decoder.py``: bit-equal x, y, z, time, intensity, ring, return
 type and point order on every real capture, and on synthetic dual/last-return and malformed
-packets). It takes the calibration from a ``velodyne_decoder.Calibration``, so both decoders
-read the same tables.
+packets; the two-point distance correction of "advanced" calibrations, which no VLP-16 table
+has, to one float32 ulp). It takes the calibration from a ``velodyne_decoder.Calibration``, so
+both decoders read the same tables. velodyne-decoder's ``column`` field is not produced; the
+per-point ``laser`` (channel) is.
 
 Why: velodyne-decoder's own speed is high, but reaching it from Python costs a conversion of
 each packet's payload in its binding (~9 µs a packet, three times the decoding). Here a whole
