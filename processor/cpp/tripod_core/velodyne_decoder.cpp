@@ -376,6 +376,18 @@ Vlp16Batch Vlp16Decoder::decode(const std::uint8_t* packets, std::size_t n_packe
     }
     out.num_points = total;
     out.time_offset_clipped = clipped_any;
+    if (total < capacity / 2) {
+        // sparse packets (many empty returns): give back the unused room, since slices of the
+        // points (whole frames) may outlive the call
+        std::unique_ptr<Vlp16Point[]> exact(new Vlp16Point[total ? total : 1]);
+        std::memcpy(exact.get(), out.points.get(), total * sizeof(Vlp16Point));
+        out.points = std::move(exact);
+        if (with_time_s) {
+            std::unique_ptr<float[]> t(new float[total ? total : 1]);
+            std::memcpy(t.get(), out.time_s.get(), total * sizeof(float));
+            out.time_s = std::move(t);
+        }
+    }
     std::int64_t acc = 0;
     for (std::size_t b = 0; b < block_counts.size(); ++b) {
         out.block_first_point[b] = acc;

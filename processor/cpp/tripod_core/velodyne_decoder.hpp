@@ -76,7 +76,7 @@ enum class PacketStatus : std::uint8_t {
 
 /// Result of Vlp16Decoder::decode. Points come in packet, block, firing order.
 struct Vlp16Batch {
-    std::unique_ptr<Vlp16Point[]> points;  ///< num_points valid entries (capacity may be more)
+    std::unique_ptr<Vlp16Point[]> points;  ///< num_points valid entries (room for at most 2x)
     std::size_t num_points = 0;
     std::unique_ptr<float[]> time_s;       ///< velodyne-decoder's float time, when asked
     /// (n_packets * 12 + 1) first point of each flat block index; dual-return points belong to
