@@ -157,7 +157,8 @@ def _iter_pcap(fh: BinaryIO, head: bytes, stats: PcapStats) -> Iterator[UdpDatag
             return
         sec, frac, incl, _orig = rec.unpack(h)
         if incl > 262144 * 4:
-            raise PcapFormatError(f"pcap record {stats.records} claims {incl} bytes: file is corrupt")
+            raise PcapFormatError(
+                f"pcap record {stats.records} claims {incl} bytes: file is corrupt")
         data = _read_exact(fh, incl)
         if len(data) < incl:
             stats.truncated = True
@@ -242,6 +243,68 @@ def _iter_pcapng(fh: BinaryIO, head: bytes, stats: PcapStats) -> Iterator[UdpDat
                 yield d
 
 
+_REC_LE = struct.Struct("<IIII")
+_REC_BE = struct.Struct(">IIII")
+_BUF_SIZE = 1 << 20
+
+
+def _iter_pcap_payloads(fh: BinaryIO, head: bytes, stats: PcapStats
+                        ) -> Iterator[tuple[int, int, bytes]]:
+    """Fast path of :func:`_iter_pcap`: ``(t_ns, dst_port, payload)``, no address strings.
+
+    Reads the file in 1 MiB blocks and slices records out of them; plain Ethernet/IPv4/UDP
+    frames (every Velodyne capture) are parsed inline, anything else goes through
+    :func:`_parse_frame`, so the results are the same as :class:`PcapReader` iteration.
+    """
+    e = "<" if struct.unpack_from("<I", head)[0] in (PCAP_MAGIC_US, PCAP_MAGIC_NS) else ">"
+    magic = struct.unpack_from(e + "I", head)[0]
+    scale = 1 if magic == PCAP_MAGIC_NS else 1000
+    rest = fh.read(20)
+    if len(rest) < 20:
+        raise PcapFormatError("pcap global header is truncated")
+    linktype = struct.unpack_from(e + "I", rest, 16)[0] & 0x0FFFFFFF
+    stats.format = "pcap"
+    rec_unpack = (_REC_LE if e == "<" else _REC_BE).unpack_from
+    u16 = struct.Struct(">H").unpack_from
+    buf = b""
+    pos = 0
+    eof = False
+    while True:
+        avail = len(buf) - pos
+        if avail >= 16:
+            sec, frac, incl, _orig = rec_unpack(buf, pos)
+            if incl > 262144 * 4:
+                raise PcapFormatError(
+                    f"pcap record {stats.records} claims {incl} bytes: file is corrupt")
+        if avail < 16 or avail < 16 + incl:
+            if eof:
+                if avail:
+                    stats.truncated = True
+                return
+            chunk = fh.read(_BUF_SIZE)
+            eof = len(chunk) < _BUF_SIZE
+            buf = buf[pos:] + chunk
+            pos = 0
+            continue
+        start = pos + 16
+        pos = start + incl
+        stats.records += 1
+        t_ns = sec * 1_000_000_000 + frac * scale
+        # inline Ethernet + IPv4 (no options, not fragmented) + UDP
+        if (linktype == LINKTYPE_ETHERNET and incl >= 42 and buf[start + 12] == 8
+                and buf[start + 13] == 0 and buf[start + 14] == 0x45 and buf[start + 23] == 17
+                and not (u16(buf, start + 20)[0] & 0x3FFF)):
+            ulen = u16(buf, start + 38)[0]
+            end = start + 34 + ulen if ulen >= 8 else start + 14 + u16(buf, start + 16)[0]
+            if end <= pos:
+                stats.udp += 1
+                yield t_ns, u16(buf, start + 36)[0], buf[start + 42 : end]
+                continue
+        d = _parse_frame(linktype, buf[start:pos], stats, t_ns)
+        if d is not None:
+            yield d.t_ns, d.dst_port, d.payload
+
+
 def sniff_format(path: str | os.PathLike) -> str:
     """'pcap', 'pcapng' or '' from the first bytes of a file."""
     with open(path, "rb") as fh:
@@ -285,6 +348,21 @@ class PcapReader:
                 yield from _iter_pcap(fh, head, self.stats)
             else:
                 yield from _iter_pcapng(fh, head, self.stats)
+
+
+    def payloads(self) -> Iterator[tuple[int, int, bytes]]:
+        """``(t_ns, dst_port, payload)`` of every UDP datagram, in file order.
+
+        The same datagrams as iterating the reader, without building address strings: the
+        decoder's hot path (a few times faster per record on classic pcap).
+        """
+        self.stats = PcapStats()
+        with open(self.path, "rb") as fh:
+            if self.format == "pcap":
+                yield from _iter_pcap_payloads(fh, fh.read(4), self.stats)
+            else:
+                for d in _iter_pcapng(fh, fh.read(8), self.stats):
+                    yield d.t_ns, d.dst_port, d.payload
 
 
 def _ip_checksum(header: bytes) -> int:
