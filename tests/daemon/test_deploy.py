@@ -82,3 +82,20 @@ def test_install_script_parses_and_dry_runs():
     assert "processor" not in steps
     assert "/etc/systemd/system/tripod-daemon.service" in steps
     assert "systemctl enable tripod-daemon.service" in steps
+
+
+def test_daemon_stays_light():
+    """The capture device installs only tripod-shared and tripod-daemon: nothing the daemon
+    imports may pull in the processor or its heavy dependencies."""
+    code = (
+        "import sys, tripod_daemon.main, tripod_daemon.loop, tripod_daemon.publisher, "
+        "tripod_daemon.recover, tripod_daemon.watch\n"
+        "heavy = [m for m in ('tripod_processor', 'torch', 'open3d', 'scipy', 'matplotlib', "
+        "'velodyne_decoder') if m in sys.modules]\n"
+        "print(heavy)\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "[]"
+    deps = (REPO / "daemon/pyproject.toml").read_text()
+    assert "tripod-processor" not in deps and "torch" not in deps
