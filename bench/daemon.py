@@ -99,7 +99,9 @@ class DaemonProcess:
         for _ in range(50):
             for reply in self.session.get(topics.key_status(), timeout=2.0):
                 if reply.ok is not None:
-                    return json.loads(reply.ok.payload.to_bytes())
+                    st = json.loads(reply.ok.payload.to_bytes())
+                    if st.get("state") != "starting":
+                        return st
             time.sleep(0.1)
         raise RuntimeError("no status reply")
 

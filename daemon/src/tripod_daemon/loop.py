@@ -79,7 +79,7 @@ class Daemon:
         self._sel = selectors.DefaultSelector()
         self._running = False
         self._last_status: messages.Status | None = None
-        self._status_text = b"{}"
+        self._status_text = messages.encode_status(messages.Status(time.time_ns(), "starting"))
         self._last_status_mono = time.monotonic()
         self.zenoh_error = ""
         self._zenoh_retry_mono = 0.0
