@@ -215,3 +215,23 @@ def test_control_and_reload_under_load_never_stall_reception(tmp_path):
     idx = [int.from_bytes(p[2:6], "little") for p in got]  # the sequence number
     assert idx == sorted(set(idx))
     assert n - len(got) < 0.6 * 20_000
+
+
+def test_sighup_applies_new_lidar_and_imu_settings(tmp_path):
+    cfg = loopback_config(tmp_path)
+    new = cfg.model_copy(deep=True)
+    new.lidar.accept_products = [0x22]  # a changed lidar section: sockets are reopened
+    new.imu.url = str(tmp_path / "not-there")  # an IMU appears in the config
+    with RunningDaemon(cfg, reload_config=lambda: new) as d:
+        old_lidar = d.daemon.lidar
+        d.daemon.signal(signal.SIGHUP)
+        assert d.wait_for(lambda: d.daemon.lidar is not old_lidar
+                          and d.daemon.lidar.cfg.accept_products == [0x22]
+                          and d.daemon.imu is not None)
+        s = udp_sender()
+        s.sendto(make_data_packet(1), d.data_addr)
+        s.sendto(make_data_packet(2, product=0x21), d.data_addr)  # now foreign
+        c = d.daemon.counts
+        assert d.wait_for(lambda: c["lidar_data"] == 1 and c["lidar_foreign"] == 1)
+        assert d.wait_for(lambda: b"not-there" in d.daemon.status_json())  # IMU error shown
+        assert d.stop() == 0
