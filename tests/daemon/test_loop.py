@@ -225,8 +225,8 @@ def test_sighup_applies_new_lidar_and_imu_settings(tmp_path):
     with RunningDaemon(cfg, reload_config=lambda: new) as d:
         old_lidar = d.daemon.lidar
         d.daemon.signal(signal.SIGHUP)
-        assert d.wait_for(lambda: d.daemon.lidar is not old_lidar
-                          and d.daemon.lidar.cfg.accept_products == [0x22]
+        assert d.wait_for(lambda: (li := d.daemon.lidar) is not None and li is not old_lidar
+                          and li.cfg.accept_products == [0x22]
                           and d.daemon.imu is not None)
         s = udp_sender()
         s.sendto(make_data_packet(1), d.data_addr)
