@@ -16,7 +16,8 @@ to a real serial device through pyserial.
 
 Timing: event ``i`` is sent at ``start + (t_i - t_0) / rate`` on CLOCK_MONOTONIC (sleep, then
 spin for the last ``spin_us``); ``rate=inf`` sends as fast as possible. The jitter reported is
-the lateness of each send against its target.
+the lateness of each send's completion (after ``sendto`` / the IMU write returned) against its
+target.
 """
 
 from __future__ import annotations
@@ -546,14 +547,8 @@ class Replayer:
                     now = mono()
                     if target - now > spin_ns:
                         sleep((target - now - spin_ns) * 1e-9)
-                    while True:
-                        now = mono()
-                        if now >= target:
-                            break
-                    if n_late == len(late):
-                        late = np.concatenate([late, np.empty_like(late)])
-                    late[n_late] = now - target
-                    n_late += 1
+                    while mono() < target:
+                        pass
                 if kind == IMU:
                     if imu is not None:
                         imu.write(data)
@@ -564,6 +559,11 @@ class Replayer:
                         sent[kind] += 1
                     except OSError:
                         stats.send_errors += 1
+                if realtime:  # lateness of the send's completion against its target
+                    if n_late == len(late):
+                        late = np.concatenate([late, np.empty_like(late)])
+                    late[n_late] = mono() - target
+                    n_late += 1
                 t_last = t_ns
                 if progress is not None and (sent[LIDAR] & 0x3FF) == 0 and kind == LIDAR:
                     progress(rel)
