@@ -253,3 +253,29 @@ def test_mcap_recording_as_the_daemon_records(tmp_path):
     assert imu[0].driver == "tfp" and abs(np.linalg.norm(imu[0].q_world_imu) - 1) < 1e-9
     assert [e.kind for e in r.events()] == ["start", "stop"]
     assert not r.report.truncated
+
+
+def test_cli_simulate(tmp_path):
+    import subprocess
+    import sys
+
+    import yaml
+
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(yaml.safe_dump({"scene": "corridor", "stations": 1,
+                                   "motion": {"pan_s": 1.0, "settle_s": 0.1}}))
+    env = {"COLUMNS": "120", "PATH": "/usr/bin:/bin"}
+    run = [sys.executable, "-m", "tripod_processor", "simulate"]
+    r = subprocess.run(run + ["-o", str(tmp_path / "out"), "--config", str(cfg), "--seed", "4",
+                              "--return-mode", "last"], capture_output=True, text=True,
+                       timeout=120, env=env)
+    assert r.returncode == 0, r.stderr
+    assert "data packets" in r.stdout + r.stderr
+    meta = json.loads((tmp_path / "out/meta.json").read_text())
+    assert meta["config"]["scene"] == "corridor" and meta["config"]["seed"] == 4
+    assert meta["config"]["lidar"]["return_mode"] == "last"
+    for bad in (["--scene", "castle"], ["--rpm", "5000"], ["--config", str(tmp_path / "no.yaml")]):
+        r = subprocess.run(run + ["-o", str(tmp_path / "bad")] + bad, capture_output=True,
+                           text=True, timeout=120, env=env)
+        assert r.returncode == 2 and r.stderr.startswith("tripod: error:"), bad
+        assert r.stderr.count("\n") == 1, r.stderr
