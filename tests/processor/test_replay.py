@@ -266,3 +266,19 @@ def test_imu_to_a_serial_device(capture):
     assert st.sent["imu"] > 10 and bytes(got) == b"".join(r.data for r in recs)
     with pytest.raises(ReplayInputError, match="cannot open serial"):
         open_imu_sink("serial:/dev/does-not-exist")
+
+
+def test_loops_and_stop(capture):
+    hole = ("127.0.0.1", 9)
+    once = Replayer(ReplaySource.open(capture), rate=float("inf"), lidar_addr=hole,
+                    position_addr=hole).run()
+    twice = Replayer(ReplaySource.open(capture), rate=float("inf"), lidar_addr=hole,
+                     position_addr=hole, loops=2).run()
+    assert twice.sent["lidar"] == 2 * once.sent["lidar"] > 0
+    assert twice.capture_span_s == pytest.approx(2 * once.capture_span_s + 0.001, abs=1e-6)
+    # forever, until stopped from another thread
+    rp = Replayer(ReplaySource.open(capture), rate=50.0, lidar_addr=hole, position_addr=hole,
+                  loops=0)
+    threading.Timer(0.5, rp.stop_event.set).start()
+    st = rp.run()
+    assert st.stopped_early and st.sent["lidar"] > 0

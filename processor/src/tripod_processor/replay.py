@@ -481,6 +481,8 @@ class Replayer:
     limit_s : replay only the first ``limit_s`` seconds of capture time (None: all)
     spin_us : busy-wait this long before each send instead of sleeping (timing accuracy);
         default 100 us under SCHED_FIFO (wake-ups are prompt), 300 us otherwise
+    loops : play the capture this many times back to back (0: until ``stop_event``), each
+        pass shifted by the capture's span plus one millisecond (soak tests)
     realtime_priority : if > 0, run the sending thread under SCHED_FIFO at this priority (needs
         CAP_SYS_NICE; falls back to normal scheduling and says so in the stats) and with a 1 ns
         timer slack: a loaded machine then cannot delay a send by a scheduler time slice.
@@ -490,7 +492,7 @@ class Replayer:
                  lidar_addr: tuple[str, int] = ("127.0.0.1", v.DATA_PORT),
                  position_addr: tuple[str, int] = ("127.0.0.1", v.POSITION_PORT),
                  imu_sink: ImuSink | None = None, limit_s: float | None = None,
-                 spin_us: float | None = None, realtime_priority: int = 0):
+                 spin_us: float | None = None, realtime_priority: int = 0, loops: int = 1):
         if not rate > 0:
             raise ReplayInputError("rate must be > 0")
         self.source = source
@@ -502,6 +504,25 @@ class Replayer:
         self.spin_us = spin_us
         self.stop_event = threading.Event()
         self.realtime_priority = realtime_priority
+        if loops < 0:
+            raise ReplayInputError("loops must be >= 0 (0: until stopped)")
+        self.loops = loops
+
+    def _looped_events(self) -> Iterator[tuple[int, int, bytes]]:
+        first = last = None
+        i = 0
+        while self.loops == 0 or i < self.loops:
+            shift = 0 if i == 0 else i * (last - first + 1_000_000)
+            n = 0
+            for t_ns, kind, data in self.source.events():
+                if i == 0:
+                    first = t_ns if first is None else first
+                    last = t_ns
+                n += 1
+                yield t_ns + shift, kind, data
+            if n == 0:
+                return
+            i += 1
 
     def run(self, progress=None) -> ReplayStats:
         """Replay until the end (or ``stop_event``); returns the statistics."""
@@ -532,7 +553,7 @@ class Replayer:
         dest = (self.lidar_addr, self.position_addr)
         imu = self.imu_sink
         try:
-            for t_ns, kind, data in self.source.events():
+            for t_ns, kind, data in self._looped_events():
                 if self.stop_event.is_set():
                     stats.stopped_early = True
                     break
