@@ -279,3 +279,14 @@ def test_cli_simulate(tmp_path):
                            text=True, timeout=120, env=env)
         assert r.returncode == 2 and r.stderr.startswith("tripod: error:"), bad
         assert r.stderr.count("\n") == 1, r.stderr
+
+
+def test_mixed_pixels_put_points_between_surfaces(tmp_path):
+    base = {"range_noise_m": 0.0, "dropout": 0.0}
+    plain = make_capture(tmp_path, "plain", stations=1, scene="office", seed=2, lidar=base)
+    mixed = make_capture(tmp_path, "mixed", stations=1, scene="office", seed=2,
+                         lidar={**base, "mixed_pixels": True})
+    a = fidelity.geometry_check(plain, max_packets=2000)
+    b = fidelity.geometry_check(mixed, max_packets=2000)
+    assert b.dist_median_m <= 0.002
+    assert b.off_mesh_frac > 2 * a.off_mesh_frac and b.off_mesh_frac > 0.001

@@ -57,6 +57,9 @@ class LidarConfig(StrictModel):
     vertical_offsets: bool = Field(
         True, description="lasers offset along z as in the VLP-16 manual (velodyne-decoder's "
                           "built-in geometry); False: all lasers at the origin (VeloView's)")
+    mixed_pixels: bool = Field(
+        False, description="footprints on two surfaces closer than dual_min_separation_m "
+                           "return a range between them (edge artefacts), not the centre's")
     product_id: int = Field(0x22, ge=0, le=255, description="factory byte (0x22 VLP-16)")
     clock_offset_ns: int | None = Field(
         None, description="lidar_toh clock minus host_realtime [ns]; default 823456789 "

@@ -13,7 +13,8 @@ offset, as the decoder assumes) at its true pose (evaluated at the middle of the
 sequence: 18 us of head motion is < 0.1 mm) along the laser's elevation and the azimuth of the
 motor at the exact firing time. Two rays sample the beam footprint (centre and leading edge,
 ``beam_divergence_mrad`` apart): their hits form the firing's returns (separate when further
-apart than ``dual_min_separation_m``, else merged). Strongest = centre ray; last = farthest.
+apart than ``dual_min_separation_m``, else merged; with ``mixed_pixels`` a merged pair gives a
+range between the two surfaces, as at real edges). Strongest = centre ray; last = farthest.
 Range noise is Gaussian; no return (distance 0) on a miss, beyond ``max_range_m``, nearer than
 ``min_range_m``, at grazing incidence and with probability ``dropout``.
 
@@ -183,6 +184,12 @@ class Vlp16:
         sep = np.abs(np.where(ok1 & ok2, t2 - t1, 0.0)) >= cfg.dual_min_separation_m
         two = ok1 & ok2 & sep  # two distinct returns
         s_ok = ok1 | ok2
+        if cfg.mixed_pixels:
+            # unresolved echoes from two surfaces merge into one pulse: a range in between,
+            # weighted towards the centre of the footprint
+            mix = ok1 & ok2 & ~sep & (np.abs(t2 - t1) > 0.02)
+            w = rng.uniform(0.5, 1.0, m)
+            t1 = np.where(mix, w * t1 + (1 - w) * t2, t1)
         if cfg.range_noise_m > 0:
             t1 = t1 + rng.normal(0.0, cfg.range_noise_m, m)
             t2 = t2 + rng.normal(0.0, cfg.range_noise_m, m)
