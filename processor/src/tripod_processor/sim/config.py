@@ -37,6 +37,10 @@ class MotionConfig(StrictModel):
     sway_height_m: float = Field(0.015, ge=0.0, description="vertical bob while carried [m]")
     sway_tilt_deg: float = Field(2.0, ge=0.0, description="roll/pitch sway while carried [deg]")
     lift_m: float = Field(0.05, ge=0.0, description="lift while carried [m]")
+    tripod_legs: bool = Field(False, description="the tripod's three legs are in the scene "
+                                                 "(the lidar sees them when looking down)")
+    leg_radius_m: float = Field(0.015, gt=0.0, description="leg tube radius [m]")
+    leg_spread_m: float = Field(0.5, gt=0.0, description="foot distance from the pan axis [m]")
 
 
 class LidarConfig(StrictModel):
