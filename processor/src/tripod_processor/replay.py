@@ -527,10 +527,12 @@ class Replayer:
     def run(self, progress=None) -> ReplayStats:
         """Replay until the end (or ``stop_event``); returns the statistics."""
         stats = ReplayStats()
-        restore = _enter_realtime(self.realtime_priority) if self.realtime_priority > 0 else None
+        # SCHED_FIFO only helps timed sends; flat out it would just starve the machine
+        want_rt = self.realtime_priority > 0 and np.isfinite(self.rate)
+        restore = _enter_realtime(self.realtime_priority) if want_rt else None
         if restore is not None:
             stats.scheduling = f"SCHED_FIFO {self.realtime_priority}"
-        elif self.realtime_priority > 0:
+        elif want_rt:
             stats.scheduling = "normal (SCHED_FIFO not permitted)"
         spin_us = self.spin_us if self.spin_us is not None else (100.0 if restore else 300.0)
         spin_ns = int(spin_us * 1e3)
