@@ -19,7 +19,6 @@ import resource
 import socket
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 from rich.console import Console
@@ -73,7 +72,8 @@ def run(args, con: Console, root: Path) -> int:
                     f"{b.range_err_robust_std_m * 100:.2f} cm", f"{b.range_err_std_m * 100:.2f} cm")
     con.print(geo)
 
-    pk = Table(title="Packets and IMU (VLP-16 reference: 754 packets/s single, 1508 dual at 600 rpm)")
+    pk = Table(title="Packets and IMU (VLP-16 reference: 754 packets/s single, 1508 dual at "
+                     "600 rpm)")
     for c in ("capture", "packets/s", "timestamp steps us", "azimuth step", "factory bytes",
               "position pkts", "NMEA", "IMU rate", "IMU sigma set", "IMU sigma measured"):
         pk.add_column(c, justify="right")

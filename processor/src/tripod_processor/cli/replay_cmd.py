@@ -36,8 +36,10 @@ def replay_cmd(
     lidar: str = typer.Option("127.0.0.1:2368", "--lidar", help="UDP HOST:PORT for data packets."),
     position: str = typer.Option("127.0.0.1:8308", "--position",
                                  help="UDP HOST:PORT for position packets."),
-    imu: str = typer.Option("pty", "--imu", help="IMU bytes to: pty, tcp:PORT (brickd-like; 0 = "
-                                                 "any free port), serial:DEV[@BAUD] or none."),
+    imu: str = typer.Option(
+        "pty", "--imu", help="IMU bytes to: pty, tcp (brickd-like on 4223), tcp:PORT (0 = any "
+                             "free port), "
+                             "serial:DEV, serial:DEV@BAUD or none."),
     imu_log: Optional[Path] = typer.Option(None, "--imu-log",
                                            help="IMU log to send (default: imu.tripimu beside "
                                                 "the input)."),
@@ -48,6 +50,8 @@ def replay_cmd(
                                            "pty or connect)."),
     limit: Optional[float] = typer.Option(None, "--limit",
                                           help="Replay only this many seconds of capture time."),
+    loop: int = typer.Option(1, "--loop", help="Play the capture this many times back to back "
+                                              "(0: until stopped)."),
     realtime: int = typer.Option(10, "--realtime",
                                  help="SCHED_FIFO priority of the sender (1..99; needs "
                                       "CAP_SYS_NICE, else normal scheduling); 0 = normal."),
@@ -67,6 +71,8 @@ def replay_cmd(
     from ..replay import ReplayInputError, Replayer, ReplaySource, open_imu_sink, parse_addr
 
     r = _parse_rate(rate)
+    if loop < 0:
+        fail("--loop must be >= 0 (0: until stopped)")
     if not 0 <= realtime <= 99:
         fail("--realtime must be 0 (off) or a SCHED_FIFO priority 1..99")
     sink = None
@@ -95,7 +101,7 @@ def replay_cmd(
     if start_delay > 0:
         time.sleep(start_delay)
     rp = Replayer(src, rate=r, lidar_addr=lidar_addr, position_addr=pos_addr, imu_sink=sink,
-                  limit_s=limit, spin_us=spin_us, realtime_priority=realtime)
+                  limit_s=limit, spin_us=spin_us, realtime_priority=realtime, loops=loop)
     signal.signal(signal.SIGTERM, lambda *_: rp.stop_event.set())
     try:
         stats = rp.run()
@@ -119,7 +125,8 @@ def replay_cmd(
     t.add_row("lidar packets/s", f"{stats.packets_per_s:.0f}")
     if len(stats.lateness_ns):
         t.add_row("jitter p50 / p99 / max (us)",
-                  f"{stats.jitter_us(50):.0f} / {stats.jitter_us(99):.0f} / {stats.jitter_us(100):.0f}")
+                  f"{stats.jitter_us(50):.0f} / {stats.jitter_us(99):.0f} / "
+                  f"{stats.jitter_us(100):.0f}")
     t.add_row("scheduling", stats.scheduling)
     if stats.stopped_early:
         t.add_row("stopped early", "yes")
