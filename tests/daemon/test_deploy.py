@@ -82,3 +82,23 @@ def test_install_script_parses_and_dry_runs():
     assert "processor" not in steps
     assert "/etc/systemd/system/tripod-daemon.service" in steps
     assert "systemctl enable tripod-daemon.service" in steps
+
+
+def test_daemon_stays_light():
+    """The capture device installs only tripod-shared and tripod-daemon: nothing the daemon
+    imports may pull in the processor or its heavy dependencies."""
+    code = (
+        "import sys, tripod_daemon.main, tripod_daemon.loop, tripod_daemon.publisher, "
+        "tripod_daemon.recover, tripod_daemon.watch\n"
+        "heavy = [m for m in ('tripod_processor', 'torch', 'open3d', 'scipy', 'matplotlib', "
+        "'velodyne_decoder') if m in sys.modules]\n"
+        "print(heavy)\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "[]"
+    import tomllib
+
+    meta = tomllib.loads((REPO / "daemon/pyproject.toml").read_text())["project"]
+    deps = " ".join(meta["dependencies"])
+    assert "tripod-processor" not in deps and "torch" not in deps and "open3d" not in deps

@@ -106,7 +106,7 @@ def test_real_time_replay_keeps_timing_and_bytes(capture):
 def test_rate_10_and_max(dual, capture):
     st = Replayer(ReplaySource.open(capture), rate=10.0, lidar_addr=("127.0.0.1", 9),
                   position_addr=("127.0.0.1", 9), limit_s=3.0, realtime_priority=10).run()
-    assert st.achieved_rate == pytest.approx(10.0, rel=0.03 if "FIFO" in st.scheduling else 0.1)
+    assert st.achieved_rate == pytest.approx(10.0, rel=0.06 if "FIFO" in st.scheduling else 0.15)  # loaded CI machines
     # as fast as possible: at least 20x the dual-return packet rate (1507/s)
     blackhole = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     blackhole.bind(("127.0.0.1", 0))
@@ -266,3 +266,19 @@ def test_imu_to_a_serial_device(capture):
     assert st.sent["imu"] > 10 and bytes(got) == b"".join(r.data for r in recs)
     with pytest.raises(ReplayInputError, match="cannot open serial"):
         open_imu_sink("serial:/dev/does-not-exist")
+
+
+def test_loops_and_stop(capture):
+    hole = ("127.0.0.1", 9)
+    once = Replayer(ReplaySource.open(capture), rate=float("inf"), lidar_addr=hole,
+                    position_addr=hole).run()
+    twice = Replayer(ReplaySource.open(capture), rate=float("inf"), lidar_addr=hole,
+                     position_addr=hole, loops=2).run()
+    assert twice.sent["lidar"] == 2 * once.sent["lidar"] > 0
+    assert twice.capture_span_s == pytest.approx(2 * once.capture_span_s + 0.001, abs=1e-6)
+    # forever, until stopped from another thread
+    rp = Replayer(ReplaySource.open(capture), rate=50.0, lidar_addr=hole, position_addr=hole,
+                  loops=0)
+    threading.Timer(0.5, rp.stop_event.set).start()
+    st = rp.run()
+    assert st.stopped_early and st.sent["lidar"] > 0

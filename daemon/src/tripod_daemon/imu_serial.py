@@ -170,8 +170,10 @@ class ImuInput:
             return False
         self._next_try = now + self.cfg.reconnect_interval_s
         try:
+            # reads never wait (the loop calls us when readable); the few-byte TFP requests
+            # wait at most 0.1 s for room, so a stuck device cannot hold up the loop
             port = serial.serial_for_url(self.cfg.url, baudrate=self.cfg.baudrate, timeout=0,
-                                         write_timeout=1.0)
+                                         write_timeout=0.1)
             port.fileno()  # every URL we support has one; refuse handlers that do not
         except (OSError, serial.SerialException, ValueError, AttributeError) as exc:
             msg = f"IMU {self.cfg.url}: {exc}"

@@ -79,7 +79,7 @@ class Daemon:
         self._sel = selectors.DefaultSelector()
         self._running = False
         self._last_status: messages.Status | None = None
-        self._status_text = b"{}"
+        self._status_text = messages.encode_status(messages.Status(time.time_ns(), "starting"))
         self._last_status_mono = time.monotonic()
         self.zenoh_error = ""
         self._zenoh_retry_mono = 0.0
@@ -102,6 +102,12 @@ class Daemon:
             return {"ok": False, "error": "daemon not running"}
         if not cmd.done.wait(timeout):
             return {"ok": False, "error": "timed out"}
+        waiting = cmd.result.get("_wait")
+        if waiting is not None:  # a start: wait (here, not on the loop) for the file to open
+            waiting.wait(timeout)
+            rec = self.recorder
+            return {"ok": rec.active, "recording": rec.active, "file": rec.file,
+                    "message": rec.message}
         return cmd.result
 
     def status_json(self) -> bytes:
@@ -289,8 +295,13 @@ class Daemon:
     def _do_command(self, name: str, label: str) -> dict:
         rec = self.recorder
         if name == "start":
-            ok = rec.active or self._start_recording(label or "control")
-            return {"ok": ok, "recording": rec.active, "file": rec.file, "message": rec.message}
+            if not rec.active:
+                # never wait for the writer here (the loop must keep reading the sockets): the
+                # caller's thread waits for the file in control()
+                cmd_done = rec.start_async(label or "control")
+                self._event("start", label or "control")
+                return {"_wait": cmd_done}
+            return {"ok": True, "recording": True, "file": rec.file, "message": rec.message}
         if name == "stop":
             if rec.active:
                 self._event("stop", label or "control")

@@ -119,15 +119,23 @@ class Recorder:
         return cmd.result
 
     def start(self, reason: str = "start") -> bool:
-        """Open a new file (if not recording). True when recording afterwards.
+        """Open a new file (if not recording) and wait for it; True when recording."""
+        done = self.start_async(reason)
+        done.wait(10.0)
+        return self.active
 
-        Waits for the writer thread (opening a file takes milliseconds; while not recording
-        the queue is empty, so nothing is ahead of the command)."""
+    def start_async(self, reason: str = "start") -> threading.Event:
+        """Ask for a new file without waiting (the writer may still be busy with a backlog);
+        data submitted from now on goes into it. The event is set once the file is open, or
+        opening failed (then ``active`` is False again and ``state``/``message`` say why)."""
         if self.active:
-            return True
-        ok = bool(self._command("start", reason))
-        self.active = ok
-        return ok
+            done = threading.Event()
+            done.set()
+            return done
+        self.active = True
+        cmd = _Cmd("start", reason)
+        self._q.put(cmd)
+        return cmd.done
 
     # The calls below never wait for the writer: under load its queue may hold seconds of
     # data, and the receive loop must not stop reading the sockets meanwhile.
@@ -219,6 +227,8 @@ class Recorder:
                 if self._writer is None:
                     self._open_file(cmd.arg)
                 cmd.result = self._writer is not None
+                if not cmd.result:
+                    self.active = False
             elif cmd.name == "stop":
                 self._close_file(cmd.arg)
                 self.state, self.message = "idle", f"stopped ({cmd.arg})"
@@ -313,15 +323,17 @@ class Recorder:
         now = time.monotonic()
         size = self._fh.tell()
         self.counts["record_bytes"] = size
+        flushed = False
         if now - self._last_flush >= cfg.flush_interval_s:
             self._writer.flush_chunk()
             self._last_flush = now
+            flushed = True
             if cfg.fsync == "chunk" or (
                 cfg.fsync == "interval" and now - self._last_fsync >= cfg.fsync_interval_s
             ):
                 os.fsync(self._fh.fileno())
                 self._last_fsync = now
-        if size - self._bytes_at_check >= _FREE_CHECK_BYTES or now == self._last_flush:
+        if flushed or size - self._bytes_at_check >= _FREE_CHECK_BYTES:
             self._bytes_at_check = size
             free = self.free_space(cfg.directory)
             if free < cfg.min_free_bytes:

@@ -1,7 +1,9 @@
 # SPDX-License-Identifier: BSD-3-Clause
 """Velodyne VLP-16 packets → frames (one rotation each) of points with per-point fields.
 
-The points come from velodyne-decoder (``velodyne_decoder.ScanDecoder``, C++); this module only
+The points come from tripod's batch decoder (:mod:`.native_decoder`, C++, one call per chunk of
+packets, proven equal to velodyne-decoder 3.1 point for point) or, with ``decoder:
+velodyne_decoder``, from velodyne-decoder itself (``velodyne_decoder.ScanDecoder``); this module
 groups packets, tells the sensor apart, splits rotations, stamps points and reports what it met.
 
 Frames
@@ -23,9 +25,10 @@ Time
     µs-past-the-hour, put on the hour nearest the host time, unwrapped across hours; the time of
     the frame's first firing). Each point has ``time_offset_ns`` (int32, lidar clock) since
     ``stamp_device_ns``, from the firing timing of the VLP-16 manual (55.296 µs per firing
-    sequence, 2.304 µs per laser) as velodyne-decoder computes it; it comes back as float32
-    seconds, so offsets are good to about ±30 ns. velodyne-decoder is handed the lidar clock as
-    its packet stamps, so point times never depend on the host clock's jitter.
+    sequence, 2.304 µs per laser) as velodyne-decoder computes it. The native decoder gives it
+    exactly (integer ns from the packet's device time); velodyne-decoder gives float32 seconds,
+    so on that path offsets are good to about ±30 ns. Point times never depend on the host
+    clock's jitter (velodyne-decoder too is handed the lidar clock as its packet stamps).
 
 Azimuth
     velodyne-decoder interpolates each laser's azimuth by its firing time; VeloView (the version
@@ -38,9 +41,10 @@ Sensor
     an early-firmware VLP-16: the data packet period decides (VLP-16 1327 µs, or 664 µs in dual
     return; HDL-32E 553 µs). Other sensors are refused with :class:`DecodeError`.
 
-Memory stays constant: packets are decoded in chunks of ``chunk_packets`` (one call into
-velodyne-decoder each), and at most one chunk of points plus the open frame is held; each point
-is copied once, from velodyne-decoder's output into its frame.
+Memory stays constant: packets are decoded in chunks of ``chunk_packets`` (one decoder call
+each), and at most one chunk of points plus the open frame is held. A frame wholly inside a
+native chunk is a slice of the decoder's output (no copy); any other point is copied once, from
+the decoder's output into its frame.
 """
 
 from __future__ import annotations
@@ -56,20 +60,9 @@ from pydantic import Field
 from tripod_shared import velodyne as vl
 from tripod_shared.config_io import StrictModel
 
-from .packet_sources import PacketSource, SourceError, open_source
+from .native_decoder import POINT_DTYPE, CalibrationError, NativeVlp16Decoder
+from .packet_sources import PacketBatch, PacketSource, SourceError, group_packets, open_source
 
-#: Per-point fields of a frame: packed little-endian, 20 bytes (4-byte fields aligned, which
-#: makes filling it twice as fast as a 19-byte record); a PLY/PCD body is this array's bytes.
-POINT_DTYPE = np.dtype([
-    ("x", "<f4"),  # [m], sensor frame "lidar" (x forward, y left, z up)
-    ("y", "<f4"),
-    ("z", "<f4"),
-    ("time_offset_ns", "<i4"),  # since the frame's stamp_device_ns, lidar clock
-    ("intensity", "u1"),  # calibrated reflectivity 0..255
-    ("ring", "u1"),  # laser index ordered by elevation, 0 = lowest (-15° on a VLP-16)
-    ("laser", "u1"),  # laser index in firing order (VeloView's laser_id, the packet's channel)
-    ("return_type", "u1"),  # 1 strongest, 2 last, 3 both (velodyne_decoder.ReturnMode)
-])
 #: VLP-16 firing order of each ring: lasers alternate -15°, +1°, -13°, +3°, ...
 _LASER_OF_RING = np.array([0, 2, 4, 6, 8, 10, 12, 14, 1, 3, 5, 7, 9, 11, 13, 15], np.uint8)
 
@@ -103,8 +96,16 @@ class DecodeConfig(StrictModel):
         0.2, gt=0, description="a silence longer than this [s] starts a new frame")
     gap_factor: float = Field(
         1.5, gt=1, description="a packet interval above this many packet periods is a gap")
+    decoder: Literal["native", "velodyne_decoder"] = Field(
+        "native", description="native: tripod's batch decoder (C++, one call per chunk, "
+        "proven equal to velodyne-decoder 3.1 by the tests); velodyne_decoder: its "
+        "ScanDecoder, fed packet by packet through its Python binding (slower)")
+    num_threads: int = Field(
+        1, ge=0, description="threads of the native decoder per chunk (0: all cores); one "
+        "is enough: it decodes ~3 µs a packet, the rest of the stream is the bottleneck")
     chunk_packets: int = Field(
-        256, ge=1, description="packets per call into velodyne-decoder (speed vs memory)")
+        1024, ge=1, description="packets per decoder call (speed vs memory: a chunk's points "
+        "take up to 7.9 MB at 1024)")
     detect_packets: int = Field(
         32, ge=2, description="data packets looked at to tell the sensor and its period")
     max_gaps_listed: int = Field(100, ge=0, description="gaps itemised in the report")
@@ -339,35 +340,51 @@ class FrameDecoder:
     # ---------------------------------------------------------------------------------------
     def decode(self, packets: Iterable[tuple[int, bytes]]) -> Iterator[Frame]:
         """Frames of a packet stream, in order; the last (partial) frame comes at the end."""
+        yield from self.decode_batches(group_packets(packets, self.config.chunk_packets))
+
+    def decode_batches(self, batches: Iterable[PacketBatch]) -> Iterator[Frame]:
+        """:meth:`decode` of a stream given as :class:`~.packet_sources.PacketBatch` es (the
+        sources' fast path: data packets arrive as arrays, cut here into decoder chunks)."""
         cfg = self.config
         self.report = rep = DecodeReport()
         self._state_reset()
-        pending: list[tuple[int, bytes]] = []
+        pend_host: list[np.ndarray] = []  # data packets not decoded yet, in arrays
+        pend_data: list[np.ndarray] = []
+        n_pend = 0
         detecting = True
-        data_size, pos_size = vl.DATA_PACKET_SIZE, vl.POSITION_PACKET_SIZE
+        pos_size = vl.POSITION_PACKET_SIZE
         chunk = cfg.chunk_packets
-        for host_ns, payload in packets:
-            n = len(payload)
-            if n == data_size:
-                pending.append((host_ns, payload))
-                if detecting:
-                    if len(pending) < cfg.detect_packets:
-                        continue
-                    self._detect(pending)
-                    detecting = False
-                if len(pending) >= chunk:
-                    yield from self._process(pending)
-                    pending = []
-            elif n == pos_size:
-                self._position(payload)
-            else:
-                rep.skip("wrong_size")
+        for batch in batches:
+            for _host_ns, payload in batch.others:
+                if len(payload) == pos_size:
+                    self._position(payload)
+                else:
+                    rep.skip("wrong_size")
+            if not len(batch.host_ns):
+                continue
+            pend_host.append(batch.host_ns)
+            pend_data.append(batch.data)
+            n_pend += len(batch.host_ns)
+            if detecting:
+                if n_pend < cfg.detect_packets:
+                    continue
+                self._detect(np.concatenate(pend_data)[: cfg.detect_packets])
+                detecting = False
+            if n_pend < chunk:
+                continue
+            host = np.concatenate(pend_host) if len(pend_host) > 1 else pend_host[0]
+            data = np.concatenate(pend_data) if len(pend_data) > 1 else pend_data[0]
+            full = n_pend - n_pend % chunk
+            for i in range(0, full, chunk):  # row slices of a C-contiguous array: no copy
+                yield from self._process(host[i : i + chunk], data[i : i + chunk])
+            pend_host, pend_data = [host[full:]], [data[full:]]
+            n_pend -= full
         if detecting:
-            if not pending:
+            if not n_pend:
                 raise DecodeError("no Velodyne data packets (1206-byte UDP payloads) found")
-            self._detect(pending)
-        if pending:
-            yield from self._process(pending)
+            self._detect(np.concatenate(pend_data)[: cfg.detect_packets])
+        if n_pend:
+            yield from self._process(np.concatenate(pend_host), np.concatenate(pend_data))
         yield from self._finish()
 
     # ---------------------------------------------------------------------------------------
@@ -375,6 +392,8 @@ class FrameDecoder:
         self._model = None
         self._sensor_product = None
         self._scan_decoder = None
+        self._native: NativeVlp16Decoder | None = None
+        self._view: np.ndarray | None = None  # a frame wholly inside one native chunk
         self._patch_product = False
         self._prev_az = -1  # azimuth of the last block seen
         self._prev_dev_ns = None  # lidar clock of the last packet (unwrapped, absolute)
@@ -395,9 +414,9 @@ class FrameDecoder:
         self._last_nmea = ""
         self._last_parsed: tuple = ("", False, None, "")
 
-    def _detect(self, first: list[tuple[int, bytes]]) -> None:
+    def _detect(self, first: np.ndarray) -> None:
         cfg, rep = self.config, self.report
-        good = [p for _, p in first if vl.check_data_packet(
+        good = [p for p in map(bytes, first) if vl.check_data_packet(
             p, accept_products=tuple(vl.PRODUCTS)) == vl.PacketKind.DATA]
         if not good:
             raise DecodeError("no well-formed Velodyne data packets at the start of the input")
@@ -420,9 +439,18 @@ class FrameDecoder:
         # velodyne-decoder insists on the product byte of the model: an early VLP-16 says 0x21
         self._patch_product = product != _PRODUCT_OF[sensor]
         self._expected_product = _PRODUCT_OF[sensor]
-        self._scan_decoder = vd.ScanDecoder(vd.Config(
-            model=self._model, calibration=_calibration(cfg.calibration, sensor),
-            min_range=cfg.min_range_m, max_range=cfg.max_range_m, timestamp_first_packet=True))
+        calibration = _calibration(cfg.calibration, sensor)
+        if cfg.decoder == "native":
+            try:
+                self._native = NativeVlp16Decoder(
+                    calibration, model=self._model, min_range_m=cfg.min_range_m,
+                    max_range_m=cfg.max_range_m, num_threads=cfg.num_threads)
+            except CalibrationError as exc:
+                raise DecodeError(str(exc)) from None
+        else:
+            self._scan_decoder = vd.ScanDecoder(vd.Config(
+                model=self._model, calibration=calibration, min_range=cfg.min_range_m,
+                max_range=cfg.max_range_m, timestamp_first_packet=True))
         self._period_ns = int(round((period or vl.VLP16_PACKET_PERIOD_US["single"]) * 1000))
 
     def _position(self, payload: bytes) -> None:
@@ -472,11 +500,10 @@ class FrameDecoder:
         return kind, bool(info.fix_available), position, utc
 
     # ---------------------------------------------------------------------------------------
-    def _process(self, batch: list[tuple[int, bytes]]) -> Iterator[Frame]:
-        """Decode one chunk of data packets and emit the frames it completes."""
+    def _process(self, host_ns: np.ndarray, arr: np.ndarray) -> Iterator[Frame]:
+        """Decode one chunk of data packets ((k,) int64 host_ns, (k, 1206) uint8) and emit the
+        frames it completes."""
         rep, cfg = self.report, self.config
-        buf = np.frombuffer(b"".join([p for _, p in batch]), dtype=np.uint8)
-        arr = buf.reshape(len(batch), vl.DATA_PACKET_SIZE)
         blocks = arr[:, :1200].reshape(-1, 12, 100)
         ok = (blocks[:, :, 0] == 0xFF).all(1) & (blocks[:, :, 1] == 0xEE).all(1)
         ret = arr[:, vl.RETURN_MODE_OFFSET]
@@ -489,11 +516,11 @@ class FrameDecoder:
         ok &= prod_ok
         if not ok.all():
             keep = np.flatnonzero(ok)
-            batch = [batch[i] for i in keep]
+            host_ns = host_ns[keep]
             arr = arr[keep]
             blocks = blocks[keep]
             ret = ret[keep]
-        k = len(batch)
+        k = len(arr)
         if k == 0:
             return
         if (ret != self._return_mode_byte).any():
@@ -501,7 +528,7 @@ class FrameDecoder:
         # ---- device clock, unwrapped over hours and put on the host's hour -------------------
         toh_ns = arr[:, 1200:1204].copy().view("<u4").ravel().astype(np.int64) * 1000
         if self._hour_base_ns is None:
-            h0 = batch[0][0]
+            h0 = int(host_ns[0])
             self._hour_base_ns = ((h0 - int(toh_ns[0]) + HOUR_NS // 2) // HOUR_NS) * HOUR_NS
             self._t0_ns = self._hour_base_ns
             self._prev_toh_ns = int(toh_ns[0])
@@ -545,40 +572,34 @@ class FrameDecoder:
         long_gap = np.flatnonzero(dt > cfg.max_gap_in_frame_s * 1e9)
         split[long_gap * 12] = True  # (a no-op at the stream start: no frame is open)
         self._prev_az = int(az_flat[-1])
-        # ---- decode with velodyne-decoder ----------------------------------------------------
+        # ---- decode --------------------------------------------------------------------------
         dual = self._return_mode_byte == vl.RETURN_DUAL
-        rel_ns = dev_ns - dev_ns[0]
-        # velodyne-decoder gets the lidar clock as its packet stamps (seconds past the stream's
-        # first hour: small doubles), so point times do not depend on the host clock.
-        stamps_s = ((dev_ns - self._t0_ns) * 1e-9).tolist()
         split_blocks = np.flatnonzero(split)
-        split_pk = split_blocks // 12
-        split_blk = split_blocks % 12
-        split_rel_ns = rel_ns[split_pk] + ((split_blk // 2) if dual else split_blk) * _BLOCK_NS
-        ordered = k == 1 or bool((np.diff(rel_ns) >= _PACKET_SPAN_NS[dual] + 2000).all())
-        if ordered:
-            # packets in time order, their firings never overlap: point times increase, so a
-            # frame boundary is where they pass the first firing of the boundary block
-            raw = self._decode_chunk(batch, stamps_s)
-            t_s = raw["time"]  # float32 [s] since packet 0 of the chunk
-            cuts = np.searchsorted(t_s, ((split_rel_ns - 1000) * 1e-9).astype(np.float32))
-        else:
-            # out of order or overlapping: decode packet by packet and place each point by
-            # its packet and its firing time inside the packet (exact, slower)
-            raw, owner = self._decode_each(batch, stamps_s)
-            within_ns = np.rint(raw["time"].astype(np.float64) * 1e9).astype(np.int64)
-            unit = (within_ns + 1000) // _BLOCK_NS  # block, or block pair in dual return
-            block = owner * 12 + (np.clip(unit, 0, 5) * 2 if dual else np.clip(unit, 0, 11))
-            cuts = np.searchsorted(block, split_blocks, side="left")
-            t_s = (rel_ns[owner] + within_ns) * 1e-9
-        # ---- cut into frames (points come in packet, block, firing order) --------------------
-        starts = np.concatenate(([0], split_blocks))
+        starts = np.concatenate(([0], split_blocks))  # segments: [starts[s], ends[s]) blocks
         ends = np.concatenate((split_blocks, [k * 12]))
-        pstarts = np.concatenate(([0], cuts))
-        pends = np.concatenate((cuts, [len(raw)]))
-
-        chunk_dev0 = int(dev_ns[0])
         continued = self._frame_open  # the first segment goes on with a frame of the last chunk
+        if self._native is not None:
+            # one call for the chunk; every point is attributed to its block, so the frames
+            # are cut at block boundaries exactly, whatever the packet order, and each point's
+            # time offset comes out relative to its frame's first firing (exact integer ns)
+            blk = starts % 12
+            seg_ref_ns = dev_ns[starts // 12] + ((blk // 2) if dual else blk) * _BLOCK_NS
+            if continued:
+                seg_ref_ns[0] = self._frame_dev_ns
+            out = self._native.decode(arr, dev_ns, starts, seg_ref_ns)
+            raw = out.points
+            pstarts = out.block_first_point[starts]
+            pends = out.block_first_point[ends]
+            if out.time_offset_clipped:
+                rep.warn("a frame spans more than 2.1 s: its time offsets are clipped")
+            ordered = True
+            t_s = None
+        else:
+            raw, t_s, pstarts, pends, ordered = self._decode_velodyne_decoder(
+                arr, dev_ns, split_blocks, dual)
+        # ---- cut into frames (points come in packet, block, firing order) --------------------
+        chunk_dev0 = int(dev_ns[0])
+        last_seg = len(starts) - 1
         for seg, (b0, b1, q0, q1) in enumerate(zip(starts, ends, pstarts, pends)):
             if seg > 0:
                 yield from self._close_frame()
@@ -588,7 +609,7 @@ class FrameDecoder:
                 pk = b0 // 12
                 blk = b0 % 12
                 self._frame_open = True
-                self._frame_host_ns = batch[pk][0]
+                self._frame_host_ns = int(host_ns[pk])
                 blk_time = (blk // 2) * _BLOCK_NS if dual else blk * _BLOCK_NS
                 self._frame_dev_ns = int(dev_ns[pk]) + blk_time
                 self._frame_packets = 0
@@ -599,14 +620,22 @@ class FrameDecoder:
             lo = first_pk - 1 if (seg == 0 and continued and b0 == 0) else first_pk
             self._frame_gaps += int(((gap_idx > lo) & (gap_idx <= last_pk)).sum())
             self._frame_az1 = int(az_flat[b1 - 1])
+            if t_s is None and self._n == 0 and seg < last_seg and not (seg == 0 and continued):
+                # a whole frame inside this chunk: the decoder's output is the frame, no copy
+                self._view = raw[q0:q1]
+                continue
             if q1 > q0:
-                # one copy per point: velodyne-decoder's output straight into the frame
+                # one copy per point: the decoder's output straight into the frame
                 n, m = self._n, q1 - q0
                 if n + m > len(self._buf):
                     grown = np.empty(max(2 * len(self._buf), n + m), POINT_DTYPE)
                     grown[:n] = self._buf[:n]
                     self._buf = grown
                 part = self._buf[n : n + m]
+                if t_s is None:
+                    part[...] = raw[q0:q1]
+                    self._n = n + m
+                    continue
                 src = raw[q0:q1]
                 part["x"], part["y"], part["z"] = src["x"], src["y"], src["z"]
                 part["intensity"] = src["intensity"]  # 0..255: velodyne-decoder clamps it
@@ -626,16 +655,48 @@ class FrameDecoder:
         self._packet_index += k
         rep.packets += k
 
-    def _packet_vector(self, batch: list[tuple[int, bytes]], stamps_s: list[float]):
+    def _decode_velodyne_decoder(self, arr, dev_ns, split_blocks, dual):
+        """The chunk through velodyne-decoder: points, their float32 time [s] since packet 0,
+        the first and end point of each segment, and whether the packets were in order."""
+        k = len(arr)
+        if self._patch_product:
+            # velodyne-decoder insists on the product byte of the model
+            arr = arr.copy()
+            arr[:, vl.PRODUCT_ID_OFFSET] = self._expected_product
+        batch = [p.tobytes() for p in arr]
+        rel_ns = dev_ns - dev_ns[0]
+        # velodyne-decoder gets the lidar clock as its packet stamps (seconds past the stream's
+        # first hour: small doubles), so point times do not depend on the host clock.
+        stamps_s = ((dev_ns - self._t0_ns) * 1e-9).tolist()
+        split_pk = split_blocks // 12
+        split_blk = split_blocks % 12
+        split_rel_ns = rel_ns[split_pk] + ((split_blk // 2) if dual else split_blk) * _BLOCK_NS
+        ordered = k == 1 or bool((np.diff(rel_ns) >= _PACKET_SPAN_NS[dual] + 2000).all())
+        if ordered:
+            # packets in time order, their firings never overlap: point times increase, so a
+            # frame boundary is where they pass the first firing of the boundary block
+            raw = self._decode_chunk(batch, stamps_s)
+            t_s = raw["time"]  # float32 [s] since packet 0 of the chunk
+            cuts = np.searchsorted(t_s, ((split_rel_ns - 1000) * 1e-9).astype(np.float32))
+        else:
+            # out of order or overlapping: decode packet by packet and place each point by
+            # its packet and its firing time inside the packet (exact, slower)
+            raw, owner = self._decode_each(batch, stamps_s)
+            within_ns = np.rint(raw["time"].astype(np.float64) * 1e9).astype(np.int64)
+            unit = (within_ns + 1000) // _BLOCK_NS  # block, or block pair in dual return
+            block = owner * 12 + (np.clip(unit, 0, 5) * 2 if dual else np.clip(unit, 0, 11))
+            cuts = np.searchsorted(block, split_blocks, side="left")
+            t_s = (rel_ns[owner] + within_ns) * 1e-9
+        pstarts = np.concatenate(([0], cuts))
+        pends = np.concatenate((cuts, [len(raw)]))
+        return raw, t_s, pstarts, pends, ordered
+
+    @staticmethod
+    def _packet_vector(batch: list[bytes], stamps_s: list[float]):
         pv = vd.PacketVector()
         append, packet = pv.append, vd.VelodynePacket
-        if self._patch_product:
-            tail = bytes([self._expected_product])
-            for (_h, p), st in zip(batch, stamps_s):
-                append(packet(st, p[:-1] + tail))
-        else:
-            for (_h, p), st in zip(batch, stamps_s):
-                append(packet(st, p))
+        for p, st in zip(batch, stamps_s):
+            append(packet(st, p))
         return pv
 
     def _decode_chunk(self, batch, stamps_s) -> np.ndarray:
@@ -655,10 +716,13 @@ class FrameDecoder:
     def _close_frame(self) -> Iterator[Frame]:
         if not self._frame_open:
             return
-        # the frame keeps its buffer; the next one gets a fresh buffer sized after this one
-        pts = self._buf[: self._n]
-        self._buf = np.empty(max(_FIRST_CAPACITY, self._n + self._n // 8), POINT_DTYPE)
-        self._n = 0
+        if self._view is not None:  # a frame the native decoder gave whole
+            pts, self._view = self._view, None
+        else:
+            # the frame keeps its buffer; the next one gets a fresh buffer sized after this one
+            pts = self._buf[: self._n]
+            self._buf = np.empty(max(_FIRST_CAPACITY, self._n + self._n // 8), POINT_DTYPE)
+            self._n = 0
         self._frame_open = False
         f = Frame(self._frame_index, pts, self._frame_host_ns, self._frame_dev_ns,
                   self._frame_packets, self._frame_az0 / 100.0, self._frame_az1 / 100.0,
@@ -689,7 +753,7 @@ class DecodeRun:
 
     def __iter__(self) -> Iterator[Frame]:
         try:
-            yield from self.decoder.decode(self.source)
+            yield from self.decoder.decode_batches(self.source.batches())
         finally:
             rep, src = self.decoder.report, self.source.report
             for reason, n in src.skipped.items():

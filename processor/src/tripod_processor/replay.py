@@ -16,7 +16,8 @@ to a real serial device through pyserial.
 
 Timing: event ``i`` is sent at ``start + (t_i - t_0) / rate`` on CLOCK_MONOTONIC (sleep, then
 spin for the last ``spin_us``); ``rate=inf`` sends as fast as possible. The jitter reported is
-the lateness of each send against its target.
+the lateness of each send's completion (after ``sendto`` / the IMU write returned) against its
+target.
 """
 
 from __future__ import annotations
@@ -480,6 +481,8 @@ class Replayer:
     limit_s : replay only the first ``limit_s`` seconds of capture time (None: all)
     spin_us : busy-wait this long before each send instead of sleeping (timing accuracy);
         default 100 us under SCHED_FIFO (wake-ups are prompt), 300 us otherwise
+    loops : play the capture this many times back to back (0: until ``stop_event``), each
+        pass shifted by the capture's span plus one millisecond (soak tests)
     realtime_priority : if > 0, run the sending thread under SCHED_FIFO at this priority (needs
         CAP_SYS_NICE; falls back to normal scheduling and says so in the stats) and with a 1 ns
         timer slack: a loaded machine then cannot delay a send by a scheduler time slice.
@@ -489,7 +492,7 @@ class Replayer:
                  lidar_addr: tuple[str, int] = ("127.0.0.1", v.DATA_PORT),
                  position_addr: tuple[str, int] = ("127.0.0.1", v.POSITION_PORT),
                  imu_sink: ImuSink | None = None, limit_s: float | None = None,
-                 spin_us: float | None = None, realtime_priority: int = 0):
+                 spin_us: float | None = None, realtime_priority: int = 0, loops: int = 1):
         if not rate > 0:
             raise ReplayInputError("rate must be > 0")
         self.source = source
@@ -501,14 +504,35 @@ class Replayer:
         self.spin_us = spin_us
         self.stop_event = threading.Event()
         self.realtime_priority = realtime_priority
+        if loops < 0:
+            raise ReplayInputError("loops must be >= 0 (0: until stopped)")
+        self.loops = loops
+
+    def _looped_events(self) -> Iterator[tuple[int, int, bytes]]:
+        first = last = None
+        i = 0
+        while self.loops == 0 or i < self.loops:
+            shift = 0 if i == 0 else i * (last - first + 1_000_000)
+            n = 0
+            for t_ns, kind, data in self.source.events():
+                if i == 0:
+                    first = t_ns if first is None else first
+                    last = t_ns
+                n += 1
+                yield t_ns + shift, kind, data
+            if n == 0:
+                return
+            i += 1
 
     def run(self, progress=None) -> ReplayStats:
         """Replay until the end (or ``stop_event``); returns the statistics."""
         stats = ReplayStats()
-        restore = _enter_realtime(self.realtime_priority) if self.realtime_priority > 0 else None
+        # SCHED_FIFO only helps timed sends; flat out it would just starve the machine
+        want_rt = self.realtime_priority > 0 and np.isfinite(self.rate)
+        restore = _enter_realtime(self.realtime_priority) if want_rt else None
         if restore is not None:
             stats.scheduling = f"SCHED_FIFO {self.realtime_priority}"
-        elif self.realtime_priority > 0:
+        elif want_rt:
             stats.scheduling = "normal (SCHED_FIFO not permitted)"
         spin_us = self.spin_us if self.spin_us is not None else (100.0 if restore else 300.0)
         spin_ns = int(spin_us * 1e3)
@@ -531,7 +555,7 @@ class Replayer:
         dest = (self.lidar_addr, self.position_addr)
         imu = self.imu_sink
         try:
-            for t_ns, kind, data in self.source.events():
+            for t_ns, kind, data in self._looped_events():
                 if self.stop_event.is_set():
                     stats.stopped_early = True
                     break
@@ -546,14 +570,8 @@ class Replayer:
                     now = mono()
                     if target - now > spin_ns:
                         sleep((target - now - spin_ns) * 1e-9)
-                    while True:
-                        now = mono()
-                        if now >= target:
-                            break
-                    if n_late == len(late):
-                        late = np.concatenate([late, np.empty_like(late)])
-                    late[n_late] = now - target
-                    n_late += 1
+                    while mono() < target:
+                        pass
                 if kind == IMU:
                     if imu is not None:
                         imu.write(data)
@@ -564,6 +582,11 @@ class Replayer:
                         sent[kind] += 1
                     except OSError:
                         stats.send_errors += 1
+                if realtime:  # lateness of the send's completion against its target
+                    if n_late == len(late):
+                        late = np.concatenate([late, np.empty_like(late)])
+                    late[n_late] = mono() - target
+                    n_late += 1
                 t_last = t_ns
                 if progress is not None and (sent[LIDAR] & 0x3FF) == 0 and kind == LIDAR:
                     progress(rel)

@@ -153,6 +153,8 @@ def decode_command(
     max_range: float = typer.Option(None, "--max-range", help="drop farther returns [m]"),
     calibration: str = typer.Option(None, "--calibration",
                                     help="veloview, manual, or a velodyne YAML file"),
+    decoder: str = typer.Option(None, "--decoder",
+                                help="native (default) or velodyne_decoder"),
     port: list[int] = typer.Option(None, "--port", help="keep only these UDP ports (pcap)"),
     quiet: bool = typer.Option(False, "-q", "--quiet", help="no progress bar"),
 ) -> None:
@@ -165,6 +167,6 @@ def decode_command(
     if output is None and not summary:
         fail("give -o OUTDIR to write the frames, or --summary for the JSON summary")
     overrides = {"sensor": sensor, "min_range_m": min_range, "max_range_m": max_range,
-                 "calibration": calibration}
+                 "calibration": calibration, "decoder": decoder}
     run_decode(input_path, output, summary_only=summary, fmt=fmt, config_path=config,
                overrides=overrides, ports=port or None, progress=not (quiet or summary))

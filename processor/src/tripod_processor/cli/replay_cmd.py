@@ -50,6 +50,8 @@ def replay_cmd(
                                            "pty or connect)."),
     limit: Optional[float] = typer.Option(None, "--limit",
                                           help="Replay only this many seconds of capture time."),
+    loop: int = typer.Option(1, "--loop", help="Play the capture this many times back to back "
+                                              "(0: until stopped)."),
     realtime: int = typer.Option(10, "--realtime",
                                  help="SCHED_FIFO priority of the sender (1..99; needs "
                                       "CAP_SYS_NICE, else normal scheduling); 0 = normal."),
@@ -69,6 +71,8 @@ def replay_cmd(
     from ..replay import ReplayInputError, Replayer, ReplaySource, open_imu_sink, parse_addr
 
     r = _parse_rate(rate)
+    if loop < 0:
+        fail("--loop must be >= 0 (0: until stopped)")
     if not 0 <= realtime <= 99:
         fail("--realtime must be 0 (off) or a SCHED_FIFO priority 1..99")
     sink = None
@@ -97,7 +101,7 @@ def replay_cmd(
     if start_delay > 0:
         time.sleep(start_delay)
     rp = Replayer(src, rate=r, lidar_addr=lidar_addr, position_addr=pos_addr, imu_sink=sink,
-                  limit_s=limit, spin_us=spin_us, realtime_priority=realtime)
+                  limit_s=limit, spin_us=spin_us, realtime_priority=realtime, loops=loop)
     signal.signal(signal.SIGTERM, lambda *_: rp.stop_event.set())
     try:
         stats = rp.run()

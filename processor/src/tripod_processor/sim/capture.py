@@ -104,9 +104,9 @@ def simulate(cfg: SimConfig, out_dir: str | os.PathLike, *, nthreads: int = 0,
     """
     wall0 = time.perf_counter()
     out = Path(out_dir)
-    (out / GT_DIR).mkdir(parents=True, exist_ok=True)
     scene = build_scene(cfg)
     check_route(scene, *route_of(cfg, scene))  # fail early, in one line, on a blocked route
+    (out / GT_DIR).mkdir(parents=True, exist_ok=True)
     scene, traj = build_rig(cfg, scene)
     lc = cfg.lidar
     start = cfg.start_unix_ns

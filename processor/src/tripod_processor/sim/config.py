@@ -37,6 +37,10 @@ class MotionConfig(StrictModel):
     sway_height_m: float = Field(0.015, ge=0.0, description="vertical bob while carried [m]")
     sway_tilt_deg: float = Field(2.0, ge=0.0, description="roll/pitch sway while carried [deg]")
     lift_m: float = Field(0.05, ge=0.0, description="lift while carried [m]")
+    tripod_legs: bool = Field(False, description="the tripod's three legs are in the scene "
+                                                 "(the lidar sees them when looking down)")
+    leg_radius_m: float = Field(0.015, gt=0.0, description="leg tube radius [m]")
+    leg_spread_m: float = Field(0.5, gt=0.0, description="foot distance from the pan axis [m]")
 
 
 class LidarConfig(StrictModel):
@@ -57,6 +61,9 @@ class LidarConfig(StrictModel):
     vertical_offsets: bool = Field(
         True, description="lasers offset along z as in the VLP-16 manual (velodyne-decoder's "
                           "built-in geometry); False: all lasers at the origin (VeloView's)")
+    mixed_pixels: bool = Field(
+        False, description="footprints on two surfaces closer than dual_min_separation_m "
+                           "return a range between them (edge artefacts), not the centre's")
     product_id: int = Field(0x22, ge=0, le=255, description="factory byte (0x22 VLP-16)")
     clock_offset_ns: int | None = Field(
         None, description="lidar_toh clock minus host_realtime [ns]; default 823456789 "

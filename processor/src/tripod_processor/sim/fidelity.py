@@ -183,6 +183,7 @@ class Fidelity:
     configured_sigma_m: float = 0.0
     label_agreement: float = float("nan")
     label_joined: float = float("nan")  # fraction of points the label join found
+    off_mesh_frac: float = float("nan")  # fraction of points farther than 5 mm from the mesh
 
 
 def place_points(points: DecodedPoints, cfg: SimConfig):
@@ -239,6 +240,7 @@ def geometry_check(capture_dir: str | Path, max_packets: int | None = None,
     res.n_points = int(len(dist))
     res.dist_median_m = float(np.median(dist))
     res.dist_p99_m = float(np.percentile(dist, 99))
+    res.off_mesh_frac = float(np.mean(dist > 0.005))
     res.range_err_std_m = float(np.std(err))
     res.range_err_robust_std_m = float(1.4826 * np.median(np.abs(err - np.median(err))))
     lab = join_labels(pts, Path(capture_dir) / LABELS_FILE)

@@ -178,6 +178,7 @@ class Trajectory:
         yaw[1:] = yaw[0] + np.cumsum(rng.uniform(-1, 1, n - 1) * np.radians(cfg.max_yaw_change_deg))
         level = np.radians(cfg.level_error_deg)
         roll, pitch = rng.normal(0, level, n), rng.normal(0, level, n)
+        self.floor_z = floor_z
         height = floor_z + rng.uniform(cfg.tripod_height_m[0], cfg.tripod_height_m[1], n)
         # carrying time: at least transit_s, longer when the walk would exceed the peak speed
         # (minimum-jerk progress peaks at 1.875 x the mean speed)
@@ -258,6 +259,27 @@ class Trajectory:
         """(R (N, 3, 3), p (N, 3)) of the base in the world."""
         p, yaw, roll, pitch, _ = self.base_state(t)
         return rot_z(yaw) @ rot_y(pitch) @ rot_x(roll), p
+
+    def legs_world(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Tripod legs at times t: tops and feet (N, 3, 3) [m] in the world (leg, xyz).
+
+        Three legs 120 deg apart in the base frame, hinged 0.06 m from the pan axis 0.12 m
+        below the head, feet ``leg_spread_m`` from the axis on the floor of the current (or
+        last) station; they move rigidly with the base while carried.
+        """
+        t = np.asarray(t, dtype=np.float64)
+        R, p = self.T_world_base(t)
+        k = np.clip(np.searchsorted(self.period_start_s, t, side="right") - 1, 0, self.n - 1)
+        h = np.array([s.position[2] for s in self.stations])[k] - self.floor_z  # (N,)
+        a = np.radians([0.0, 120.0, 240.0])
+        top = np.stack([0.06 * np.cos(a), 0.06 * np.sin(a), np.full(3, -0.12)], axis=1)
+        sp = self.cfg.leg_spread_m
+        foot = np.stack([np.broadcast_to(sp * np.cos(a), (len(t), 3)),
+                         np.broadcast_to(sp * np.sin(a), (len(t), 3)),
+                         -np.repeat(h[:, None], 3, axis=1)], axis=2)  # (N, 3, 3)
+        tops_w = p[:, None, :] + np.einsum("nij,lj->nli", R, top)
+        feet_w = p[:, None, :] + np.matmul(foot, np.swapaxes(R, 1, 2))
+        return tops_w, feet_w
 
     def T_world_lidar(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(R_world_lidar (N, 3, 3), p_world_lidar (N, 3)) at capture-relative times t [s]."""
