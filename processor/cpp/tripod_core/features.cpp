@@ -72,7 +72,7 @@ LocalGeometry estimate_local_geometry(const PointsXYZ& points, const KdTree<3>& 
     {
         std::vector<int> idx;
         std::vector<float> dist;
-#pragma omp for schedule(static, 256)
+#pragma omp for schedule(dynamic, 256)
         for (int64_t k = 0; k < n; ++k) {
             const int64_t i = order[k];  // tree order: neighbouring queries share cache lines
             neighbours(tree, points.row(i).data(), nb, idx, dist);

@@ -185,7 +185,7 @@ void associate(const PreparedCloud& src, const PreparedCloud& tgt, const Eigen::
     if (corr.size() != static_cast<size_t>(n)) corr.assign(n, -1);  // else: warm-start hints
     const Eigen::Matrix3f R = T.linear().cast<float>();
     const Eigen::Vector3f t = T.translation().cast<float>();
-#pragma omp parallel for num_threads(threads(num_threads)) schedule(static)
+#pragma omp parallel for num_threads(threads(num_threads)) schedule(dynamic, 512)
     for (int64_t i = 0; i < n; ++i) {
         const Eigen::Vector3f p = R * src.points.row(i).transpose() + t;
         float d;
@@ -213,12 +213,17 @@ Normal linearize(Method method, const PreparedCloud& src, const PreparedCloud& t
     const Eigen::Matrix3d R = T.linear();
     const Eigen::Vector3d t = T.translation();
     const int64_t n = src.points.rows();
-    std::vector<Normal> parts(nt);
-#pragma omp parallel num_threads(nt)
-    {
+    // Fixed chunks handed out dynamically (a descheduled thread on a busy machine does not hold
+    // the others up), each with its own partial sum, added in chunk order afterwards: the result
+    // is bit-identical whatever the thread count.
+    constexpr int64_t kChunk = 512;
+    const int64_t num_chunks = (n + kChunk - 1) / kChunk;
+    std::vector<Normal> parts(num_chunks);
+#pragma omp parallel for num_threads(nt) schedule(dynamic, 1)
+    for (int64_t chunk = 0; chunk < num_chunks; ++chunk) {
         Normal acc;
-#pragma omp for schedule(static)
-        for (int64_t i = 0; i < n; ++i) {
+        const int64_t end = std::min(n, (chunk + 1) * kChunk);
+        for (int64_t i = chunk * kChunk; i < end; ++i) {
             if (find) {
                 const Eigen::Vector3f pf = Rf * src.points.row(i).transpose() + tf;
                 float d2;
@@ -286,7 +291,7 @@ Normal linearize(Method method, const PreparedCloud& src, const PreparedCloud& t
             acc.count += 1;
             acc.sq_dist += e.squaredNorm();
         }
-        parts[omp_get_thread_num()] = acc;
+        parts[chunk] = acc;
     }
     Normal out;
     for (const Normal& p : parts) {
