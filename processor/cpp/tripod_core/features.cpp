@@ -72,7 +72,7 @@ LocalGeometry estimate_local_geometry(const PointsXYZ& points, const KdTree<3>& 
     {
         std::vector<int> idx;
         std::vector<float> dist;
-#pragma omp for schedule(static, 256)
+#pragma omp for schedule(dynamic, 256)
         for (int64_t k = 0; k < n; ++k) {
             const int64_t i = order[k];  // tree order: neighbouring queries share cache lines
             neighbours(tree, points.row(i).data(), nb, idx, dist);
@@ -317,15 +317,16 @@ MatrixX33f compute_fpfh(const PointsXYZ& points, const MatrixX3d& normals, doubl
             spfh(i, 2 * kBins + h3) += incr;
         }
     }
-    // 2. FPFH = SPFH(p) + weighted SPFH of the neighbours (weight 1 / distance), each of the
-    //    three sub-histograms renormalised to sum 100
+    // 2. FPFH = SPFH(p) + weighted SPFH of the neighbours (weight 1 / distance^2), each of the
+    //    three sub-histograms of the weighted sum renormalised to 100
 #pragma omp parallel for num_threads(nt) schedule(guided, 32)
     for (int64_t i = 0; i < n; ++i) {
         Eigen::Matrix<double, 33, 1> acc = Eigen::Matrix<double, 33, 1>::Zero();
         for (size_t jj = 0; jj < nbrs[i].size(); ++jj) {
             const int j = nbrs[i][jj];
             if (j == i || nbr_dist[i][jj] <= 0) continue;
-            const double w = 1.0 / std::sqrt(static_cast<double>(nbr_dist[i][jj]));
+            // 1 / squared distance, as PCL (its radiusSearch distances are squared) and Open3D
+            const double w = 1.0 / static_cast<double>(nbr_dist[i][jj]);
             acc += w * spfh.row(j).transpose().cast<double>();
         }
         for (int s = 0; s < 3; ++s) {

@@ -70,7 +70,7 @@ std::vector<int64_t> normal_space_sampling(const MatrixX3d& normals, int64_t num
                                            int bins_per_axis, uint64_t seed);
 
 /// Fast Point Feature Histograms (Rusu 2009; binning as PCL's FPFHEstimation: 3 x 11 bins, each
-/// histogram sums to 100). Points with fewer than 2 neighbours within `radius` get zeros.
+/// third sums to 200: own SPFH + normalised neighbours'). Points with fewer than 2 neighbours within `radius` get zeros.
 /// @param points  N x 3 finite points [m]; @param normals N x 3 unit normals
 MatrixX33f compute_fpfh(const PointsXYZ& points, const MatrixX3d& normals, double radius,
                         int max_neighbors, int num_threads);

@@ -133,7 +133,7 @@ GlobalResult register_global(const PointsXYZ& source_in, const PointsXYZ& target
     for (size_t i = 0; i < smap.size(); ++i) fsc.row(i) = fs.row(smap[i]);
     const KdTree<33> ttree(ftc.data(), ftc.rows());
     std::vector<int> s2t(smap.size(), -1);
-#pragma omp parallel for num_threads(nt) schedule(static)
+#pragma omp parallel for num_threads(nt) schedule(dynamic, 256)
     for (int64_t i = 0; i < static_cast<int64_t>(smap.size()); ++i) {
         float d;
         s2t[i] = ttree.nearest(fsc.row(i).data(), std::numeric_limits<float>::infinity(), &d);
@@ -142,7 +142,7 @@ GlobalResult register_global(const PointsXYZ& source_in, const PointsXYZ& target
     if (opt.mutual_filter) {
         const KdTree<33> stree(fsc.data(), fsc.rows());
         t2s.assign(tmap.size(), -1);
-#pragma omp parallel for num_threads(nt) schedule(static)
+#pragma omp parallel for num_threads(nt) schedule(dynamic, 256)
         for (int64_t j = 0; j < static_cast<int64_t>(tmap.size()); ++j) {
             float d;
             t2s[j] = stree.nearest(ftc.row(j).data(), std::numeric_limits<float>::infinity(), &d);
@@ -254,7 +254,7 @@ GlobalResult register_global(const PointsXYZ& source_in, const PointsXYZ& target
         {
             int64_t lb = -1, lk = -1, linl = 0;
             Eigen::Isometry3d lT = Eigen::Isometry3d::Identity();
-#pragma omp for schedule(static)
+#pragma omp for schedule(dynamic, 64)
             for (int64_t k = done; k < end; ++k) {
                 Eigen::Isometry3d T;
                 if (!hypothesis(k, T)) continue;

@@ -23,15 +23,18 @@ public:
     /// @param data      n x Dim row-major floats (copied)
     /// @param n         number of rows
     /// @param leaf_size points per leaf (>= 1)
-    KdTree(const float* data, int64_t n, int leaf_size = 16) : leaf_size_(std::max(1, leaf_size)) {
+    KdTree(const float* data, int64_t n, int leaf_size = 20) : leaf_size_(std::max(1, leaf_size)) {
         order_.resize(n);
         std::iota(order_.begin(), order_.end(), 0);
         pts_.resize(static_cast<size_t>(n) * Dim);
         src_ = data;
         nodes_.reserve(2 * (n / leaf_size_ + 1));
         if (n > 0) build(0, static_cast<int>(n));
-        for (int64_t i = 0; i < n; ++i)
+        pos_.resize(n);
+        for (int64_t i = 0; i < n; ++i) {
             std::copy(data + order_[i] * Dim, data + order_[i] * Dim + Dim, pts_.data() + i * Dim);
+            pos_[order_[i]] = static_cast<int>(i);
+        }
         src_ = nullptr;
     }
 
@@ -59,6 +62,25 @@ public:
     int nearest(const float* q, float max_sq_dist, float* sq_dist) const {
         int idx = -1;
         float best = max_sq_dist;
+        float off[Dim] = {};
+        if (!nodes_.empty()) nn_rec(0, q, idx, best, 0.f, off);
+        if (sq_dist) *sq_dist = best;
+        return idx;
+    }
+
+    /// Nearest neighbour within sqrt(max_sq_dist), warm-started from a row `hint` (e.g. the
+    /// previous ICP iteration's match; -1 for none): its distance bounds the search, which
+    /// then prunes most of the tree. Same answer as nearest() up to ties.
+    int nearest_from(const float* q, float max_sq_dist, int hint, float* sq_dist) const {
+        int idx = -1;
+        float best = max_sq_dist;
+        if (hint >= 0) {
+            const float d = sq(q, pts_.data() + static_cast<size_t>(pos_[hint]) * Dim);
+            if (d < best) {
+                best = d;
+                idx = hint;
+            }
+        }
         float off[Dim] = {};
         if (!nodes_.empty()) nn_rec(0, q, idx, best, 0.f, off);
         if (sq_dist) *sq_dist = best;
@@ -199,6 +221,7 @@ private:
     int leaf_size_;
     const float* src_ = nullptr;  // only during build
     std::vector<int64_t> order_;  // tree position -> caller's row
+    std::vector<int> pos_;        // caller's row -> tree position
     std::vector<float> pts_;      // rows in tree order
     std::vector<Node> nodes_;
 };

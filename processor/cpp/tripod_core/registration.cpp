@@ -182,14 +182,14 @@ namespace detail {
 void associate(const PreparedCloud& src, const PreparedCloud& tgt, const Eigen::Isometry3d& T,
                double max_sq_dist, std::vector<int>& corr, int num_threads) {
     const int64_t n = src.points.rows();
-    corr.assign(n, -1);
+    if (corr.size() != static_cast<size_t>(n)) corr.assign(n, -1);  // else: warm-start hints
     const Eigen::Matrix3f R = T.linear().cast<float>();
     const Eigen::Vector3f t = T.translation().cast<float>();
-#pragma omp parallel for num_threads(threads(num_threads)) schedule(static)
+#pragma omp parallel for num_threads(threads(num_threads)) schedule(dynamic, 512)
     for (int64_t i = 0; i < n; ++i) {
         const Eigen::Vector3f p = R * src.points.row(i).transpose() + t;
         float d;
-        corr[i] = tgt.tree->nearest(p.data(), static_cast<float>(max_sq_dist), &d);
+        corr[i] = tgt.tree->nearest_from(p.data(), static_cast<float>(max_sq_dist), corr[i], &d);
     }
 }
 
@@ -198,7 +198,9 @@ Normal linearize(Method method, const PreparedCloud& src, const PreparedCloud& t
                  const RegistrationOptions& opt, bool with_jacobian, int num_threads,
                  double associate_sq_dist, std::vector<Eigen::Matrix3d>* mahalanobis) {
     const bool find = associate_sq_dist > 0;
-    if (find) corr.assign(src.points.rows(), -1);
+    // the previous iteration's matches (if any) warm-start the nearest-neighbour searches
+    if (find && corr.size() != static_cast<size_t>(src.points.rows()))
+        corr.assign(src.points.rows(), -1);
     const bool store_M = mahalanobis && with_jacobian && method == Method::kGICP;
     const bool reuse_M = mahalanobis && !with_jacobian && method == Method::kGICP &&
                          mahalanobis->size() == static_cast<size_t>(src.points.rows());
@@ -211,16 +213,22 @@ Normal linearize(Method method, const PreparedCloud& src, const PreparedCloud& t
     const Eigen::Matrix3d R = T.linear();
     const Eigen::Vector3d t = T.translation();
     const int64_t n = src.points.rows();
-    std::vector<Normal> parts(nt);
-#pragma omp parallel num_threads(nt)
-    {
+    // Fixed chunks handed out dynamically (a descheduled thread on a busy machine does not hold
+    // the others up), each with its own partial sum, added in chunk order afterwards: the result
+    // is bit-identical whatever the thread count.
+    constexpr int64_t kChunk = 512;
+    const int64_t num_chunks = (n + kChunk - 1) / kChunk;
+    std::vector<Normal> parts(num_chunks);
+#pragma omp parallel for num_threads(nt) schedule(dynamic, 1)
+    for (int64_t chunk = 0; chunk < num_chunks; ++chunk) {
         Normal acc;
-#pragma omp for schedule(static)
-        for (int64_t i = 0; i < n; ++i) {
+        const int64_t end = std::min(n, (chunk + 1) * kChunk);
+        for (int64_t i = chunk * kChunk; i < end; ++i) {
             if (find) {
                 const Eigen::Vector3f pf = Rf * src.points.row(i).transpose() + tf;
                 float d2;
-                corr[i] = tgt.tree->nearest(pf.data(), static_cast<float>(associate_sq_dist), &d2);
+                corr[i] = tgt.tree->nearest_from(pf.data(), static_cast<float>(associate_sq_dist),
+                                                 corr[i], &d2);
             }
             const int j = corr[i];
             if (j < 0) continue;
@@ -283,7 +291,7 @@ Normal linearize(Method method, const PreparedCloud& src, const PreparedCloud& t
             acc.count += 1;
             acc.sq_dist += e.squaredNorm();
         }
-        parts[omp_get_thread_num()] = acc;
+        parts[chunk] = acc;
     }
     Normal out;
     for (const Normal& p : parts) {
@@ -297,10 +305,10 @@ Normal linearize(Method method, const PreparedCloud& src, const PreparedCloud& t
 }
 
 void finish_result(const PreparedCloud& src, const PreparedCloud& tgt, Method residual_model,
-                   const RegistrationOptions& opt, RegistrationResult& res, int num_threads) {
+                   const RegistrationOptions& opt, RegistrationResult& res, int num_threads,
+                   std::vector<int> corr) {
     const Eigen::Isometry3d T(res.T_target_source);
     const double d = opt.max_correspondence_distances.back();
-    std::vector<int> corr;
     Normal nl = linearize(residual_model, src, tgt, T, corr, opt, true, num_threads, d * d);
     res.final_error = nl.error + add_prior(opt, T.linear(), &nl.H, &nl.b);
     // Fitness and RMSE as Open3D defines them (all correspondences within the distance).
@@ -404,10 +412,10 @@ RegistrationResult register_local(const PreparedCloud& src, const PreparedCloud&
                              !opt.lock_z;
     const int need = min_points(opt.method);
 
+    std::vector<int> corr;
     if (opt.method == Method::kCeresLM) {
         detail::register_ceres(src, tgt, T, opt, res, nt);
     } else {
-        std::vector<int> corr;
         std::vector<Eigen::Matrix3d> mahalanobis;  // GICP weights of the current pairs
         bool ok = true;
         res.status = "max_iterations";
@@ -486,7 +494,7 @@ RegistrationResult register_local(const PreparedCloud& src, const PreparedCloud&
     res.T_target_source = T.matrix();
     // quality and information with the method's own residual model (Ceres: point-to-plane)
     const Method model = opt.method == Method::kCeresLM ? Method::kPointToPlane : opt.method;
-    detail::finish_result(src, tgt, model, opt, res, nt);
+    detail::finish_result(src, tgt, model, opt, res, nt, std::move(corr));
     if (res.status != "too_few_correspondences" && res.condition < 1e-4) {
         res.status = "degenerate";
         res.converged = false;

@@ -36,9 +36,11 @@ Normal linearize(Method method, const PreparedCloud& src, const PreparedCloud& t
                  double associate_sq_dist = -1,
                  std::vector<Eigen::Matrix3d>* mahalanobis = nullptr);
 
-/// Fill fitness, RMSE, information and condition of `res` at its pose.
+/// Fill fitness, RMSE, information and condition of `res` at its pose (`corr`: the last
+/// matches, as hints for the final association, or empty).
 void finish_result(const PreparedCloud& src, const PreparedCloud& tgt, Method residual_model,
-                   const RegistrationOptions& opt, RegistrationResult& res, int num_threads);
+                   const RegistrationOptions& opt, RegistrationResult& res, int num_threads,
+                   std::vector<int> corr = {});
 
 /// Non-linear ICP in Ceres (Method::kCeresLM); fills T, iterations, status.
 void register_ceres(const PreparedCloud& src, const PreparedCloud& tgt, Eigen::Isometry3d& T,

@@ -62,7 +62,7 @@ PointsXYZ voxel_downsample(const PointsXYZ& points, double voxel_size, int num_t
     // 1. key every finite point (parallel). Same arithmetic as Open3D: (p - origin) / size in
     // double, floored, so the two agree bit for bit in kMinBound mode.
     std::vector<std::pair<uint64_t, int64_t>> keyed(n);
-#pragma omp parallel for num_threads(num_threads) schedule(static)
+#pragma omp parallel for num_threads(num_threads) schedule(dynamic, 4096)
     for (int64_t i = 0; i < n; ++i) {
         const float* p = points.row(i).data();
         uint64_t key = ~uint64_t{0};
@@ -105,7 +105,7 @@ PointsXYZ voxel_downsample(const PointsXYZ& points, double voxel_size, int num_t
     starts.push_back(valid);
     const int64_t m = static_cast<int64_t>(starts.size()) - 1;
     PointsXYZ out(std::max<int64_t>(m, 0), 3);
-#pragma omp parallel for num_threads(num_threads) schedule(static)
+#pragma omp parallel for num_threads(num_threads) schedule(dynamic, 4096)
     for (int64_t v = 0; v < m; ++v) {
         double sx = 0, sy = 0, sz = 0;
         for (int64_t k = starts[v]; k < starts[v + 1]; ++k) {
