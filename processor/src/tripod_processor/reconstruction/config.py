@@ -99,7 +99,7 @@ class OutputConfig(StrictModel):
     map_voxel_m: float = Field(default=0.03, gt=0)
     #: moving-least-squares smoothing radius of the merged map [m] (0: off). Range noise of a
     #: VLP-16 (~3 cm) leaves a layer as thick as the noise; MLS projects it onto the surface.
-    smooth_radius_m: float = Field(default=0.08, ge=0)
+    smooth_radius_m: float = Field(default=0.12, ge=0)
     write_pcd: bool = True
     write_fragments: bool = True
     write_mcap: bool = True

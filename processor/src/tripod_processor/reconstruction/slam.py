@@ -117,6 +117,9 @@ def run_slam(frags: list[Fragment], T_odom: np.ndarray, odom_edges: list[pg.Edge
                     near.append((d, j))
             near.sort()
             cands += [(i, j) for _, j in near[: scfg.max_loops_per_station]]
+    if progress is not None:
+        progress.total = len(cands)
+        progress.refresh()
     for i, j in cands:
         guess = inv(T_odom[i]) @ T_odom[j] if comp[i] == comp[j] else None
         r = register_fragments(frags[j].points, frags[i].points, frags[j].R_world_lidar,
