@@ -175,8 +175,8 @@ def write_report(res, cfg: ReconstructConfig) -> Path:
         f"{s['hour_source']}.", "",
         "| quantity | value |", "|---|---|",
         f"| stations | {s['stations']} ({len(slam.disconnected)} disconnected) |",
-        f"| odometry edges / loop edges / rejected | {s['odometry_edges']} / {s['loop_edges']} / "
-        f"{s['loop_edges_rejected']} |",
+        f"| odometry edges (rejected) / loop edges (rejected) | {s['odometry_edges']} "
+        f"({s['odometry_edges_rejected']}) / {s['loop_edges']} ({s['loop_edges_rejected']}) |",
         f"| loop candidates | {s['loop_candidates']} |",
         f"| IMU time offset | {s['imu_time_offset_ms']:.2f} ms |",
         f"| host − lidar clock | {s['host_minus_lidar_ms']:.3f} ms |",
