@@ -118,7 +118,7 @@ def main() -> int:
             f"{r['loops']} ({r['rejected']})", stages,
             f"{r['processing_s'] / r['recording_s']:.3f} "
             f"({r['processing_cpu_s'] / r['recording_s']:.3f})")
-    Console().print(t)
+    Console(width=220).print(t)
     print("goals: ATE <= 2 cm / 0.2 deg after SLAM; map-to-mesh median <= 1.5 cm; drift <= 0.5 %; "
           "processing < 0.1 x recording time on 2 cores")
     if args.json:
