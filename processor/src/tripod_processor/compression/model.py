@@ -1,0 +1,122 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""The learned occupancy-context model and its exact integer probability table.
+
+A small MLP maps the 19-bit octree context (see ``cpp/tripod_core/octree_codec.hpp``: 7 causal
+child-level neighbours, 7 parent-level neighbours towards the octant, the octant, the level
+bucket) to P(child occupied). The codec never runs the float network: the shipped weights are
+integers (fixed point, ``FRAC_BITS`` fractional bits) and :func:`probability_table` evaluates
+them for all 2^19 contexts with integer arithmetic (float64 matmuls of integers below 2^53 are
+exact, whatever the BLAS summation order), then maps the logit through a shipped integer sigmoid
+table. The encoder and the decoder therefore get bit-identical tables on every machine; the
+table's SHA-256 (the *model id*) is stored in each file and checked before decoding.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+CONTEXT_BITS = 19
+N_CONTEXTS = 1 << CONTEXT_BITS
+N_FEATURES = 7 + 7 + 8 + 4  # causal bits, parent bits, octant one-hot, level one-hot
+FRAC_BITS = 12  # fixed point of weights and activations
+LOGIT_STEPS_PER_UNIT = 64  # sigmoid table resolution: 1/64 of a logit unit
+LOGIT_RANGE = 16  # table covers logits in [-16, 16)
+P_MIN, P_MAX = 16, 65520  # probabilities are P(bit = 0) * 65536, clamped to this range
+
+WEIGHTS_DIR = Path(__file__).with_name("weights")
+DEFAULT_WEIGHTS = WEIGHTS_DIR / "octree_context_v1.npz"
+
+
+def context_features(contexts: np.ndarray) -> np.ndarray:
+    """Binary features (N, N_FEATURES) uint8 of packed 19-bit contexts (N,) uint32."""
+    c = np.asarray(contexts, dtype=np.uint32)
+    f = np.zeros((len(c), N_FEATURES), np.uint8)
+    for k in range(14):
+        f[:, k] = (c >> k) & 1
+    f[np.arange(len(c)), 14 + ((c >> 14) & 7)] = 1
+    f[np.arange(len(c)), 22 + ((c >> 17) & 3)] = 1
+    return f
+
+
+def sigmoid_lut() -> np.ndarray:
+    """P(bit = 0) * 65536 for logits (of P(bit = 1)) in [-16, 16) at 1/64 steps, uint16."""
+    z = np.arange(-LOGIT_RANGE * LOGIT_STEPS_PER_UNIT, LOGIT_RANGE * LOGIT_STEPS_PER_UNIT) / float(
+        LOGIT_STEPS_PER_UNIT)
+    p0 = 65536.0 / (1.0 + np.exp(z))
+    return np.clip(np.rint(p0), P_MIN, P_MAX).astype(np.uint16)
+
+
+@dataclass(frozen=True)
+class ContextModel:
+    """Integer weights of the MLP and the integer sigmoid table, as shipped."""
+
+    weights: tuple[np.ndarray, ...]  # w1 (F,H) b1 (H) w2 (H,H) b2 (H) w3 (H,1) b3 (1), int64
+    lut: np.ndarray  # sigmoid table, uint16
+    meta: dict  # training provenance (seed, data, command)
+
+    def save(self, path: str | Path) -> None:
+        names = ("w1", "b1", "w2", "b2", "w3", "b3")
+        arrays = {n: w.astype(np.int32) for n, w in zip(names, self.weights)}
+        np.savez_compressed(path, lut=self.lut, meta=np.array(json.dumps(self.meta)), **arrays)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "ContextModel":
+        with np.load(path, allow_pickle=False) as z:
+            weights = tuple(z[n].astype(np.int64) for n in ("w1", "b1", "w2", "b2", "w3", "b3"))
+            return cls(weights, z["lut"].astype(np.uint16), json.loads(str(z["meta"])))
+
+    @classmethod
+    def from_float(cls, float_weights: list[np.ndarray], meta: dict) -> "ContextModel":
+        """Quantise float weights (w1, b1, w2, b2, w3, b3; w as (in, out)) to fixed point."""
+        q = tuple(np.rint(np.asarray(w, np.float64) * (1 << FRAC_BITS)).astype(np.int64)
+                  for w in float_weights)
+        return cls(q, sigmoid_lut(), meta)
+
+    def logits(self, contexts: np.ndarray) -> np.ndarray:
+        """Fixed-point logits (scale 2^FRAC_BITS) of P(bit = 1), int64, exact."""
+        w1, b1, w2, b2, w3, b3 = self.weights
+        x = context_features(contexts).astype(np.float64)
+        # every operand and partial sum is an integer < 2^53: float64 products/sums are exact
+        h = np.maximum(x @ w1.astype(np.float64) + b1, 0).astype(np.int64)
+        h = np.maximum(((h.astype(np.float64) @ w2.astype(np.float64)).astype(np.int64)
+                        >> FRAC_BITS) + b2, 0)
+        z = ((h.astype(np.float64) @ w3.astype(np.float64)).astype(np.int64) >> FRAC_BITS)[:, 0]
+        return z + b3[0]
+
+    def table(self) -> np.ndarray:
+        """P(bit = 0) * 65536 for every context, (2^19,) uint16."""
+        out = np.empty(N_CONTEXTS, np.uint16)
+        chunk = 1 << 16
+        n_lut = len(self.lut)
+        for s in range(0, N_CONTEXTS, chunk):
+            ctx = np.arange(s, s + chunk, dtype=np.uint32)
+            z = self.logits(ctx)
+            i = (z * LOGIT_STEPS_PER_UNIT) >> FRAC_BITS  # floor to the table's step
+            i = np.clip(i + LOGIT_RANGE * LOGIT_STEPS_PER_UNIT, 0, n_lut - 1)
+            out[s:s + chunk] = self.lut[i]
+        return out
+
+
+@dataclass(frozen=True)
+class ProbabilityTable:
+    """The codec's probability table and its id (first 16 hex digits of its SHA-256)."""
+
+    p0: np.ndarray  # (2^19,) uint16
+    model_id: str
+
+
+@functools.lru_cache(maxsize=4)
+def load_table(path: str | Path = DEFAULT_WEIGHTS) -> ProbabilityTable:
+    """Build (once per process) the probability table of the shipped weights."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"compressor weights not found: {path}")
+    p0 = ContextModel.load(path).table()
+    p0.setflags(write=False)
+    return ProbabilityTable(p0, hashlib.sha256(p0.tobytes()).hexdigest()[:16])
