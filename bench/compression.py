@@ -1,8 +1,9 @@
 # SPDX-License-Identifier: BSD-3-Clause
 """Compression benchmark: tripod's learned octree codec against Google Draco, side by side.
 
-Clouds: held-out simulated fragments (``--sim FILE...``: ``tripod simulate`` output; by default
-built-in synthetic rooms whose seeds the shipped model never saw) and the real scans
+Clouds: held-out simulated fragments (by default one station of ``tripod simulate`` in a room
+and in an office, with seeds the shipped model never saw; or ``--sim FILE...`` clouds) and the
+real scans
 ../shared/data/registration/pcl/room_scan1/2.pcd. For each: Draco (DracoPy, compression level 10)
 at quantisation 8..12 bits and the tripod codec on the same grid steps; rate = bits per input
 point, distortion = symmetric D1 PSNR. Prints one table per cloud and a summary of the goals:
@@ -23,7 +24,8 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 REAL = REPO.parent / "shared" / "data" / "registration" / "pcl"
-HELD_OUT_SEEDS = (900001, 900002)
+HELD_OUT = (("room", 901), ("office", 902))  # tripod simulate scene, seed (not trained on)
+N_SIM = 1_000_000
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -38,10 +40,10 @@ def main(argv: list[str] | None = None) -> int:
 
     from tripod_processor.cli.compress_cmd import print_rd_tables
     from tripod_processor.cloud_io import read_cloud, xyz
-    from tripod_processor.compression.model import DEFAULT_WEIGHTS, ContextModel
     from tripod_processor.compression.rd import (draco_available, plot_rd, ratio_at_equal_psnr,
                                                  run_rd)
-    from tripod_processor.compression.synthetic import random_fragment
+    from tripod_processor.compression.simdata import simulated_fragments
+    from tripod_processor.compression.train import HELD_OUT_SEEDS
 
     if not draco_available():
         print("bench/compression.py needs DracoPy: pip install -e 'processor[bench]'")
@@ -50,10 +52,13 @@ def main(argv: list[str] | None = None) -> int:
     for p in args.sim:
         clouds[f"sim:{p.name}"] = xyz(read_cloud(p), np.float32)
     if not args.sim:
-        trained_on = ContextModel.load(DEFAULT_WEIGHTS).meta.get("training_data", {})
-        for s in HELD_OUT_SEEDS:
-            assert s not in trained_on.get("synthetic_fragment_seeds", []), "seed not held out"
-            clouds[f"synthetic room {s} (held out)"] = random_fragment(s, n_revolutions=40)
+        for scene, seed in HELD_OUT:
+            assert seed in HELD_OUT_SEEDS
+            print(f"simulating {scene} seed {seed}", file=sys.stderr)
+            frag = simulated_fragments(scene, seed)[0]
+            # a 1 M-point fragment, as in the issue (a random subset of the 10 s pan)
+            keep = np.random.default_rng(seed).choice(len(frag), min(len(frag), N_SIM), False)
+            clouds[f"sim {scene} seed {seed}"] = frag[np.sort(keep)]
     for name in ("room_scan1", "room_scan2"):
         clouds[f"{name} (real)"] = xyz(read_cloud(REAL / f"{name}.pcd"), np.float32)
 

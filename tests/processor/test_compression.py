@@ -79,6 +79,28 @@ def test_deterministic_bytes_and_table(fragment):
     assert read_info(a)["model_id"] == table.model_id
 
 
+def test_table_disk_cache_is_verified(tmp_path, monkeypatch):
+    """A damaged cached table is never used: the table is rebuilt from the weights."""
+    import tripod_processor.compression.model as model
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    reference = load_table()
+    model.load_table.cache_clear()
+    try:
+        first = model.load_table()  # builds and writes the cache under tmp_path
+        (cached,) = (tmp_path / "tripod" / "compression").glob("*.npz")
+        with np.load(cached) as z:
+            p0, digest = z["p0"].copy(), z["sha256"]
+        p0[123] ^= 1
+        np.savez(cached, p0=p0, sha256=digest)
+        model.load_table.cache_clear()
+        again = model.load_table()
+    finally:
+        model.load_table.cache_clear()
+    assert first.model_id == again.model_id == reference.model_id
+    assert np.array_equal(again.p0, reference.p0)
+
+
 @pytest.mark.parametrize("adapt_shift", [0, 3, 5])
 def test_adaptation_modes_round_trip(fragment, adapt_shift):
     data, info = encode(fragment[:20000], 0.01, adapt_shift=adapt_shift)
@@ -99,6 +121,21 @@ def test_edge_clouds():
         compress(np.array([[0, 0, 0], [1000, 0, 0]], np.float32), voxel_size=1e-5)
     with pytest.raises(CodecError, match="exactly one"):
         compress(one, error=0.01, bpp=2.0)
+
+
+def test_intensity_is_the_voxel_mean(fragment):
+    from tripod_processor.compression.codec import decode_cloud
+
+    pts = np.array([[0.001, 0, 0], [0.002, 0, 0], [0.5, 0.5, 0.5]], np.float32)
+    data = compress(pts, voxel_size=0.01, intensity=np.array([10.0, 21.0, 200.0]))
+    out, attrs, header = decode_cloud(data)
+    order = np.argsort(out[:, 0])
+    assert attrs["intensity"][order].tolist() == [16, 200]  # round(15.5) = 16 (half to even)
+    assert header["intensity"]["dtype"] == "<u1"
+    rng = np.random.default_rng(5)
+    inten = rng.integers(0, 1000, len(fragment)).astype(np.float32)
+    out, attrs, _ = decode_cloud(compress(fragment, error=0.01, intensity=inten))
+    assert attrs["intensity"].dtype == np.uint16 and len(attrs["intensity"]) == len(out)
 
 
 def test_rate_target(fragment):
@@ -163,7 +200,7 @@ def test_corrupt_stream_with_valid_checksums_is_rejected(small_file):
 def test_container_layout(small_file):
     header, start = container.read_header(small_file)
     assert small_file[:8] == b"TRIPODPC"
-    assert header["codec"] == "octree-ctx19" and header["payload_bytes"] == len(small_file) - start - 4
+    assert header["codec"] == "octree-ctx21" and header["payload_bytes"] == len(small_file) - start - 4
     (crc,) = struct.unpack("<I", small_file[-4:])
     assert crc == zlib.crc32(small_file[start:-4])
 
@@ -210,6 +247,16 @@ def test_cli_round_trip_and_errors(tmp_path, registration_dir, capsys):
     assert main(["decompress", str(tpc), "-o", str(ply)]) == 0
     out = xyz(read_cloud(ply))
     assert len(out) == read_info(tpc.read_bytes())["n_voxels"]
+    # a cloud with intensity keeps it through the round trip
+    from tripod_processor.cloud_io import make_cloud, write_cloud
+
+    src_i = tmp_path / "with_i.ply"
+    pts = random_fragment(7, n_revolutions=1)
+    write_cloud(src_i, make_cloud(pts, intensity=np.full(len(pts), 42.0, np.float32)))
+    assert main(["compress", str(src_i), "-o", str(tpc), "--voxel", "1cm"]) == 0
+    assert main(["decompress", str(tpc), "-o", str(ply)]) == 0
+    back = read_cloud(ply)
+    assert np.all(back["intensity"] == 42.0)
     capsys.readouterr()
     bad = tmp_path / "bad.tpc"
     bad.write_bytes(tpc.read_bytes()[:-10])

@@ -177,6 +177,22 @@ inline uint32_t level_bits(int depth, int level) {
     return static_cast<uint32_t>(std::min(depth - 1 - level, 3)) << 17;
 }
 
+/// Density bucket of the already-coded neighbourhood: r = occupied children / child cells over
+/// the parent-level neighbours coded before this node; 0: r < 1/8 (or none), 1: < 1/4,
+/// 2: < 1/2, 3: >= 1/2. Surfaces and thick noisy shells differ here.
+inline uint32_t density_bits(const int32_t nb[27], int32_t self, const uint8_t* child_bytes) {
+    uint32_t sum = 0, m = 0;
+    for (int s = 0; s < 27; ++s) {
+        const int32_t j = nb[s];
+        if (j >= 0 && j < self) {
+            sum += static_cast<uint32_t>(__builtin_popcount(child_bytes[j]));
+            ++m;
+        }
+    }
+    const uint32_t b = sum < m ? 0u : (sum < 2 * m ? 1u : (sum < 4 * m ? 2u : 3u));
+    return (m == 0 ? 0u : b) << 19;
+}
+
 inline void adapt(uint16_t& p0, int bit, int shift) {
     int p = p0;
     if (bit) {
@@ -232,13 +248,14 @@ void walk_encoder(const std::vector<uint64_t>& codes, int depth, Sink&& sink) {
             const int32_t self = static_cast<int32_t>(i);
             const int32_t* nbi = &nb[27 * i];
             const uint32_t byte = cb[i];
+            const uint32_t node_bits = lb | density_bits(nbi, self, cb);
             uint32_t partial = 0;
             for (int c = 0; c < 8; ++c) {
                 if (c == 7 && partial == 0) {  // implied: a node is never empty
                     ctx[8 * i + c] = kSkip;
                     break;
                 }
-                ctx[8 * i + c] = child_context(c, partial, nbi, self, cb, lb);
+                ctx[8 * i + c] = child_context(c, partial, nbi, self, cb, node_bits);
                 partial |= ((byte >> c) & 1u) << c;
             }
         }
@@ -369,13 +386,14 @@ std::vector<uint64_t> octree_decode(const uint8_t* data, size_t size, int depth,
         for (size_t i = 0; i < cur.size(); ++i) {
             const int32_t self = static_cast<int32_t>(i);
             const int32_t* nbi = &nb[27 * i];
+            const uint32_t node_bits = lb | density_bits(nbi, self, cb.data());
             uint32_t partial = 0;
             for (int c = 0; c < 8; ++c) {
                 int bit;
                 if (c == 7 && partial == 0) {
                     bit = 1;
                 } else {
-                    const uint32_t ctx = child_context(c, partial, nbi, self, cb.data(), lb);
+                    const uint32_t ctx = child_context(c, partial, nbi, self, cb.data(), node_bits);
                     bit = dec.decode(p0[ctx]);
                     if (adapt_shift > 0) adapt(p0[ctx], bit, adapt_shift);
                 }

@@ -11,6 +11,8 @@
 //   bits  7..13  occupancy of the 7 parent-level neighbours towards the child's octant
 //   bits 14..16  the child index (octant) 0..7
 //   bits 17..18  min(levels left below the parent - 1, 3): 0 = the children are leaves
+//   bits 19..20  density of the coded neighbourhood: occupied children per child cell over the
+//                parent-level neighbours coded before this node, bucketed <1/8, <1/4, <1/2, more
 // The last child bit of a node whose first seven are empty is implied (a node is never empty).
 #pragma once
 
@@ -23,7 +25,7 @@
 namespace tripod {
 
 /// Bits of one occupancy context; the probability table has 1 << kOctreeContextBits entries.
-constexpr int kOctreeContextBits = 19;
+constexpr int kOctreeContextBits = 21;
 constexpr size_t kOctreeContexts = size_t{1} << kOctreeContextBits;
 /// Deepest supported octree: 21 levels (3 * 21 = 63-bit Morton codes).
 constexpr int kOctreeMaxDepth = 21;

@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: BSD-3-Clause
 // Bindings: octree geometry codec (tripod_processor.compression). Conversions and docstrings only.
 #include <stdexcept>
+#include <string>
 
 #include "common.hpp"
 #include "tripod_core/octree_codec.hpp"
@@ -27,7 +28,8 @@ std::vector<uint64_t> to_codes(const CodesIn& a) {
 
 const uint16_t* check_table(const TableIn& t) {
     if (t.shape(0) != tripod::kOctreeContexts)
-        throw std::invalid_argument("probability table must have 2^19 entries");
+        throw std::invalid_argument("probability table must have 2^" +
+                                    std::to_string(tripod::kOctreeContextBits) + " entries");
     return t.data();
 }
 }  // namespace

@@ -29,15 +29,21 @@ def parse_length(text: str) -> float:
     return value
 
 
+def _read_cloud(path: Path):
+    from ..cloud_io import read_cloud
+
+    try:
+        return read_cloud(path)
+    except (OSError, ValueError) as exc:
+        fail(f"{path}: {exc}")
+
+
 def _read_points(path: Path):
     import numpy as np
 
-    from ..cloud_io import read_cloud, xyz
+    from ..cloud_io import xyz
 
-    try:
-        return xyz(read_cloud(path), np.float32)
-    except (OSError, ValueError) as exc:
-        fail(f"{path}: {exc}")
+    return xyz(_read_cloud(path), np.float32)
 
 
 @app.command("compress", rich_help_panel=_PANEL)
@@ -49,8 +55,14 @@ def compress_cmd(
                                              "e.g. 2mm (the default: 2mm)."),
     bpp: Optional[float] = typer.Option(None, "--bpp", help="Target bits per point instead."),
     voxel: Optional[str] = typer.Option(None, "--voxel", help="Voxel edge instead, e.g. 5mm."),
+    intensity: bool = typer.Option(True, "--intensity/--no-intensity",
+                                   help="Keep the cloud's intensity field, if it has one "
+                                        "(mean per voxel)."),
 ) -> None:
-    """Compress a cloud's geometry to a .tpc file (learned octree coder)."""
+    """Compress a cloud's geometry (and intensity) to a .tpc file (learned octree coder)."""
+    import numpy as np
+
+    from ..cloud_io import xyz
     from ..compression import CodecError, compress_with_info
 
     if sum(v is not None for v in (error, bpp, voxel)) > 1:
@@ -61,7 +73,11 @@ def compress_cmd(
             else {"error": parse_length(error or "2mm")})
     except ValueError as exc:
         fail(str(exc))
-    points = _read_points(cloud)
+    structured = _read_cloud(cloud)
+    points = xyz(structured, np.float32)
+    names = structured.dtype.names or ()
+    if intensity and "intensity" in names:
+        kw["intensity"] = structured["intensity"]
     t = time.perf_counter()
     try:
         data, info = compress_with_info(points, **kw)
@@ -83,7 +99,7 @@ def decompress_cmd(
     """Decompress a .tpc file to a PLY/PCD cloud (one point per occupied voxel)."""
     from ..cloud_io import make_cloud, write_cloud
     from ..compression import CodecError, ContainerError
-    from ..compression.codec import decode
+    from ..compression.codec import decode_cloud
 
     if not tpc.is_file():
         fail(f"no such file: {tpc}")
@@ -91,12 +107,13 @@ def decompress_cmd(
         fail(f"unknown cloud extension {output.suffix!r} (use .ply or .pcd)")
     t = time.perf_counter()
     try:
-        points, header = decode(tpc.read_bytes())
+        points, attributes, header = decode_cloud(tpc.read_bytes())
     except (ContainerError, CodecError) as exc:
         fail(f"{tpc}: {exc}")
     dt = time.perf_counter() - t
     output.parent.mkdir(parents=True, exist_ok=True)
-    write_cloud(output, make_cloud(points))
+    write_cloud(output, make_cloud(points, **{k: v.astype("float32")
+                                              for k, v in attributes.items()}))
     console.print(f"{tpc} -> {output}: {len(points)} points (voxel "
                   f"{1e3 * header['voxel_size']:.3g} mm), {len(points) / max(dt, 1e-9) / 1e6:.2f} "
                   f"M points/s")
@@ -166,8 +183,10 @@ def train_compressor_cmd(
                                                   "tripod simulate output); default: built-in "
                                                   "synthetic rooms."),
     seed: int = typer.Option(8, help="Random seed (8 reproduces the shipped weights)."),
-    fragments: int = typer.Option(16, help="Synthetic fragments when no clouds are given."),
-    epochs: int = typer.Option(1500, help="Full-batch epochs."),
+    fragments: int = typer.Option(5, help="Fragments to simulate when no clouds are given."),
+    epochs: int = typer.Option(400, help="Full-batch epochs."),
+    source: str = typer.Option("sim", help="Without clouds: 'sim' (tripod simulate, the "
+                                           "default) or 'synthetic' (quick built-in rooms)."),
 ) -> None:
     """Train the occupancy-context model on the CPU (minutes) and save its integer weights."""
     from ..compression.model import DEFAULT_WEIGHTS
@@ -176,7 +195,9 @@ def train_compressor_cmd(
     for c in clouds or []:
         if not c.is_file():
             fail(f"no such file: {c}")
+    if source not in ("sim", "synthetic"):
+        fail(f"--source must be sim or synthetic, not {source!r}")
     out = output or DEFAULT_WEIGHTS
     train(out, clouds=clouds or None, n_fragments=fragments, seed=seed, epochs=epochs,
-          log=console.print)
+          source_kind=source, log=console.print)
     console.print(f"weights: {out}")

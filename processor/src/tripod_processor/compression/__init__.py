@@ -16,13 +16,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from .codec import (CODEC_NAME, CodecError, EncodeInfo, decode, encode, encode_to_rate,
-                    voxel_size_for_error)
+from .codec import (CODEC_NAME, CodecError, EncodeInfo, decode, decode_cloud, encode,
+                    encode_to_rate, voxel_size_for_error)
 from .container import ContainerError, read_header
 
 
 def compress(points: np.ndarray, *, error: float | None = None, voxel_size: float | None = None,
-             bpp: float | None = None, num_threads: int = 0) -> bytes:
+             bpp: float | None = None, intensity: np.ndarray | None = None,
+             num_threads: int = 0) -> bytes:
     """Compress a cloud to ``.tpc`` bytes.
 
     Parameters
@@ -31,15 +32,17 @@ def compress(points: np.ndarray, *, error: float | None = None, voxel_size: floa
     error : maximum distance [m] of any point from its decoded position (voxel = 2 error/sqrt 3)
     voxel_size : voxel edge [m] (instead of ``error``)
     bpp : target bits per input point: the finest grid that fits (instead of ``error``)
+    intensity : optional (N,) per-point intensity, kept as the rounded mean of each voxel
 
     Exactly one of ``error``, ``voxel_size``, ``bpp`` must be given.
     """
     return compress_with_info(points, error=error, voxel_size=voxel_size, bpp=bpp,
-                              num_threads=num_threads)[0]
+                              intensity=intensity, num_threads=num_threads)[0]
 
 
 def compress_with_info(points: np.ndarray, *, error: float | None = None,
                        voxel_size: float | None = None, bpp: float | None = None,
+                       intensity: np.ndarray | None = None,
                        num_threads: int = 0) -> tuple[bytes, EncodeInfo]:
     """:func:`compress`, also returning the :class:`EncodeInfo` (grid, counts, rate)."""
     given = [v is not None for v in (error, voxel_size, bpp)]
@@ -51,12 +54,12 @@ def compress_with_info(points: np.ndarray, *, error: float | None = None,
     if bpp is not None:
         if not bpp > 0:
             raise CodecError(f"bits per point must be > 0, got {bpp}")
-        return encode_to_rate(pts, bpp, num_threads=num_threads)
+        return encode_to_rate(pts, bpp, intensity=intensity, num_threads=num_threads)
     if error is not None:
         if not error > 0:
             raise CodecError(f"error must be > 0, got {error}")
         voxel_size = voxel_size_for_error(error)
-    return encode(pts, float(voxel_size), num_threads=num_threads)
+    return encode(pts, float(voxel_size), intensity=intensity, num_threads=num_threads)
 
 
 def decompress(data: bytes, num_threads: int = 0) -> np.ndarray:
@@ -70,4 +73,4 @@ def read_info(data: bytes) -> dict:
 
 
 __all__ = ["CODEC_NAME", "CodecError", "ContainerError", "EncodeInfo", "compress",
-           "compress_with_info", "decompress", "read_info"]
+           "compress_with_info", "decode_cloud", "decompress", "read_info"]

@@ -6,10 +6,13 @@ from the error bound or the rate target); 2. quantise to sorted unique Morton co
 3. range-code the octree with the learned probability table (C++); 4. wrap in the container.
 :func:`decode` checks the container and the model id, decodes the octree and returns the voxel
 centres. Points that fall in one voxel are merged (the output has one point per occupied voxel).
+An optional per-point intensity becomes the mean intensity of each voxel (rounded), coded as a
+second section: deltas in Morton order, LZMA (xz, with its own CRC).
 """
 
 from __future__ import annotations
 
+import lzma
 import math
 from dataclasses import dataclass
 
@@ -18,7 +21,7 @@ import numpy as np
 from .container import ContainerError, pack, unpack
 from .model import DEFAULT_WEIGHTS, load_table
 
-CODEC_NAME = "octree-ctx19"
+CODEC_NAME = "octree-ctx21"
 DEFAULT_ADAPT_SHIFT = 4  # per-context adaptation rate 1/16 on top of the learned prior
 
 
@@ -62,20 +65,73 @@ def grid_for(points: np.ndarray, voxel_size: float) -> tuple[np.ndarray, int]:
     return lo, depth
 
 
-def _finite(points: np.ndarray) -> np.ndarray:
+def _finite(points: np.ndarray, intensity: np.ndarray | None = None
+            ) -> tuple[np.ndarray, np.ndarray | None]:
     p = np.ascontiguousarray(np.asarray(points, dtype=np.float32)[:, :3])
     ok = np.isfinite(p).all(1)
-    return p if ok.all() else np.ascontiguousarray(p[ok])
+    if intensity is not None:
+        intensity = np.asarray(intensity, np.float64).reshape(-1)
+        if len(intensity) != len(p):
+            raise CodecError(f"{len(intensity)} intensities for {len(p)} points")
+        ok &= np.isfinite(intensity)
+    if ok.all():
+        return p, intensity
+    return np.ascontiguousarray(p[ok]), None if intensity is None else intensity[ok]
 
 
-def encode(points: np.ndarray, voxel_size: float, *, adapt_shift: int = DEFAULT_ADAPT_SHIFT,
-           weights=DEFAULT_WEIGHTS, num_threads: int = 0) -> tuple[bytes, EncodeInfo]:
+def _spread3(v: np.ndarray) -> np.ndarray:
+    v = v.astype(np.uint64) & np.uint64(0x1FFFFF)
+    for shift, mask in ((32, 0x1F00000000FFFF), (16, 0x1F0000FF0000FF),
+                        (8, 0x100F00F00F00F00F), (4, 0x10C30C30C30C30C3),
+                        (2, 0x1249249249249249)):
+        v = (v | (v << np.uint64(shift))) & np.uint64(mask)
+    return v
+
+
+def _voxel_means(points: np.ndarray, values: np.ndarray, origin: np.ndarray, voxel_size: float,
+                 depth: int, codes: np.ndarray) -> np.ndarray:
+    """Mean of ``values`` per voxel, in the order of the sorted voxel ``codes``."""
+    q = np.floor((points.astype(np.float64) - origin) / voxel_size)
+    q = np.clip(q, 0, 2**depth - 1).astype(np.uint64)
+    point_codes = (_spread3(q[:, 0]) << np.uint64(2)) | (_spread3(q[:, 1]) << np.uint64(1)) \
+        | _spread3(q[:, 2])
+    idx = np.searchsorted(codes, point_codes)
+    total = np.bincount(idx, weights=values, minlength=len(codes))
+    return total / np.maximum(np.bincount(idx, minlength=len(codes)), 1)
+
+
+_XZ_FILTERS = [{"id": lzma.FILTER_DELTA, "dist": 1}, {"id": lzma.FILTER_LZMA2, "preset": 9}]
+
+
+def _encode_intensity(means: np.ndarray) -> tuple[bytes, dict]:
+    v = np.clip(np.rint(means), 0, 65535)
+    dtype = "<u1" if v.max(initial=0) <= 255 else "<u2"
+    data = v.astype(dtype).tobytes()
+    return lzma.compress(data, format=lzma.FORMAT_XZ, filters=_XZ_FILTERS), {
+        "dtype": dtype, "codec": "xz-delta"}
+
+
+def _decode_intensity(section: bytes, info: dict, n_voxels: int) -> np.ndarray:
+    try:
+        raw = lzma.decompress(section, format=lzma.FORMAT_XZ)
+    except lzma.LZMAError as exc:
+        raise CodecError(f"corrupt intensity section: {exc}") from None
+    dtype = np.dtype(info.get("dtype", "<u1"))
+    if len(raw) != n_voxels * dtype.itemsize:
+        raise CodecError("corrupt intensity section: wrong length")
+    return np.frombuffer(raw, dtype)
+
+
+def encode(points: np.ndarray, voxel_size: float, *, intensity: np.ndarray | None = None,
+           adapt_shift: int = DEFAULT_ADAPT_SHIFT, weights=DEFAULT_WEIGHTS,
+           num_threads: int = 0) -> tuple[bytes, EncodeInfo]:
     """Encode a cloud on a grid of ``voxel_size``.
 
     Parameters
     ----------
     points : (N, 3) float array [m]; non-finite rows are dropped.
     voxel_size : voxel edge [m]; every point moves by at most voxel_size * sqrt(3) / 2.
+    intensity : optional (N,) per-point values >= 0 (stored as the rounded mean per voxel)
     adapt_shift : 0 for the static learned table, s > 0 to adapt it by 1/2^s per coded bit.
 
     Returns
@@ -84,7 +140,7 @@ def encode(points: np.ndarray, voxel_size: float, *, adapt_shift: int = DEFAULT_
     """
     from .. import _ext
 
-    p = _finite(points)
+    p, inten = _finite(points, intensity)
     table = load_table(weights)
     header = {"codec": CODEC_NAME, "model_id": table.model_id, "adapt_shift": int(adapt_shift),
               "n_points": int(len(p)), "voxel_size": float(voxel_size)}
@@ -96,7 +152,12 @@ def encode(points: np.ndarray, voxel_size: float, *, adapt_shift: int = DEFAULT_
     codes = _ext.voxelize_morton(p, origin, voxel_size, depth, num_threads)
     stream = _ext.octree_encode(codes, depth, table.p0, int(adapt_shift))
     header.update(origin=[float(v) for v in origin], depth=depth, n_voxels=int(len(codes)))
-    data = pack(header, [stream])
+    sections = [stream]
+    if inten is not None:
+        section, header["intensity"] = _encode_intensity(
+            _voxel_means(p, inten, origin, voxel_size, depth, codes))
+        sections.append(section)
+    data = pack(header, sections)
     return data, EncodeInfo(voxel_size, depth, len(p), len(codes), len(data))
 
 
@@ -107,6 +168,13 @@ def decode(data: bytes, *, weights=DEFAULT_WEIGHTS, num_threads: int = 0
     Raises :class:`ContainerError` / :class:`CodecError` (one-line messages) on a foreign,
     corrupt or truncated file, or one made with another context model.
     """
+    points, _attributes, header = decode_cloud(data, weights=weights, num_threads=num_threads)
+    return points, header
+
+
+def decode_cloud(data: bytes, *, weights=DEFAULT_WEIGHTS, num_threads: int = 0
+                 ) -> tuple[np.ndarray, dict[str, np.ndarray], dict]:
+    """:func:`decode`, with the per-point attributes stored: ({"intensity": (M,)} or {})."""
     from .. import _ext
 
     header, sections = unpack(data)
@@ -123,18 +191,24 @@ def decode(data: bytes, *, weights=DEFAULT_WEIGHTS, num_threads: int = 0
         voxel_size, shift = float(header["voxel_size"]), int(header["adapt_shift"])
     except (KeyError, TypeError, ValueError) as exc:
         raise ContainerError(f"corrupt .tpc header: {exc}") from None
+    attributes = {}
     if n_voxels == 0:
-        return np.zeros((0, 3), np.float32), header
+        return np.zeros((0, 3), np.float32), attributes, header
+    if len(sections) != 1 + ("intensity" in header):
+        raise ContainerError("corrupt .tpc file: unexpected sections")
     try:
         codes = _ext.octree_decode(sections[0], depth, n_voxels, table.p0, shift)
     except (RuntimeError, ValueError) as exc:
         raise CodecError(str(exc)) from None
-    return _ext.morton_to_points(codes, origin, voxel_size, num_threads), header
+    if "intensity" in header:
+        attributes["intensity"] = _decode_intensity(sections[1], header["intensity"], n_voxels)
+    return _ext.morton_to_points(codes, origin, voxel_size, num_threads), attributes, header
 
 
 def encode_to_rate(points: np.ndarray, bits_per_point: float, **kw) -> tuple[bytes, EncodeInfo]:
     """Encode with the finest voxel size whose rate is <= ``bits_per_point`` (bisection)."""
-    p = _finite(points)
+    p, inten = _finite(points, kw.pop("intensity", None))
+    kw["intensity"] = inten
     if len(p) == 0:
         return encode(p, 1.0, **kw)
     ext = float((p.max(0) - p.min(0)).max()) or 1.0
@@ -152,5 +226,6 @@ def encode_to_rate(points: np.ndarray, bits_per_point: float, **kw) -> tuple[byt
     return best
 
 
-__all__ = ["CODEC_NAME", "CodecError", "ContainerError", "EncodeInfo", "decode", "encode",
+__all__ = ["CODEC_NAME", "CodecError", "ContainerError", "EncodeInfo", "decode", "decode_cloud",
+           "encode",
            "encode_to_rate", "grid_for", "voxel_size_for_error"]
