@@ -79,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
                         *[f"{ratio[q]:.2f}" if q in ratio else "-" for q in range(8, 13)],
                         f"{min(r.encode_mpts_s for r in ours):.2f}",
                         f"{min(r.decode_mpts_s for r in ours):.2f}")
-    Console().print(summary)
+    Console(width=max(Console().width, 130)).print(summary)
     args.plot.parent.mkdir(parents=True, exist_ok=True)
     plot_rd(curves, args.plot)
     args.plot.with_suffix(".json").write_text(json.dumps(

@@ -159,7 +159,7 @@ def print_rd_tables(curves: dict) -> None:
 
     from ..compression.rd import ratio_at_equal_psnr
 
-    out = Console()
+    out = Console(width=max(Console().width, 130))
     for name, rows in curves.items():
         ratio = ratio_at_equal_psnr(rows)
         table = Table(title=f"{name}: rate-distortion (bpp per input point, D1 PSNR, speed M pts/s)")

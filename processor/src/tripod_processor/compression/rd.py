@@ -113,20 +113,27 @@ def plot_rd(curves: dict[str, list[RDPoint]], path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from matplotlib.ticker import NullFormatter
+
     k = len(curves)
-    fig, axes = plt.subplots(1, k, figsize=(5.0 * k, 4.0), squeeze=False)
-    for ax, (name, rows) in zip(axes[0], curves.items()):
+    cols = min(k, 2)
+    rows_n = (k + cols - 1) // cols
+    fig, axes = plt.subplots(rows_n, cols, figsize=(5.5 * cols, 4.0 * rows_n), squeeze=False)
+    for ax in axes.flat[k:]:
+        ax.set_visible(False)
+    for ax, (name, rows) in zip(axes.flat, curves.items()):
         for codec, style in (("tripod", "o-"), ("draco", "s--")):
             rs = sorted((r for r in rows if r.codec == codec), key=lambda r: r.bpp)
             if rs:
                 ax.plot([r.bpp for r in rs], [r.psnr_diag_db for r in rs], style,
                         label="tripod (learned octree)" if codec == "tripod" else "Draco q8-q12")
         ax.set_xscale("log")
+        ax.xaxis.set_minor_formatter(NullFormatter())
         ax.set_xlabel("bits per input point")
         ax.set_ylabel("D1 PSNR [dB] (peak: bbox diagonal)")
         ax.set_title(name)
         ax.grid(True, which="both", alpha=0.3)
         ax.legend()
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=90)
     plt.close(fig)
