@@ -69,8 +69,10 @@ def main(argv: list[str] | None = None) -> int:
     print_rd_tables(curves)
 
     summary = Table(title=f"summary ({os.cpu_count()} CPUs visible): tripod bpp / Draco bpp at "
-                          "equal D1 PSNR; speeds in input M points/s over q8..q12 (min)")
-    for col in ("cloud", "points", "q8", "q9", "q10", "q11", "q12", "enc min", "dec min"):
+                          "equal D1 PSNR; slowest tripod speed over q8..q12 in input M points/s, "
+                          "wall clock and per CPU second")
+    for col in ("cloud", "points", "q8", "q9", "q10", "q11", "q12", "enc wall", "dec wall",
+                "enc cpu", "dec cpu"):
         summary.add_column(col, justify="right")
     for name, rows in curves.items():
         ratio = ratio_at_equal_psnr(rows)
@@ -78,8 +80,12 @@ def main(argv: list[str] | None = None) -> int:
         summary.add_row(name, str(len(clouds[name])),
                         *[f"{ratio[q]:.2f}" if q in ratio else "-" for q in range(8, 13)],
                         f"{min(r.encode_mpts_s for r in ours):.2f}",
-                        f"{min(r.decode_mpts_s for r in ours):.2f}")
-    Console(width=max(Console().width, 130)).print(summary)
+                        f"{min(r.decode_mpts_s for r in ours):.2f}",
+                        f"{min(r.encode_mpts_cpu_s for r in ours):.2f}",
+                        f"{min(r.decode_mpts_cpu_s for r in ours):.2f}")
+    Console(width=max(Console().width, 150)).print(summary)
+    print(f"load average during the run: {os.getloadavg()[0]:.1f} (shared machine: wall-clock "
+          "rates drop with load; CPU-second rates do not)")
     args.plot.parent.mkdir(parents=True, exist_ok=True)
     plot_rd(curves, args.plot)
     args.plot.with_suffix(".json").write_text(json.dumps(

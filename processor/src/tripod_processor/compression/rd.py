@@ -6,7 +6,9 @@ largest side split into 2^q - 1 steps); the tripod codec runs on voxel grids of 
 one octave beyond each end, so its curve brackets Draco's. The *ratio* compares rates at equal
 D1 PSNR: the tripod bits per point interpolated (log-rate, linear in PSNR) at each Draco point,
 divided by Draco's. Rates are bits per input point; speeds are input points per second, wall
-clock, with the threads the machine has.
+clock, with the threads the machine has; the ``*_cpu`` rates divide by the CPU time the process
+used instead (all threads summed), a load-independent and conservative figure for a shared
+machine.
 """
 
 from __future__ import annotations
@@ -33,9 +35,11 @@ class RDPoint:
     rmse_mm: float  # symmetric D1 RMSE
     psnr_diag_db: float
     psnr_mpeg10_db: float
-    encode_mpts_s: float  # input points per second [M/s]
+    encode_mpts_s: float  # input points per second, wall clock [M/s]
     decode_mpts_s: float
     n_decoded: int
+    encode_mpts_cpu_s: float = float("nan")  # input points per CPU second [M/s]
+    decode_mpts_cpu_s: float = float("nan")
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -50,12 +54,14 @@ def draco_available() -> bool:
 
 
 def _timed(fn, *args, repeat: int = 1, **kw):
-    best, out = math.inf, None
+    """(result, best wall time [s], best CPU time [s]) over ``repeat`` runs."""
+    wall, cpu, out = math.inf, math.inf, None
     for _ in range(repeat):
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         out = fn(*args, **kw)
-        best = min(best, time.perf_counter() - t)
-    return out, best
+        wall = min(wall, time.perf_counter() - t)
+        cpu = min(cpu, time.process_time() - c)
+    return out, wall, max(cpu, 1e-9)
 
 
 def run_rd(points: np.ndarray, q_bits=range(8, 13), with_draco: bool = True,
@@ -75,18 +81,19 @@ def run_rd(points: np.ndarray, q_bits=range(8, 13), with_draco: bool = True,
     for codec, q in jobs:
         step = ext / (2**q - 1)
         if codec == "tripod":
-            (data, _info), te = _timed(encode, p, step, repeat=repeat)
-            (dec, _hdr), td = _timed(decode, data, repeat=repeat)
+            (data, _info), te, ce = _timed(encode, p, step, repeat=repeat)
+            (dec, _hdr), td, cd = _timed(decode, data, repeat=repeat)
         else:
             import DracoPy
 
-            data, te = _timed(DracoPy.encode, p, quantization_bits=q, compression_level=10,
-                              repeat=repeat)
-            mesh, td = _timed(DracoPy.decode, data, repeat=repeat)
+            data, te, ce = _timed(DracoPy.encode, p, quantization_bits=q, compression_level=10,
+                                  repeat=repeat)
+            mesh, td, cd = _timed(DracoPy.decode, data, repeat=repeat)
             dec = np.asarray(mesh.points, np.float32)
         m = d1(p, dec)
         rows.append(RDPoint(codec, q, step, 8.0 * len(data) / n, 1e3 * m.rmse_m, m.psnr_diag_db,
-                            m.psnr_mpeg10_db, n / te / 1e6, n / td / 1e6, len(dec)))
+                            m.psnr_mpeg10_db, n / te / 1e6, n / td / 1e6, len(dec),
+                            n / ce / 1e6, n / cd / 1e6))
         if progress is not None:
             progress(codec, q)
     return rows
