@@ -200,7 +200,7 @@ def test_corrupt_stream_with_valid_checksums_is_rejected(small_file):
 def test_container_layout(small_file):
     header, start = container.read_header(small_file)
     assert small_file[:8] == b"TRIPODPC"
-    assert header["codec"] == "octree-ctx21" and header["payload_bytes"] == len(small_file) - start - 4
+    assert header["codec"] == "octree-ctx22" and header["payload_bytes"] == len(small_file) - start - 4
     (crc,) = struct.unpack("<I", small_file[-4:])
     assert crc == zlib.crc32(small_file[start:-4])
 

@@ -158,39 +158,53 @@ ContextTables make_context_tables() {
 
 const ContextTables kTables = make_context_tables();
 
-inline uint32_t child_context(int c, uint32_t partial, const int32_t nb[27], int32_t self,
-                              const uint8_t* child_bytes, uint32_t level_bits) {
-    uint32_t ctx = level_bits | (static_cast<uint32_t>(c) << 14);
-    for (int k = 0; k < 7; ++k) {
-        const int32_t j = nb[kTables.causal_slot[c][k]];
+/// The per-node part of the contexts, gathered once per node; a child's context is then a few
+/// bit operations (see the header for the layout).
+struct NodeContext {
+    uint32_t base[8];       // per child: level, density, octant and parent-level bits
+    uint32_t slot_byte[27]; // child bytes of the neighbours coded before this node, else 0
+};
+
+inline void make_node_context(const int32_t nb[27], int32_t self, const uint8_t* child_bytes,
+                              uint32_t level_field, NodeContext& nc) {
+    uint32_t occ = 0, sum = 0, m = 0;
+    for (int s = 0; s < 27; ++s) {
+        const int32_t j = nb[s];
+        uint32_t byte = 0;
         if (j >= 0) {
-            const uint32_t byte = j == self ? partial : child_bytes[j];
-            ctx |= ((byte >> kTables.causal_bit[c][k]) & 1u) << k;
+            occ |= 1u << s;
+            if (j < self) {
+                byte = child_bytes[j];
+                sum += static_cast<uint32_t>(__builtin_popcount(byte));
+                ++m;
+            }
         }
+        nc.slot_byte[s] = byte;
     }
+    // density of the coded neighbourhood: occupied children per child cell, bucketed
+    const uint32_t density =
+        (m == 0 || sum < m) ? 0u : (sum < 2 * m ? 1u : (sum < 4 * m ? 2u : 3u));
+    const uint32_t node_bits = level_field | (density << 19);
+    for (int c = 0; c < 8; ++c) {
+        uint32_t v = node_bits | (static_cast<uint32_t>(c) << 14);
+        for (int k = 0; k < 7; ++k) v |= ((occ >> kTables.parent_slot[c][k]) & 1u) << (7 + k);
+        nc.base[c] = v;
+    }
+}
+
+/// Context of child c given the bits of this node decoded so far (`partial`).
+inline uint32_t child_context(NodeContext& nc, int c, uint32_t partial) {
+    nc.slot_byte[13] = partial;  // the node itself: only its earlier children are known
+    // bit 21: has this node an occupied child already? (not all earlier siblings are causal
+    // neighbours, e.g. children 1..3 for child 4, so a lone child would otherwise go unseen)
+    uint32_t ctx = nc.base[c] | (static_cast<uint32_t>(partial != 0) << 21);
     for (int k = 0; k < 7; ++k)
-        ctx |= static_cast<uint32_t>(nb[kTables.parent_slot[c][k]] >= 0) << (7 + k);
+        ctx |= ((nc.slot_byte[kTables.causal_slot[c][k]] >> kTables.causal_bit[c][k]) & 1u) << k;
     return ctx;
 }
 
 inline uint32_t level_bits(int depth, int level) {
     return static_cast<uint32_t>(std::min(depth - 1 - level, 3)) << 17;
-}
-
-/// Density bucket of the already-coded neighbourhood: r = occupied children / child cells over
-/// the parent-level neighbours coded before this node; 0: r < 1/8 (or none), 1: < 1/4,
-/// 2: < 1/2, 3: >= 1/2. Surfaces and thick noisy shells differ here.
-inline uint32_t density_bits(const int32_t nb[27], int32_t self, const uint8_t* child_bytes) {
-    uint32_t sum = 0, m = 0;
-    for (int s = 0; s < 27; ++s) {
-        const int32_t j = nb[s];
-        if (j >= 0 && j < self) {
-            sum += static_cast<uint32_t>(__builtin_popcount(child_bytes[j]));
-            ++m;
-        }
-    }
-    const uint32_t b = sum < m ? 0u : (sum < 2 * m ? 1u : (sum < 4 * m ? 2u : 3u));
-    return (m == 0 ? 0u : b) << 19;
 }
 
 inline void adapt(uint16_t& p0, int bit, int shift) {
@@ -248,14 +262,15 @@ void walk_encoder(const std::vector<uint64_t>& codes, int depth, Sink&& sink) {
             const int32_t self = static_cast<int32_t>(i);
             const int32_t* nbi = &nb[27 * i];
             const uint32_t byte = cb[i];
-            const uint32_t node_bits = lb | density_bits(nbi, self, cb);
+            NodeContext nc;
+            make_node_context(nbi, self, cb, lb, nc);
             uint32_t partial = 0;
             for (int c = 0; c < 8; ++c) {
                 if (c == 7 && partial == 0) {  // implied: a node is never empty
                     ctx[8 * i + c] = kSkip;
                     break;
                 }
-                ctx[8 * i + c] = child_context(c, partial, nbi, self, cb, node_bits);
+                ctx[8 * i + c] = child_context(nc, c, partial);
                 partial |= ((byte >> c) & 1u) << c;
             }
         }
@@ -386,14 +401,15 @@ std::vector<uint64_t> octree_decode(const uint8_t* data, size_t size, int depth,
         for (size_t i = 0; i < cur.size(); ++i) {
             const int32_t self = static_cast<int32_t>(i);
             const int32_t* nbi = &nb[27 * i];
-            const uint32_t node_bits = lb | density_bits(nbi, self, cb.data());
+            NodeContext nc;
+            make_node_context(nbi, self, cb.data(), lb, nc);
             uint32_t partial = 0;
             for (int c = 0; c < 8; ++c) {
                 int bit;
                 if (c == 7 && partial == 0) {
                     bit = 1;
                 } else {
-                    const uint32_t ctx = child_context(c, partial, nbi, self, cb.data(), node_bits);
+                    const uint32_t ctx = child_context(nc, c, partial);
                     bit = dec.decode(p0[ctx]);
                     if (adapt_shift > 0) adapt(p0[ctx], bit, adapt_shift);
                 }

@@ -13,6 +13,7 @@
 //   bits 17..18  min(levels left below the parent - 1, 3): 0 = the children are leaves
 //   bits 19..20  density of the coded neighbourhood: occupied children per child cell over the
 //                parent-level neighbours coded before this node, bucketed <1/8, <1/4, <1/2, more
+//   bit  21      whether an earlier child of this node is occupied
 // The last child bit of a node whose first seven are empty is implied (a node is never empty).
 #pragma once
 
@@ -25,7 +26,7 @@
 namespace tripod {
 
 /// Bits of one occupancy context; the probability table has 1 << kOctreeContextBits entries.
-constexpr int kOctreeContextBits = 21;
+constexpr int kOctreeContextBits = 22;
 constexpr size_t kOctreeContexts = size_t{1} << kOctreeContextBits;
 /// Deepest supported octree: 21 levels (3 * 21 = 63-bit Morton codes).
 constexpr int kOctreeMaxDepth = 21;

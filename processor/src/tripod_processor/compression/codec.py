@@ -21,7 +21,7 @@ import numpy as np
 from .container import ContainerError, pack, unpack
 from .model import DEFAULT_WEIGHTS, load_table
 
-CODEC_NAME = "octree-ctx21"
+CODEC_NAME = "octree-ctx22"
 DEFAULT_ADAPT_SHIFT = 4  # per-context adaptation rate 1/16 on top of the learned prior
 
 

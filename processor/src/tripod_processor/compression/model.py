@@ -1,11 +1,12 @@
 # SPDX-License-Identifier: BSD-3-Clause
 """The learned occupancy-context model and its exact integer probability table.
 
-A small MLP maps the 21-bit octree context (see ``cpp/tripod_core/octree_codec.hpp``: 7 causal
+A small MLP maps the 22-bit octree context (see ``cpp/tripod_core/octree_codec.hpp``: 7 causal
 child-level neighbours, 7 parent-level neighbours towards the octant, the octant, the level
-bucket, the density of the coded neighbourhood) to P(child occupied). The codec never runs the float network: the shipped weights are
+bucket, the density of the coded neighbourhood, whether the node has an occupied child yet) to
+P(child occupied). The codec never runs the float network: the shipped weights are
 integers (fixed point, ``FRAC_BITS`` fractional bits) and :func:`probability_table` evaluates
-them for all 2^21 contexts with integer arithmetic (float64 matmuls of integers below 2^53 are
+them for all 2^22 contexts with integer arithmetic (float64 matmuls of integers below 2^53 are
 exact, whatever the BLAS summation order), then maps the logit through a shipped integer sigmoid
 table. The encoder and the decoder therefore get bit-identical tables on every machine; the
 table's SHA-256 (the *model id*) is stored in each file and checked before decoding.
@@ -22,20 +23,20 @@ from pathlib import Path
 
 import numpy as np
 
-CONTEXT_BITS = 21
+CONTEXT_BITS = 22
 N_CONTEXTS = 1 << CONTEXT_BITS
-N_FEATURES = 7 + 7 + 8 + 4 + 4  # causal, parent bits; octant, level, density one-hots
+N_FEATURES = 7 + 7 + 8 + 4 + 4 + 1  # causal, parent bits; octant, level, density one-hots; any
 FRAC_BITS = 12  # fixed point of weights and activations
 LOGIT_STEPS_PER_UNIT = 64  # sigmoid table resolution: 1/64 of a logit unit
 LOGIT_RANGE = 16  # table covers logits in [-16, 16)
 P_MIN, P_MAX = 16, 65520  # probabilities are P(bit = 0) * 65536, clamped to this range
 
 WEIGHTS_DIR = Path(__file__).with_name("weights")
-DEFAULT_WEIGHTS = WEIGHTS_DIR / "octree_context_v2.npz"
+DEFAULT_WEIGHTS = WEIGHTS_DIR / "octree_context_v3.npz"
 
 
 def context_features(contexts: np.ndarray) -> np.ndarray:
-    """Binary features (N, N_FEATURES) uint8 of packed 21-bit contexts (N,) uint32."""
+    """Binary features (N, N_FEATURES) uint8 of packed 22-bit contexts (N,) uint32."""
     c = np.asarray(contexts, dtype=np.uint32)
     f = np.zeros((len(c), N_FEATURES), np.uint8)
     for k in range(14):
@@ -43,6 +44,7 @@ def context_features(contexts: np.ndarray) -> np.ndarray:
     f[np.arange(len(c)), 14 + ((c >> 14) & 7)] = 1
     f[np.arange(len(c)), 22 + ((c >> 17) & 3)] = 1
     f[np.arange(len(c)), 26 + ((c >> 19) & 3)] = 1
+    f[:, 30] = (c >> 21) & 1
     return f
 
 
@@ -84,7 +86,7 @@ class ContextModel:
         """Fixed-point logits (scale 2^FRAC_BITS) of P(bit = 1), int64, exact.
 
         The first layer of a binary input is a sum of weight rows; it is evaluated per context
-        field (7 causal bits, 7 parent bits, octant, level, density) from small per-field tables,
+        field (7 causal bits, 7 parent bits, octant, level, density, any) from small tables,
         which is exact in integers and much faster than the dense product.
         """
         w1, b1, w2, b2, w3, b3 = self.weights
@@ -100,16 +102,17 @@ class ContextModel:
         return z + b3[0]
 
     def _first_layer_tables(self) -> tuple[np.ndarray, np.ndarray]:
-        """Pre-activations of the first layer for the low 14 context bits and the high 7."""
+        """Pre-activations of the first layer for the low 14 context bits and the high 8."""
         w1, b1 = self.weights[0], self.weights[1]
         bits14 = ((np.arange(1 << 14)[:, None] >> np.arange(14)) & 1).astype(np.int64)
         low = bits14 @ w1[0:14] + b1
         hi = np.arange(1 << (CONTEXT_BITS - 14))
-        high = w1[14:22][hi & 7] + w1[22:26][(hi >> 3) & 3] + w1[26:30][(hi >> 5) & 3]
+        high = (w1[14:22][hi & 7] + w1[22:26][(hi >> 3) & 3] + w1[26:30][(hi >> 5) & 3]
+                + w1[30][None, :] * ((hi >> 7) & 1)[:, None])
         return low, high
 
     def table(self) -> np.ndarray:
-        """P(bit = 0) * 65536 for every context, (2^21,) uint16."""
+        """P(bit = 0) * 65536 for every context, (2^22,) uint16."""
         out = np.empty(N_CONTEXTS, np.uint16)
         chunk = 1 << 18
         n_lut = len(self.lut)
@@ -125,7 +128,7 @@ class ContextModel:
 class ProbabilityTable:
     """The codec's probability table and its id (first 16 hex digits of its SHA-256)."""
 
-    p0: np.ndarray  # (2^21,) uint16
+    p0: np.ndarray  # (2^22,) uint16
     model_id: str
 
 

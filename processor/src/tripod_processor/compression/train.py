@@ -4,7 +4,7 @@
 Steps: 1. make training clouds: fragments of the digital twin (``tripod simulate``, one station
 per capture, scenes cycling through room/office/corridor/two_rooms/hall, seeds from the training
 seed), or PLY/PCD files given, or the quick synthetic rooms of :mod:`.synthetic`; 2. quantise each at the voxel
-sizes of Draco's 8..13-bit range and count, per 21-bit context, how often the coded bit was 0 or
+sizes of Draco's 8..13-bit range and count, per 22-bit context, how often the coded bit was 0 or
 1; 3. fit the MLP to those counts (count-weighted binary cross-entropy, full batch, CPU, fixed
 seed, single thread for reproducibility); 4. quantise to fixed point and save.
 The whole run takes a few minutes on 2 cores.
@@ -28,7 +28,7 @@ HIDDEN = 32
 
 def count_contexts(clouds: Iterable[np.ndarray], quant_bits=(8, 9, 10, 11, 12),
                    log: Callable[[str], None] = print) -> np.ndarray:
-    """(2^21, 2) int64 counts of coded bits 0 / 1 per context over all clouds and voxel sizes."""
+    """(2^22, 2) int64 counts of coded bits 0 / 1 per context over all clouds and voxel sizes."""
     from .. import _ext
     from .codec import grid_for
 
@@ -86,6 +86,18 @@ def table_bits(counts: np.ndarray, p0_table: np.ndarray) -> float:
     return float(-(counts[:, 0] * np.log2(p0) + counts[:, 1] * np.log2(1 - p0)).sum())
 
 
+def _git_commit() -> str | None:
+    """The repository commit the training ran on (the simulator's version matters), if known."""
+    import subprocess
+
+    try:
+        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent,
+                              capture_output=True, text=True, timeout=5,
+                              check=True).stdout.strip() or None
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
 def train(out: Path, clouds: list[Path] | None = None, n_fragments: int = DEFAULT_FRAGMENTS,
           seed: int = DEFAULT_SEED, epochs: int = 400, source_kind: str = "sim",
           log: Callable[[str], None] = print) -> ContextModel:
@@ -119,7 +131,7 @@ def train(out: Path, clouds: list[Path] | None = None, n_fragments: int = DEFAUL
     log("2. fitting the context MLP")
     weights = fit(counts, seed=seed, epochs=epochs, log=log)
     meta = {"seed": seed, "epochs": epochs, "hidden": HIDDEN, "context_bits": CONTEXT_BITS,
-            "training_data": source, "coded_bits": int(counts.sum()),
+            "training_data": source, "coded_bits": int(counts.sum()), "git_commit": _git_commit(),
             "command": f"tripod train-compressor --seed {seed} --fragments {n_fragments} "
                        f"--epochs {epochs} --source {source_kind}"}
     model = ContextModel.from_float(weights, meta)
