@@ -43,8 +43,9 @@ def noisy(tmp_path_factory):
 def test_output_files(clean):
     for name in ("capture.pcap", "imu.tripimu", "labels.npz", "mesh.ply", "meta.json",
                  "config.yaml", "gt/trajectory.tum", "gt/stations.tum", "gt/stations.csv",
-                 "gt/calibration.json", "gt/clocks.json", "gt/imu_truth.csv"):
+                 "gt/calibration.json", "gt/clocks.json", "gt/imu_truth.csv", "overview.png"):
         assert (clean / name).is_file(), name
+    assert (clean / "overview.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     meta = json.loads((clean / "meta.json").read_text())
     assert meta["config"]["lidar"]["range_noise_m"] == 0.0
     assert meta["derived"]["data_packets"] > 0
@@ -94,6 +95,15 @@ def test_noise_free_points_land_on_mesh(clean):
     assert f.dist_p99_m <= 0.01
     assert f.label_joined == 1.0
     assert f.label_agreement > 0.995
+
+
+def test_nominal_geometry_without_vertical_offsets(tmp_path):
+    """vertical_offsets=False: every laser at the origin, decoded with the nominal calibration
+    (VeloView's geometry) the points land on the mesh just as well."""
+    cap = make_capture(tmp_path, "nominal", stations=1, lidar={
+        "range_noise_m": 0.0, "dropout": 0.0, "vertical_offsets": False})
+    f = fidelity.geometry_check(cap, max_packets=1500)
+    assert f.dist_median_m <= 0.002 and f.dist_p99_m <= 0.01
 
 
 def test_noise_spread_matches_sigma(noisy):
@@ -184,3 +194,120 @@ def test_imu_log_errors(tmp_path, noisy):
     r = ImuLogReader(cut)
     recs = list(r)
     assert r.truncated and len(recs) == len(list(ImuLogReader(noisy / "imu.tripimu"))) - 1
+
+
+def test_hour_rollover_of_the_lidar_clock(tmp_path):
+    """The lidar's us-past-the-hour stamp wraps inside this capture: decode, placement and the
+    label join must not notice."""
+    start = 1_767_268_800 * 10**9 - 3 * 10**9  # lidar clock crosses the hour ~2.2 s in
+    cap = make_capture(tmp_path, "wrap", stations=1, start_unix_ns=start,
+                       lidar={"range_noise_m": 0.0, "dropout": 0.0})
+    toh = np.load(cap / "labels.npz")["packet_toh_us"]
+    assert toh.max() > 3599 * 10**6 and toh.min() < 10**6  # it does wrap
+    r = fidelity.packet_check(cap)
+    assert r["toh_step_us"] == [1327, 1328]
+    f = fidelity.geometry_check(cap)
+    assert f.dist_median_m <= 0.002 and f.label_joined == 1.0 and f.label_agreement > 0.995
+
+
+def test_labeled_points_for_segmentation(clean):
+    xyz, lab, pts = fidelity.labeled_points(clean, max_packets=500)
+    assert xyz.shape == (len(lab), 3) and len(lab) > 10_000 and np.all(lab < 4)
+    from tripod_processor.sim.scenes import CEILING, FLOOR
+    meta, _ = fidelity.load_meta(clean)
+    height = meta["scene"]["params"]["height_m"]
+    assert np.median(xyz[lab == FLOOR, 2]) == pytest.approx(0.0, abs=0.005)
+    assert np.median(xyz[lab == CEILING, 2]) == pytest.approx(height, abs=0.005)
+
+
+def test_lookup_labels_with_lidar_clock_ns(clean):
+    """The join works from int64 lidar-clock nanoseconds and firing-order laser ids (the fields
+    tripod decode gives), and refuses times outside every packet."""
+    pts = fidelity.decode_capture(clean, max_packets=300)
+    meta, cfg = fidelity.load_meta(clean)
+    lidar_ns = pts.host_ns + cfg.lidar.clock_offset_ns
+    laser = fidelity._LASER_OF_RING[pts.ring]
+    a = fidelity.lookup_labels(lidar_ns, laser, pts.return_type, clean / "labels.npz")
+    b = fidelity.join_labels(pts, clean / "labels.npz")
+    assert np.array_equal(a, b) and np.all(a < 4)
+    off = fidelity.lookup_labels(lidar_ns - 10**9, laser, pts.return_type, clean / "labels.npz")
+    assert np.all(off == 255)
+
+
+def test_mcap_recording_as_the_daemon_records(tmp_path):
+    from tripod_shared.recording import RecordingReader
+
+    cap = make_capture(tmp_path, "mcap", stations=1, mcap=True)
+    r = RecordingReader(cap / "recording.mcap")
+    lidar = list(r.lidar_packets())
+    want = [(d.t_ns, d.payload) for d in PcapReader(cap / "capture.pcap")
+            if d.dst_port == v.DATA_PORT]
+    assert lidar == want
+    pos = list(r.position_packets())
+    assert len(pos) == sum(1 for d in PcapReader(cap / "capture.pcap")
+                           if d.dst_port == v.POSITION_PORT)
+    imu = list(r.imu_samples())
+    recs = list(ImuLogReader(cap / "imu.tripimu"))
+    assert [s.raw for s in imu] == [x.data for x in recs]
+    assert [s.host_ns for s in imu] == [x.host_ns for x in recs]
+    assert imu[0].driver == "tfp" and abs(np.linalg.norm(imu[0].q_world_imu) - 1) < 1e-9
+    assert [e.kind for e in r.events()] == ["start", "stop"]
+    assert not r.report.truncated
+
+
+def test_cli_simulate(tmp_path):
+    import subprocess
+    import sys
+
+    import yaml
+
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(yaml.safe_dump({"scene": "corridor", "stations": 1,
+                                   "motion": {"pan_s": 1.0, "settle_s": 0.1}}))
+    env = {"COLUMNS": "120", "PATH": "/usr/bin:/bin"}
+    run = [sys.executable, "-m", "tripod_processor", "simulate"]
+    r = subprocess.run(run + ["-o", str(tmp_path / "out"), "--config", str(cfg), "--seed", "4",
+                              "--return-mode", "last"], capture_output=True, text=True,
+                       timeout=120, env=env)
+    assert r.returncode == 0, r.stderr
+    assert "data packets" in r.stdout + r.stderr
+    meta = json.loads((tmp_path / "out/meta.json").read_text())
+    assert meta["config"]["scene"] == "corridor" and meta["config"]["seed"] == 4
+    assert meta["config"]["lidar"]["return_mode"] == "last"
+    for bad in (["--scene", "castle"], ["--rpm", "5000"], ["--config", str(tmp_path / "no.yaml")]):
+        r = subprocess.run(run + ["-o", str(tmp_path / "bad")] + bad, capture_output=True,
+                           text=True, timeout=120, env=env)
+        assert r.returncode == 2 and r.stderr.startswith("tripod: error:"), bad
+        assert r.stderr.count("\n") == 1, r.stderr
+
+
+def test_mixed_pixels_put_points_between_surfaces(tmp_path):
+    base = {"range_noise_m": 0.0, "dropout": 0.0}
+    plain = make_capture(tmp_path, "plain", stations=1, scene="office", seed=2, lidar=base)
+    mixed = make_capture(tmp_path, "mixed", stations=1, scene="office", seed=2,
+                         lidar={**base, "mixed_pixels": True})
+    a = fidelity.geometry_check(plain, max_packets=2000)
+    b = fidelity.geometry_check(mixed, max_packets=2000)
+    assert b.dist_median_m <= 0.002
+    assert b.off_mesh_frac > 2 * a.off_mesh_frac and b.off_mesh_frac > 0.001
+
+
+def test_tripod_legs_are_seen_on_their_surface(tmp_path):
+    cap = make_capture(tmp_path, "legs", stations=1, seed=2, motion={"tripod_legs": True},
+                       lidar={"range_noise_m": 0.0, "dropout": 0.0})
+    meta, cfg = fidelity.load_meta(cap)
+    xyz, lab, pts = fidelity.labeled_points(cap)
+    _, traj = build_rig(cfg)
+    tops, feet = traj.legs_world((pts.host_ns - cfg.start_unix_ns) * 1e-9)
+    u = feet - tops
+    length = np.linalg.norm(u, axis=2)
+    u /= length[..., None]
+    m = xyz[:, None, :] - tops
+    s = np.clip((m * u).sum(-1), 0, length)
+    axis_dist = np.linalg.norm(m - s[..., None] * u, axis=2).min(axis=1)
+    on_leg = axis_dist < cfg.motion.leg_radius_m + 0.003
+    assert on_leg.sum() > 10  # looking down, the lidar sees its own legs ...
+    leg_pts = on_leg & (lab == 3)
+    assert np.abs(axis_dist[leg_pts] - cfg.motion.leg_radius_m).max() < 0.003  # ... on the tube
+    f = fidelity.geometry_check(cap)
+    assert f.dist_median_m <= 0.002

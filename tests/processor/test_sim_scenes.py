@@ -37,7 +37,8 @@ def test_scene_is_closed_classified_and_route_is_free(name):
     rays = np.c_[np.repeat(o, 500, axis=0), d].astype(np.float32)
     t = rc.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
     assert np.isfinite(t).all()
-    # ... and the route keeps clear of everything by 0.3 m at heights 0.5 .. 1.7 m (the head; door lintels are at 2.05 m)
+    # ... and the route keeps clear of everything by 0.3 m at heights 0.5 .. 1.7 m (the head;
+    # door lintels are at 2.05 m)
     for z in (0.5, 1.0, 1.5, 1.7):
         q = np.c_[pts, np.full(len(pts), z)].astype(np.float32)
         assert rc.compute_distance(o3d.core.Tensor(q)).numpy().min() > 0.3, (name, z)
@@ -83,9 +84,11 @@ def test_trajectory_stations_pans_and_transits():
     n = 5
     traj = Trajectory(scene.route, scene.closed_route, n, cfg, np.random.default_rng(1))
     assert np.all(traj.transit_s >= cfg.transit_s)
-    assert traj.duration_s == pytest.approx(n * (2 * cfg.settle_s + cfg.pan_s) + traj.transit_s.sum())
+    dwell = 2 * cfg.settle_s + cfg.pan_s
+    assert traj.duration_s == pytest.approx(n * dwell + traj.transit_s.sum())
     for st in traj.stations:
-        t = np.linspace(st.t_pan_start_s - cfg.settle_s + 1e-6, st.t_pan_end_s + cfg.settle_s - 1e-6, 50)
+        t = np.linspace(st.t_pan_start_s - cfg.settle_s + 1e-6,
+                        st.t_pan_end_s + cfg.settle_s - 1e-6, 50)
         R, p = traj.T_world_base(t)
         assert np.ptp(p, axis=0).max() < 1e-9  # the tripod stands still during its station
         _, _, _, _, phi = traj.base_state(np.array([st.t_pan_start_s, st.t_pan_end_s]))
@@ -101,3 +104,37 @@ def test_trajectory_stations_pans_and_transits():
     assert speed.max() < 2.5  # walking pace (offset from the route's centre line in corners)
     walks = np.abs(np.diff([st.arc_m for st in traj.stations]))
     assert np.all(walks / traj.transit_s <= cfg.max_carry_speed_m_s / 1.875 + 1e-9)
+
+
+def test_scene_file_with_route_and_raised_floor(tmp_path):
+    """A foreign mesh whose floor is not at z = 0, with a blocked default route, then a free one."""
+    from tripod_processor.sim import SimConfig, simulate
+    from tripod_processor.sim.fidelity import geometry_check
+
+    room = o3d.geometry.TriangleMesh.create_box(8.0, 6.0, 2.8)
+    room.translate((10.0, -3.0, 5.0))
+    pillar = o3d.geometry.TriangleMesh.create_box(6.0, 0.4, 2.8)  # a wall across the loop
+    pillar.translate((11.0, -0.2 - 1.2, 5.0))
+    path = tmp_path / "building.ply"
+    o3d.io.write_triangle_mesh(str(path), room + pillar)
+    scene = load_scene_file(path)
+    assert scene.floor_z == pytest.approx(5.0)
+    motion = {"pan_s": 1.5, "settle_s": 0.1, "transit_s": 1.0}
+    with pytest.raises(ValueError, match="route passes"):
+        simulate(SimConfig(scene_file=str(path), stations=2, motion=motion), tmp_path / "x")
+    cfg = SimConfig(scene_file=str(path), stations=2, motion=motion, route_closed=False,
+                    route_xy=[(11.5, 1.5), (16.0, 1.5)], lidar={"range_noise_m": 0.0})
+    simulate(cfg, tmp_path / "ok", nthreads=2)
+    st = np.loadtxt(tmp_path / "ok/gt/stations.csv", delimiter=",", skiprows=1)
+    assert np.all((st[:, 5] > 5.0 + 1.29) & (st[:, 5] < 5.0 + 1.61))  # heights above the floor
+    f = geometry_check(tmp_path / "ok")
+    assert f.dist_median_m <= 0.002
+
+
+@pytest.mark.parametrize("name", SCENE_NAMES)
+def test_every_seed_gives_a_free_route(name):
+    from tripod_processor.sim.scenes import check_route
+
+    for seed in range(20):
+        scene = make_scene(name, seed)
+        check_route(scene, scene.route, scene.closed_route)
