@@ -99,11 +99,12 @@ def test_table_disk_cache_is_verified(tmp_path, monkeypatch):
     assert np.array_equal(first.p0, reference.p0) and np.array_equal(again.p0, reference.p0)
 
 
-@pytest.mark.parametrize("adapt_shift", [0, 3, 5])
-def test_adaptation_modes_round_trip(fragment, adapt_shift):
-    data, info = encode(fragment[:20000], 0.01, adapt_shift=adapt_shift)
+@pytest.mark.parametrize("adapt_shift,adapt_prior", [(0, 0), (4, 0), (7, 8), (6, 1)])
+def test_adaptation_modes_round_trip(fragment, adapt_shift, adapt_prior):
+    data, info = encode(fragment[:20000], 0.01, adapt_shift=adapt_shift, adapt_prior=adapt_prior)
     out, header = decode(data)
-    assert header["adapt_shift"] == adapt_shift and len(out) == info.n_voxels
+    assert header["adapt_shift"] == adapt_shift and header["adapt_prior"] == adapt_prior
+    assert len(out) == info.n_voxels
 
 
 def test_edge_clouds():

@@ -207,15 +207,47 @@ inline uint32_t level_bits(int depth, int level) {
     return static_cast<uint32_t>(std::min(depth - 1 - level, 3)) << 17;
 }
 
-inline void adapt(uint16_t& p0, int bit, int shift) {
-    int p = p0;
-    if (bit) {
-        p -= p >> shift;
-    } else {
-        p += (65536 - p) >> shift;
+/// Per-context probabilities: the learned prior, adapted towards the coded bits with integer
+/// updates that the decoder repeats exactly. prior == 0: fixed rate 1/2^shift; prior > 0: rate
+/// 1/(n + prior) after n updates of the context (a count-based estimate that starts at the
+/// learned value, worth `prior` observations), never below 1/2^shift; shift <= 0: static.
+class ContextStates {
+public:
+    ContextStates(const uint16_t* table, int shift, int prior)
+        : p0_(table, table + kOctreeContexts), shift_(shift), prior_(prior) {
+        if (shift_ > 0 && prior_ > 0) {
+            n_.assign(kOctreeContexts, 0);
+            for (uint32_t n = 0; n < 256; ++n)
+                rate_[n] = std::max<uint32_t>(65536u / (n + static_cast<uint32_t>(prior_)),
+                                              65536u >> std::min(shift_, 16));
+        }
     }
-    p0 = static_cast<uint16_t>(std::clamp(p, 32, 65504));
-}
+
+    inline uint32_t p0(uint32_t ctx) const { return p0_[ctx]; }
+
+    inline void update(uint32_t ctx, int bit) {
+        if (shift_ <= 0) return;
+        int p = p0_[ctx];
+        if (prior_ > 0) {
+            uint8_t& n = n_[ctx];
+            const int64_t step = static_cast<int64_t>((bit ? 0 : 65536) - p) * rate_[n];
+            p += static_cast<int>(step >= 0 ? step >> 16 : -((-step) >> 16));
+            if (n < 255) ++n;
+        } else if (bit) {
+            p -= p >> shift_;
+        } else {
+            p += (65536 - p) >> shift_;
+        }
+        p0_[ctx] = static_cast<uint16_t>(std::clamp(p, 32, 65504));
+    }
+
+private:
+    std::vector<uint16_t> p0_;
+    std::vector<uint8_t> n_;
+    uint32_t rate_[256] = {};
+    int shift_;
+    int prior_;
+};
 
 void check_depth(int depth) {
     if (depth < 1 || depth > kOctreeMaxDepth)
@@ -363,31 +395,27 @@ void octree_contexts(const std::vector<uint64_t>& codes, int depth,
 }
 
 std::vector<uint8_t> octree_encode(const std::vector<uint64_t>& codes, int depth,
-                                   const uint16_t* p0_table, int adapt_shift) {
+                                   const uint16_t* p0_table, int adapt_shift, int adapt_prior) {
     std::vector<uint8_t> out;
     out.reserve(codes.size() / 2 + 16);
-    std::vector<uint16_t> p0(p0_table, p0_table + kOctreeContexts);
+    ContextStates states(p0_table, adapt_shift, adapt_prior);
     RangeEncoder enc(out);
-    if (adapt_shift > 0) {
-        walk_encoder(codes, depth, [&](uint32_t ctx, int bit) {
-            enc.encode(p0[ctx], bit);
-            adapt(p0[ctx], bit, adapt_shift);
-        });
-    } else {
-        walk_encoder(codes, depth, [&](uint32_t ctx, int bit) { enc.encode(p0[ctx], bit); });
-    }
+    walk_encoder(codes, depth, [&](uint32_t ctx, int bit) {
+        enc.encode(states.p0(ctx), bit);
+        states.update(ctx, bit);
+    });
     enc.finish();
     return out;
 }
 
 std::vector<uint64_t> octree_decode(const uint8_t* data, size_t size, int depth,
                                     uint64_t n_voxels, const uint16_t* p0_table,
-                                    int adapt_shift) {
+                                    int adapt_shift, int adapt_prior) {
     check_depth(depth);
     std::vector<uint64_t> cur;
     if (n_voxels == 0) return cur;
     const int num_threads = omp_get_max_threads();
-    std::vector<uint16_t> p0(p0_table, p0_table + kOctreeContexts);
+    ContextStates states(p0_table, adapt_shift, adapt_prior);
     RangeDecoder dec(data, size);
     std::vector<uint64_t> next;
     std::vector<uint8_t> cb;
@@ -410,8 +438,8 @@ std::vector<uint64_t> octree_decode(const uint8_t* data, size_t size, int depth,
                     bit = 1;
                 } else {
                     const uint32_t ctx = child_context(nc, c, partial);
-                    bit = dec.decode(p0[ctx]);
-                    if (adapt_shift > 0) adapt(p0[ctx], bit, adapt_shift);
+                    bit = dec.decode(states.p0(ctx));
+                    states.update(ctx, bit);
                 }
                 partial |= static_cast<uint32_t>(bit) << c;
             }

@@ -54,10 +54,12 @@ void octree_contexts(const std::vector<uint64_t>& codes, int depth, std::vector<
 /// Encode the octree of sorted unique Morton codes.
 /// @param p0_table    kOctreeContexts probabilities P(bit = 0) * 65536, each in [1, 65535]
 /// @param adapt_shift 0: static table; s > 0: each context's probability moves towards every
-///                    coded bit by 1/2^s (an integer update the decoder repeats exactly)
+///                    coded bit (an integer update the decoder repeats exactly) by 1/2^s, or
+/// @param adapt_prior if > 0: by 1/(n + adapt_prior) after n updates of that context, at least
+///                    1/2^s (the learned probability counts as adapt_prior observations)
 /// @return the range-coded stream
 std::vector<uint8_t> octree_encode(const std::vector<uint64_t>& codes, int depth,
-                                   const uint16_t* p0_table, int adapt_shift);
+                                   const uint16_t* p0_table, int adapt_shift, int adapt_prior = 0);
 
 /// Decode a stream of octree_encode back to the sorted Morton codes.
 /// @param n_voxels  number of voxels the encoder coded (from the container); a stream that
@@ -65,6 +67,6 @@ std::vector<uint8_t> octree_encode(const std::vector<uint64_t>& codes, int depth
 ///                  std::runtime_error
 std::vector<uint64_t> octree_decode(const uint8_t* data, size_t size, int depth,
                                     uint64_t n_voxels, const uint16_t* p0_table,
-                                    int adapt_shift);
+                                    int adapt_shift, int adapt_prior = 0);
 
 }  // namespace tripod

@@ -87,22 +87,24 @@ TRIPOD_BINDING(compression) {
 
     m.def(
         "octree_encode",
-        [](CodesIn codes, int depth, TableIn p0_table, int adapt_shift) {
+        [](CodesIn codes, int depth, TableIn p0_table, int adapt_shift, int adapt_prior) {
             std::vector<uint64_t> c = to_codes(codes);
             const uint16_t* table = check_table(p0_table);
             std::vector<uint8_t> out;
             {
                 nb::gil_scoped_release release;
-                out = tripod::octree_encode(c, depth, table, adapt_shift);
+                out = tripod::octree_encode(c, depth, table, adapt_shift, adapt_prior);
             }
             return nb::bytes(reinterpret_cast<const char*>(out.data()), out.size());
         },
         nb::arg("codes"), nb::arg("depth"), nb::arg("p0_table"), nb::arg("adapt_shift"),
+        nb::arg("adapt_prior") = 0,
         "Range-code the octree of sorted unique Morton codes; returns the stream (bytes).");
 
     m.def(
         "octree_decode",
-        [](nb::bytes data, int depth, uint64_t n_voxels, TableIn p0_table, int adapt_shift) {
+        [](nb::bytes data, int depth, uint64_t n_voxels, TableIn p0_table, int adapt_shift,
+           int adapt_prior) {
             const uint16_t* table = check_table(p0_table);
             std::vector<uint8_t> in(static_cast<const uint8_t*>(data.data()),
                                     static_cast<const uint8_t*>(data.data()) + data.size());
@@ -110,11 +112,11 @@ TRIPOD_BINDING(compression) {
             {
                 nb::gil_scoped_release release;
                 codes = tripod::octree_decode(in.data(), in.size(), depth, n_voxels, table,
-                                              adapt_shift);
+                                              adapt_shift, adapt_prior);
             }
             return vector_to_numpy(std::move(codes));
         },
         nb::arg("data"), nb::arg("depth"), nb::arg("n_voxels"), nb::arg("p0_table"),
-        nb::arg("adapt_shift"),
+        nb::arg("adapt_shift"), nb::arg("adapt_prior") = 0,
         "Decode an octree stream to sorted Morton codes (uint64); RuntimeError if corrupt.");
 }
