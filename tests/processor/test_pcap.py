@@ -39,3 +39,32 @@ def test_not_a_pcap(tmp_path, content):
     p.write_bytes(content)
     with pytest.raises(PcapFormatError):
         PcapReader(p)
+
+
+@pytest.mark.parametrize("name", ["veloview-vlp16-20hz.pcap", "mrpt-vlp16-gps.pcap",
+                                  "scanparser-vlp16-gaps.pcap", "mrpt-hdl32e.pcap"])
+def test_payloads_fast_path_matches_iteration(velodyne_dir, name):
+    r = PcapReader(velodyne_dir / name)
+    slow = [(d.t_ns, d.dst_port, d.payload) for d in r]
+    slow_stats = (r.stats.records, r.stats.udp, dict(r.stats.skipped), r.stats.truncated)
+    fast = list(r.payloads())
+    assert fast == slow and len(fast) > 0
+    assert (r.stats.records, r.stats.udp, dict(r.stats.skipped), r.stats.truncated) == slow_stats
+
+
+def test_payloads_fast_path_on_cut_and_corrupt_files(tmp_path):
+    p = tmp_path / "w.pcap"
+    with PcapWriter(p) as w:
+        for i in range(3000):  # > 1 MiB: crosses the reader's block boundary
+            w.write_udp(1_000 + i, bytes([i % 256]) * 1206, 2368, 2368)
+    data = p.read_bytes()
+    r = PcapReader(p)
+    assert [len(x[2]) for x in r.payloads()] == [1206] * 3000 and not r.stats.truncated
+    cut = tmp_path / "cut.pcap"
+    cut.write_bytes(data[:-500])
+    r = PcapReader(cut)
+    assert len(list(r.payloads())) == 2999 and r.stats.truncated
+    bad = tmp_path / "bad.pcap"
+    bad.write_bytes(data[:24] + b"\x00" * 8 + b"\xff\xff\xff\x7f" * 2 + data[40:])
+    with pytest.raises(PcapFormatError, match="corrupt"):
+        list(PcapReader(bad).payloads())

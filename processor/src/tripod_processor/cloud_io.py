@@ -177,21 +177,27 @@ def write_ply(path: str | os.PathLike, cloud: np.ndarray, comments: list[str] | 
     cols = []
     for name in cloud.dtype.names:
         base = cloud.dtype[name].base
+        if base.shape or base.kind not in "iuf":
+            raise ValueError(f"field {name!r} of dtype {base} cannot be written to PLY")
         key = base.kind + str(base.itemsize)
         ply_t = _NP_TO_PLY.get(key)
         if ply_t is None:
             raise ValueError(f"field {name!r} of dtype {base} cannot be written to PLY")
         props.append(f"property {ply_t} {name}")
         cols.append((name, "<" + _PLY_TYPES[ply_t]))
-    out = np.empty(len(cloud), dtype=cols)
-    for name, _ in cols:
-        out[name] = cloud[name]
+    if np.dtype(cols) == cloud.dtype:
+        out = cloud  # already the packed little-endian body: written as is, no field copies
+    else:
+        out = np.empty(len(cloud), dtype=cols)
+        for name, _ in cols:
+            out[name] = cloud[name]
     header = ["ply", "format binary_little_endian 1.0"]
     header += [f"comment {c}" for c in (comments or [])]
     header += [f"element vertex {len(cloud)}", *props, "end_header"]
     with open(path, "wb") as fh:
         fh.write(("\n".join(header) + "\n").encode("ascii"))
-        fh.write(out.tobytes())
+        # a contiguous array is written from its own memory (no copy of the body)
+        fh.write(out.data if out.flags.c_contiguous else out.tobytes())
 
 
 # ---------------------------------------------------------------------------------------------

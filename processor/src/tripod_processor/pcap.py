@@ -16,6 +16,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import BinaryIO
 
+import numpy as np
+
 PCAP_MAGIC_US = 0xA1B2C3D4
 PCAP_MAGIC_NS = 0xA1B23C4D
 PCAPNG_SHB = 0x0A0D0D0A
@@ -157,7 +159,8 @@ def _iter_pcap(fh: BinaryIO, head: bytes, stats: PcapStats) -> Iterator[UdpDatag
             return
         sec, frac, incl, _orig = rec.unpack(h)
         if incl > 262144 * 4:
-            raise PcapFormatError(f"pcap record {stats.records} claims {incl} bytes: file is corrupt")
+            raise PcapFormatError(
+                f"pcap record {stats.records} claims {incl} bytes: file is corrupt")
         data = _read_exact(fh, incl)
         if len(data) < incl:
             stats.truncated = True
@@ -242,6 +245,148 @@ def _iter_pcapng(fh: BinaryIO, head: bytes, stats: PcapStats) -> Iterator[UdpDat
                 yield d
 
 
+_REC_LE = struct.Struct("<IIII")
+_REC_BE = struct.Struct(">IIII")
+_BUF_SIZE = 1 << 20
+
+
+def _iter_pcap_payloads(fh: BinaryIO, head: bytes, stats: PcapStats
+                        ) -> Iterator[tuple[int, int, bytes]]:
+    """Fast path of :func:`_iter_pcap`: ``(t_ns, dst_port, payload)``, no address strings.
+
+    Reads the file in 1 MiB blocks and slices records out of them; plain Ethernet/IPv4/UDP
+    frames (every Velodyne capture) are parsed inline, anything else goes through
+    :func:`_parse_frame`, so the results are the same as :class:`PcapReader` iteration.
+    """
+    e = "<" if struct.unpack_from("<I", head)[0] in (PCAP_MAGIC_US, PCAP_MAGIC_NS) else ">"
+    magic = struct.unpack_from(e + "I", head)[0]
+    scale = 1 if magic == PCAP_MAGIC_NS else 1000
+    rest = fh.read(20)
+    if len(rest) < 20:
+        raise PcapFormatError("pcap global header is truncated")
+    linktype = struct.unpack_from(e + "I", rest, 16)[0] & 0x0FFFFFFF
+    stats.format = "pcap"
+    rec_unpack = (_REC_LE if e == "<" else _REC_BE).unpack_from
+    u16 = struct.Struct(">H").unpack_from
+    buf = b""
+    pos = 0
+    eof = False
+    while True:
+        avail = len(buf) - pos
+        if avail >= 16:
+            sec, frac, incl, _orig = rec_unpack(buf, pos)
+            if incl > 262144 * 4:
+                raise PcapFormatError(
+                    f"pcap record {stats.records} claims {incl} bytes: file is corrupt")
+        if avail < 16 or avail < 16 + incl:
+            if eof:
+                if avail:
+                    stats.truncated = True
+                return
+            chunk = fh.read(_BUF_SIZE)
+            eof = len(chunk) < _BUF_SIZE
+            buf = buf[pos:] + chunk
+            pos = 0
+            continue
+        start = pos + 16
+        pos = start + incl
+        stats.records += 1
+        t_ns = sec * 1_000_000_000 + frac * scale
+        # inline Ethernet + IPv4 (no options, not fragmented) + UDP
+        if (linktype == LINKTYPE_ETHERNET and incl >= 42 and buf[start + 12] == 8
+                and buf[start + 13] == 0 and buf[start + 14] == 0x45 and buf[start + 23] == 17
+                and not (u16(buf, start + 20)[0] & 0x3FFF)):
+            ulen = u16(buf, start + 38)[0]
+            end = start + 34 + ulen if ulen >= 8 else start + 14 + u16(buf, start + 16)[0]
+            if end <= pos:
+                stats.udp += 1
+                yield t_ns, u16(buf, start + 36)[0], buf[start + 42 : end]
+                continue
+        d = _parse_frame(linktype, buf[start:pos], stats, t_ns)
+        if d is not None:
+            yield d.t_ns, d.dst_port, d.payload
+
+
+_MAX_RECORD_BYTES = 262144 * 4
+
+
+@dataclass
+class PayloadBatch:
+    """The UDP payloads of consecutive records: those of ``data_size`` bytes as one array.
+
+    Attributes
+    ----------
+    data : np.ndarray, shape (n, data_size), uint8
+        Payloads of the given size, in file order.
+    data_t_ns : np.ndarray, shape (n,), int64
+        Their capture times [ns] (host_realtime of the capturer).
+    data_port : np.ndarray, shape (n,), uint16
+        Their UDP destination ports.
+    others : list of (t_ns, dst_port, payload)
+        Every other UDP payload of the same records.
+    """
+
+    data: np.ndarray
+    data_t_ns: np.ndarray
+    data_port: np.ndarray
+    others: list[tuple[int, int, bytes]]
+
+
+def _iter_pcap_batches(fh: BinaryIO, head: bytes, stats: PcapStats, data_size: int
+                       ) -> Iterator[PayloadBatch]:
+    """Batch path of :func:`_iter_pcap_payloads`: 1 MiB of records at a time, scanned in C++
+    (``tripod_core/pcap_scan``: the same plain Ethernet/IPv4/UDP rules), data payloads copied
+    out into one array; records off the plain path go through :func:`_parse_frame`."""
+    from . import _ext
+
+    e = "<" if struct.unpack_from("<I", head)[0] in (PCAP_MAGIC_US, PCAP_MAGIC_NS) else ">"
+    magic = struct.unpack_from(e + "I", head)[0]
+    rest = fh.read(20)
+    if len(rest) < 20:
+        raise PcapFormatError("pcap global header is truncated")
+    linktype = struct.unpack_from(e + "I", rest, 16)[0] & 0x0FFFFFFF
+    stats.format = "pcap"
+    buf = b""
+    eof = False
+    while True:
+        if not eof:
+            chunk = fh.read(_BUF_SIZE)
+            eof = len(chunk) < _BUF_SIZE
+            buf = buf + chunk if buf else chunk
+        (consumed, records, oversize, data, data_t_ns, data_port, data_rec, other,
+         slow) = _ext._scan_pcap_records(np.frombuffer(buf, np.uint8), e == ">",
+                                         magic == PCAP_MAGIC_NS, linktype, data_size,
+                                         _MAX_RECORD_BYTES)
+        stats.udp += len(data_t_ns) + len(other)
+        others = [(t, port, buf[off : off + n]) for t, off, n, port in other.tolist()]
+        slow_data = []  # data payloads of records off the plain path: put in file order
+        for t, off, n, rec in slow.tolist():
+            d = _parse_frame(linktype, buf[off : off + n], stats, t)
+            if d is None:
+                continue
+            if len(d.payload) == data_size:
+                slow_data.append((rec, d))
+            else:
+                others.append((d.t_ns, d.dst_port, d.payload))
+        if slow_data:
+            at = np.searchsorted(data_rec, [rec for rec, _ in slow_data])
+            data = np.insert(data, at, np.frombuffer(b"".join(d.payload for _, d in slow_data),
+                                                    np.uint8).reshape(-1, data_size), axis=0)
+            data_t_ns = np.insert(data_t_ns, at, [d.t_ns for _, d in slow_data])
+            data_port = np.insert(data_port, at, [d.dst_port for _, d in slow_data])
+        stats.records += records
+        if records:
+            yield PayloadBatch(data, data_t_ns, data_port, others)
+        if oversize:
+            raise PcapFormatError(
+                f"pcap record {stats.records} claims {oversize} bytes: file is corrupt")
+        buf = buf[consumed:]
+        if eof and (not records or not buf):
+            if buf:
+                stats.truncated = True
+            return
+
+
 def sniff_format(path: str | os.PathLike) -> str:
     """'pcap', 'pcapng' or '' from the first bytes of a file."""
     with open(path, "rb") as fh:
@@ -285,6 +430,56 @@ class PcapReader:
                 yield from _iter_pcap(fh, head, self.stats)
             else:
                 yield from _iter_pcapng(fh, head, self.stats)
+
+
+    def payloads(self) -> Iterator[tuple[int, int, bytes]]:
+        """``(t_ns, dst_port, payload)`` of every UDP datagram, in file order.
+
+        The same datagrams as iterating the reader, without building address strings: the
+        decoder's hot path (a few times faster per record on classic pcap).
+        """
+        self.stats = PcapStats()
+        with open(self.path, "rb") as fh:
+            if self.format == "pcap":
+                yield from _iter_pcap_payloads(fh, fh.read(4), self.stats)
+            else:
+                for d in _iter_pcapng(fh, fh.read(8), self.stats):
+                    yield d.t_ns, d.dst_port, d.payload
+
+    def payload_batches(self, data_size: int = 1206, batch_records: int = 1024
+                        ) -> Iterator[PayloadBatch]:
+        """The same datagrams as :meth:`payloads`, in :class:`PayloadBatch` es: payloads of
+        ``data_size`` bytes as one (n, data_size) array per batch (file order), the others
+        beside them. Classic pcap is scanned in C++ (1 MiB of records per batch); pcapng is
+        grouped from :meth:`payloads` (``batch_records`` datagrams per batch).
+        """
+        if self.format == "pcap":
+            self.stats = PcapStats()
+            with open(self.path, "rb") as fh:
+                yield from _iter_pcap_batches(fh, fh.read(4), self.stats, data_size)
+            return
+        data: list[bytes] = []
+        t_ns: list[int] = []
+        ports: list[int] = []
+        others: list[tuple[int, int, bytes]] = []
+
+        def batch() -> PayloadBatch:
+            arr = np.frombuffer(b"".join(data), np.uint8).reshape(len(data), data_size)
+            return PayloadBatch(arr, np.array(t_ns, np.int64), np.array(ports, np.uint16),
+                                list(others))
+
+        for t, port, payload in self.payloads():
+            if len(payload) == data_size:
+                data.append(payload)
+                t_ns.append(t)
+                ports.append(port)
+            else:
+                others.append((t, port, payload))
+            if len(data) + len(others) >= batch_records:
+                yield batch()
+                data.clear(), t_ns.clear(), ports.clear(), others.clear()
+        if data or others:
+            yield batch()
 
 
 def _ip_checksum(header: bytes) -> int:

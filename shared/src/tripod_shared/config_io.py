@@ -65,7 +65,19 @@ def load_config(
     model: type[M], path: str | os.PathLike | None = None, overrides: Mapping[str, Any] | None = None
 ) -> M:
     """Build a config: defaults < YAML file < overrides (nested dicts or 'a.b' dotted keys)."""
-    data: dict = read_yaml(path) if path else {}
+    return load_layered_config(model, [path] if path else [], overrides)
+
+
+def load_layered_config(
+    model: type[M],
+    paths: "list[str | os.PathLike]",
+    overrides: Mapping[str, Any] | None = None,
+) -> M:
+    """Build a config from several YAML files, later files overriding earlier ones key by key
+    (e.g. ``/etc/tripod/daemon.yaml`` then ``--config``), then ``overrides``."""
+    data: dict = {}
+    for path in paths:
+        data = _deep_merge(data, read_yaml(path))
     if overrides:
         nested: dict = {}
         for k, v in overrides.items():
@@ -80,7 +92,8 @@ def load_config(
     try:
         return model.model_validate(data)
     except ValidationError as exc:
-        raise ConfigError(_format_error(exc, str(path) if path else "config")) from None
+        source = " + ".join(str(p) for p in paths) if paths else "config"
+        raise ConfigError(_format_error(exc, source)) from None
 
 
 def dump_config(cfg: BaseModel, path: str | os.PathLike | None = None) -> str:

@@ -72,6 +72,7 @@ STATUS_JSON_SCHEMA = {
         "rates": {"type": "object", "description": "per-second rates by name"},
         "state": {"type": "string"},
         "message": {"type": "string"},
+        "clocks": {"type": "object", "description": "device clock estimates by device"},
     },
 }
 EVENT_JSON_SCHEMA = {
@@ -191,6 +192,7 @@ class Status:
     counts: dict = field(default_factory=dict)
     rates: dict = field(default_factory=dict)
     message: str = ""
+    clocks: dict = field(default_factory=dict)  # device -> clock estimate (offset, drift, ...)
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -207,4 +209,5 @@ def decode_status(data: bytes) -> Status:
     return Status(
         int(d["host_time_ns"]), d.get("state", ""), bool(d.get("recording", False)), d.get("file"),
         dict(d.get("counts", {})), dict(d.get("rates", {})), d.get("message", ""),
+        dict(d.get("clocks", {})),
     )

@@ -79,6 +79,8 @@ POS_NMEA_SIZE = 128
 PPS_STATES = {0: "absent", 1: "synchronizing", 2: "locked", 3: "error"}
 
 _u32 = struct.Struct("<I")
+_FLAGS_FF = b"\xff" * BLOCKS_PER_PACKET
+_FLAGS_EE = b"\xee" * BLOCKS_PER_PACKET
 
 
 class PacketKind:
@@ -116,10 +118,13 @@ def check_data_packet(payload: bytes, accept_products=(PRODUCT_VLP16, PRODUCT_HD
     """
     if len(payload) != DATA_PACKET_SIZE:
         return PacketKind.MALFORMED
-    for b in range(BLOCKS_PER_PACKET):
-        o = b * BLOCK_SIZE
-        if payload[o] != 0xFF or payload[o + 1] != 0xEE:
-            return PacketKind.MALFORMED
+    # the 12 block flags by two strided slices: one C-level compare each, not 24 Python ones
+    # (this runs per packet in the daemon's receive path, ~30,000 times a second)
+    if (
+        payload[0:TIMESTAMP_OFFSET:BLOCK_SIZE] != _FLAGS_FF
+        or payload[1:TIMESTAMP_OFFSET:BLOCK_SIZE] != _FLAGS_EE
+    ):
+        return PacketKind.MALFORMED
     if payload[RETURN_MODE_OFFSET] not in RETURN_MODES:
         return PacketKind.MALFORMED
     if payload[PRODUCT_ID_OFFSET] not in accept_products:

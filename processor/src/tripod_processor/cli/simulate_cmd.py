@@ -15,23 +15,28 @@ from ._common import console, fail
 @app.command("simulate", rich_help_panel="Test bed")
 def simulate_cmd(
     output: Path = typer.Option(..., "-o", "--output", help="Output directory (created)."),
-    scene: str = typer.Option("room", "--scene",
-                              help="room, corridor, two_rooms, office or hall."),
-    scene_file: Optional[Path] = typer.Option(None, "--scene-file",
-                                              help="Any mesh (PLY/OBJ/STL/...) instead of --scene."),
-    stations: Optional[int] = typer.Option(None, "--stations", help="Number of stations (default 3)."),
+    scene: Optional[str] = typer.Option(
+        None, "--scene", help="room, corridor, two_rooms, office or hall (default room)."),
+    scene_file: Optional[Path] = typer.Option(
+        None, "--scene-file", help="Any mesh (PLY/OBJ/STL/...) instead of --scene."),
+    stations: Optional[int] = typer.Option(
+        None, "--stations", help="Number of stations (default 3)."),
     seed: Optional[int] = typer.Option(None, "--seed", help="Random seed (default 0)."),
-    return_mode: Optional[str] = typer.Option(None, "--return-mode",
-                                              help="strongest, last or dual (default strongest)."),
-    rpm: Optional[float] = typer.Option(None, "--rpm", help="Motor speed 300..1200 (default 600)."),
-    imu_protocol: Optional[str] = typer.Option(None, "--imu-protocol",
-                                               help="tfp (IMU Brick 2.0) or witmotion (default tfp)."),
-    imu_rate: Optional[float] = typer.Option(None, "--imu-rate", help="IMU rate in Hz (default 100)."),
+    return_mode: Optional[str] = typer.Option(
+        None, "--return-mode", help="strongest, last or dual (default strongest)."),
+    rpm: Optional[float] = typer.Option(
+        None, "--rpm", help="Motor speed 300..1200 (default 600)."),
+    imu_protocol: Optional[str] = typer.Option(
+        None, "--imu-protocol", help="tfp (IMU Brick 2.0) or witmotion (default tfp)."),
+    imu_rate: Optional[float] = typer.Option(
+        None, "--imu-rate", help="IMU rate in Hz (default 100)."),
     range_noise: Optional[float] = typer.Option(None, "--range-noise",
                                                 help="Range noise sigma in m (default 0.03)."),
     noise_free: bool = typer.Option(False, "--noise-free",
                                     help="No range noise, IMU noise or random dropout."),
     gps: bool = typer.Option(False, "--gps", help="GPS attached: PPS locked, GPRMC sentences."),
+    mcap: bool = typer.Option(False, "--mcap",
+                              help="Also write recording.mcap, as the daemon would record it."),
     config: Optional[Path] = typer.Option(None, "--config", help="YAML config (see config.yaml "
                                           "of any capture); options given here override it."),
     threads: int = typer.Option(0, "--threads", help="Ray-casting threads (0: all cores)."),
@@ -42,7 +47,7 @@ def simulate_cmd(
     from ..sim import SimConfig, simulate
 
     overrides = {
-        "scene": scene if scene_file is None else None,
+        "scene": scene,
         "scene_file": str(scene_file) if scene_file else None,
         "stations": stations, "seed": seed, "lidar.return_mode": return_mode, "lidar.rpm": rpm,
         "imu.protocol": imu_protocol, "imu.rate_hz": imu_rate, "lidar.range_noise_m": range_noise,
@@ -51,6 +56,8 @@ def simulate_cmd(
         overrides.update({"lidar.range_noise_m": 0.0, "lidar.dropout": 0.0, "imu.noise_deg": 0.0})
     if gps:
         overrides["lidar.gps"] = True
+    if mcap:
+        overrides["mcap"] = True
     try:
         cfg = load_config(SimConfig, config, overrides)
     except ConfigError as exc:

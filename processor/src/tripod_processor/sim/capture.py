@@ -29,7 +29,8 @@ from .imu import R_lidar_imu, simulate_imu, wxyz
 from .lidar import (LASER_ELEVATION_DEG, SEQUENCE_NS, Vlp16, gprmc, packet_period_ns,
                     position_packet, position_schedule)
 from .motion import Trajectory
-from .scenes import CLASS_NAMES, NO_RETURN, Scene, load_scene_file, make_scene, write_mesh_ply
+from .scenes import (CLASS_NAMES, NO_RETURN, Scene, check_route, load_scene_file, make_scene,
+                     write_mesh_ply)
 
 FORMAT_VERSION = 1
 CAPTURE_FILE = "capture.pcap"
@@ -37,6 +38,8 @@ IMU_FILE = "imu.tripimu"
 LABELS_FILE = "labels.npz"
 MESH_FILE = "mesh.ply"
 META_FILE = "meta.json"
+MCAP_FILE = "recording.mcap"
+OVERVIEW_FILE = "overview.png"
 CONFIG_FILE = "config.yaml"
 GT_DIR = "gt"
 
@@ -66,9 +69,17 @@ def build_scene(cfg: SimConfig) -> Scene:
 def build_rig(cfg: SimConfig, scene: Scene | None = None) -> tuple[Scene, Trajectory]:
     """The scene and the trajectory of a config (deterministic per seed)."""
     scene = scene or build_scene(cfg)
-    traj = Trajectory(scene.route, scene.closed_route, cfg.stations, cfg.motion,
-                      np.random.default_rng([cfg.seed, 0x7A3]))
+    route, closed = route_of(cfg, scene)
+    traj = Trajectory(route, closed, cfg.stations, cfg.motion,
+                      np.random.default_rng([cfg.seed, 0x7A3]), floor_z=scene.floor_z)
     return scene, traj
+
+
+def route_of(cfg: SimConfig, scene: Scene) -> tuple[np.ndarray, bool]:
+    """The route of a capture: ``route_xy`` from the config, else the scene's own."""
+    if cfg.route_xy is not None:
+        return np.asarray(cfg.route_xy, dtype=np.float64), cfg.route_closed
+    return scene.route, scene.closed_route
 
 
 def _tum_line(t_ns: int, p, q_wxyz) -> str:
@@ -93,8 +104,10 @@ def simulate(cfg: SimConfig, out_dir: str | os.PathLike, *, nthreads: int = 0,
     """
     wall0 = time.perf_counter()
     out = Path(out_dir)
+    scene = build_scene(cfg)
+    check_route(scene, *route_of(cfg, scene))  # fail early, in one line, on a blocked route
     (out / GT_DIR).mkdir(parents=True, exist_ok=True)
-    scene, traj = build_rig(cfg)
+    scene, traj = build_rig(cfg, scene)
     lc = cfg.lidar
     start = cfg.start_unix_ns
     duration_ns = int(round(traj.duration_s * 1e9))
@@ -162,7 +175,12 @@ def simulate(cfg: SimConfig, out_dir: str | os.PathLike, *, nthreads: int = 0,
             fh.write(f"{h},{s_},{q[0]:.9f},{q[1]:.9f},{q[2]:.9f},{q[3]:.9f}\n")
 
     _write_ground_truth(out, cfg, scene, traj, duration_ns)
+    if cfg.mcap:
+        write_recording(out, cfg)
     write_mesh_ply(out / MESH_FILE, scene)
+    from .plot import plot_overview
+
+    plot_overview(out / OVERVIEW_FILE, scene, traj, route_of(cfg, scene)[0])
     wall = time.perf_counter() - wall0
     summary = SimSummary(out, duration_ns * 1e-9, int(n_packets), int(n_pos), len(imu.host_ns),
                          cfg.stations, wall)
@@ -171,6 +189,46 @@ def simulate(cfg: SimConfig, out_dir: str | os.PathLike, *, nthreads: int = 0,
         fh.write("# effective config of this capture: tripod simulate --config config.yaml\n")
         yaml.safe_dump(cfg.model_dump(mode="json"), fh, sort_keys=False)
     return summary
+
+
+def write_recording(out: Path, cfg: SimConfig) -> Path:
+    """``recording.mcap``: the capture as the daemon would record it (every packet and IMU
+    sample at its host receive time, IMU samples decoded with their raw bytes)."""
+    from tripod_shared import tfp, witmotion
+    from tripod_shared.messages import Event, ImuSample
+    from tripod_shared.recording import RecordingWriter
+
+    from ..replay import IMU, LIDAR, POSITION, ReplaySource
+
+    src = ReplaySource.open(out)
+    first = last = None
+    with RecordingWriter(out / MCAP_FILE, metadata={"source": "tripod simulate",
+                                                    "seed": str(cfg.seed)}) as w:
+        tp = tfp.TfpStreamParser()
+        wp = witmotion.WitStreamParser()
+        for t_ns, kind, data in src.events():
+            if first is None:
+                first = t_ns
+                w.write_event(Event(t_ns, "start", "simulated capture"))
+            last = t_ns
+            if kind == LIDAR:
+                w.write_lidar_packet(t_ns, data)
+            elif kind == POSITION:
+                w.write_position_packet(t_ns, data)
+            elif kind == IMU and cfg.imu.protocol == "tfp":
+                for pk in tp.feed(data):
+                    if pk.function_id == tfp.FID_CALLBACK_QUATERNION:
+                        q = tfp.decode_quaternion(pk.payload)
+                        w.write_imu(ImuSample(t_ns, *q, driver="tfp", sequence=pk.sequence,
+                                              raw=pk.raw))
+            elif kind == IMU:
+                for fr in wp.feed(data):
+                    if fr.ftype == witmotion.TYPE_QUATERNION:
+                        q = witmotion.decode_quaternion(fr.data)
+                        w.write_imu(ImuSample(t_ns, *q, driver="witmotion", raw=fr.raw))
+        if last is not None:
+            w.write_event(Event(last, "stop", "simulated capture"))
+    return out / MCAP_FILE
 
 
 def _write_ground_truth(out: Path, cfg: SimConfig, scene: Scene, traj: Trajectory,
@@ -204,7 +262,8 @@ def _write_ground_truth(out: Path, cfg: SimConfig, scene: Scene, traj: Trajector
         "T_pan_lidar": _T(traj.R_pan_lidar, traj.t_pan_lidar),
         "T_lidar_imu": _T(R_lidar_imu(ic), ic.t_lidar_imu_m),
         "imu_reference": {
-            "description": "the IMU reports R_ref_imu = Rz(yaw_offset + yaw_drift * t) R_world_imu, "
+            "description": "the IMU reports "
+                           "R_ref_imu = Rz(yaw_offset + yaw_drift * t) R_world_imu, "
                            "t = seconds since the capture start",
             "yaw_offset_deg": ic.yaw_offset_deg,
             "yaw_drift_deg_per_min": ic.yaw_drift_deg_per_min,
@@ -241,7 +300,9 @@ def _write_meta(out: Path, cfg: SimConfig, scene: Scene, traj: Trajectory, lidar
         "scene": {"name": scene.name, "params": scene.params, "triangles": len(scene.triangles),
                   "class_triangles": scene.class_counts(),
                   "bounds_m": [b.round(4).tolist() for b in scene.bounds],
-                  "route_length_m": round(traj.route.length, 4)},
+                  "route_length_m": round(traj.route.length, 4),
+                  "route_xy": np.round(route_of(cfg, scene)[0], 4).tolist(),
+                  "route_closed": route_of(cfg, scene)[1]},
         "derived": {
             "duration_s": s.duration_s,
             "data_packets": s.data_packets,
@@ -250,7 +311,7 @@ def _write_meta(out: Path, cfg: SimConfig, scene: Scene, traj: Trajectory, lidar
             "packet_period_ns": packet_period_ns(cfg.lidar.return_mode),
             "packets_per_s": 1e9 / packet_period_ns(cfg.lidar.return_mode),
             "azimuth0_deg": lidar.azimuth0_deg,
-            "station_period_s": traj.station_period_s,
+            "transit_s": [round(float(x), 6) for x in traj.transit_s],
             "stations": [{"index": st.index, "pan_start_s": st.t_pan_start_s,
                           "pan_end_s": st.t_pan_end_s} for st in traj.stations],
         },
@@ -265,6 +326,8 @@ def _write_meta(out: Path, cfg: SimConfig, scene: Scene, traj: Trajectory, lidar
             "gt/calibration.json": "extrinsics", "gt/clocks.json": "clock offsets, latencies",
             "gt/imu_truth.csv": "noise-free IMU quaternions",
             CONFIG_FILE: "effective config",
+            OVERVIEW_FILE: "top view: scene, route, tripod path, stations",
+            **({MCAP_FILE: "the capture as the daemon records it"} if cfg.mcap else {}),
         },
         "generation": {"wall_s": round(s.wall_s, 3), "realtime_factor": round(s.realtime_factor, 3),
                        "python": platform.python_version(), "open3d": open3d.__version__,

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from tripod_shared.config_io import StrictModel
 
@@ -19,7 +19,10 @@ class MotionConfig(StrictModel):
     pan_s: float = Field(10.0, gt=0.5, description="duration of one station's pan [s]")
     pan_ramp_s: float = Field(0.8, ge=0.0, description="raised-cosine speed ramp of the pan [s]")
     pan_overlap_deg: float = Field(10.0, ge=0.0, description="pan beyond one full turn [deg]")
-    transit_s: float = Field(4.0, gt=0.0, description="carrying time between stations [s]")
+    transit_s: float = Field(4.0, gt=0.0,
+                             description="carrying time between stations, at least [s]")
+    max_carry_speed_m_s: float = Field(1.2, gt=0.0,
+                                       description="peak walking speed; longer walks take longer")
     tilt_deg: float = Field(60.0, ge=0.0, le=90.0,
                             description="tilt of the lidar spin axis from the pan axis [deg]")
     lever_arm_m: Vec3 = Field((0.06, 0.0, 0.12),
@@ -27,12 +30,17 @@ class MotionConfig(StrictModel):
     tripod_height_m: tuple[float, float] = Field((1.3, 1.6), description="head height range [m]")
     level_error_deg: float = Field(0.3, ge=0.0, description="sigma of station roll/pitch [deg]")
     max_yaw_change_deg: float = Field(180.0, ge=0.0, le=180.0,
-                                      description="heading change between stations, uniform +/- [deg]")
+                                      description="heading change between stations, "
+                                                  "uniform +/- [deg]")
     station_lateral_jitter_m: float = Field(0.2, ge=0.0, description="off-route offset [m]")
     sway_side_m: float = Field(0.03, ge=0.0, description="sideways sway while carried [m]")
     sway_height_m: float = Field(0.015, ge=0.0, description="vertical bob while carried [m]")
     sway_tilt_deg: float = Field(2.0, ge=0.0, description="roll/pitch sway while carried [deg]")
     lift_m: float = Field(0.05, ge=0.0, description="lift while carried [m]")
+    tripod_legs: bool = Field(False, description="the tripod's three legs are in the scene "
+                                                 "(the lidar sees them when looking down)")
+    leg_radius_m: float = Field(0.015, gt=0.0, description="leg tube radius [m]")
+    leg_spread_m: float = Field(0.5, gt=0.0, description="foot distance from the pan axis [m]")
 
 
 class LidarConfig(StrictModel):
@@ -50,10 +58,17 @@ class LidarConfig(StrictModel):
                                         description="footprint sampled for last/dual returns")
     dual_min_separation_m: float = Field(0.3, ge=0.0,
                                          description="closer returns merge into one [m]")
+    vertical_offsets: bool = Field(
+        True, description="lasers offset along z as in the VLP-16 manual (velodyne-decoder's "
+                          "built-in geometry); False: all lasers at the origin (VeloView's)")
+    mixed_pixels: bool = Field(
+        False, description="footprints on two surfaces closer than dual_min_separation_m "
+                           "return a range between them (edge artefacts), not the centre's")
     product_id: int = Field(0x22, ge=0, le=255, description="factory byte (0x22 VLP-16)")
-    clock_offset_ns: int = Field(823_456_789,
-                                 description="lidar_toh clock minus host_realtime [ns] "
-                                             "(free-running lidar clock)")
+    clock_offset_ns: int | None = Field(
+        None, description="lidar_toh clock minus host_realtime [ns]; default 823456789 "
+                          "(free-running lidar clock), or -1200000 with gps (lidar on UTC "
+                          "through PPS, host clock 1.2 ms ahead by NTP)")
     network_latency_us: float = Field(60.0, ge=0.0,
                                       description="last firing to host receive, mean [us]")
     network_jitter_us: float = Field(15.0, ge=0.0, description="exponential jitter [us]")
@@ -63,6 +78,12 @@ class LidarConfig(StrictModel):
     gps_lon_deg: float = 10.7217
     src_ip: str = "192.168.1.201"
     dst_ip: str = "255.255.255.255"
+
+    @model_validator(mode="after")
+    def _derived_clock_offset(self) -> "LidarConfig":
+        if self.clock_offset_ns is None:
+            self.clock_offset_ns = -1_200_000 if self.gps else 823_456_789
+        return self
 
 
 class ImuConfig(StrictModel):
@@ -87,11 +108,16 @@ class SimConfig(StrictModel):
 
     scene: str = "room"
     scene_file: str | None = None
+    route_xy: list[tuple[float, float]] | None = Field(
+        None, description="route of the tripod through free space (x, y) [m]; default: the "
+                          "scene's own (parametric scenes) or a loop inset from the bounds")
+    route_closed: bool = Field(True, description="route_xy is a loop")
     stations: int = Field(3, ge=1, le=500)
     seed: int = 0
     start_unix_ns: int = Field(1_767_268_800_000_000_000,
                                description="host_realtime of the capture start (UNIX ns)")
     gt_rate_hz: float = Field(200.0, gt=0.0, description="rate of the TUM trajectory")
+    mcap: bool = Field(False, description="also write recording.mcap, as the daemon records")
     motion: MotionConfig = MotionConfig()
     lidar: LidarConfig = LidarConfig()
     imu: ImuConfig = ImuConfig()

@@ -10,7 +10,7 @@ scene mesh; labels are joined to decoded points through (firing time, ring, retu
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -54,8 +54,12 @@ def decode_capture(capture_dir: str | Path, max_packets: int | None = None) -> D
     import velodyne_decoder as vd
 
     meta, cfg = load_meta(capture_dir)
-    dec = vd.StreamDecoder(vd.Config(model=vd.Model.VLP16, timestamp_first_packet=True,
-                                     min_range=0.05, max_range=200.0))
+    # the geometry the capture was made with: built-in VLP-16 (manual's vertical offsets) or
+    # the bundled nominal calibration without them
+    calib = None if cfg.lidar.vertical_offsets else vd.get_bundled_calibration("VLP-16.yml")
+    dec = vd.StreamDecoder(vd.Config(model=vd.Model.VLP16, calibration=calib,
+                                     timestamp_first_packet=True, min_range=0.05,
+                                     max_range=200.0))
     parts = []
 
     def take(res):
@@ -101,32 +105,70 @@ def decode_capture(capture_dir: str | Path, max_packets: int | None = None) -> D
 
 
 def join_labels(points: DecodedPoints, labels_npz: str | Path) -> np.ndarray:
-    """Class id of every decoded point from ``labels.npz`` (255 where it cannot be joined).
+    """Class id of every decoded point from ``labels.npz`` (255 where it cannot be joined)."""
+    laser = _LASER_OF_RING[np.clip(points.ring, 0, 15)]
+    return lookup_labels(points.toh_us, laser, points.return_type, labels_npz)
+
+
+def lookup_labels(device_time, laser: np.ndarray, return_type: np.ndarray,
+                  labels_npz: str | Path) -> np.ndarray:
+    """Class ids of decoded points, from any decoder's per-point fields.
+
+    Parameters
+    ----------
+    device_time : (N,) firing time on the lidar clock: float microseconds past the hour, or
+        int64 nanoseconds (UNIX time on the lidar clock, as ``tripod decode`` stamps points:
+        ``stamp_device_ns + time_offset_ns``)
+    laser : (N,) laser id in firing order (0..15; velodyne-decoder's ring is *not* this)
+    return_type : (N,) 1 strongest, 2 last, 3 both (velodyne-decoder's ReturnMode)
+    labels_npz : the capture's ``labels.npz``
 
     The packet is found by device time (``packet_toh_us``), the firing sequence inside it by
-    the time offset, the laser by the ring, the block by the return type (dual: even blocks
-    hold the last return, odd blocks the strongest).
+    the time offset, the block by the return type (dual: even blocks hold the last return, odd
+    blocks the strongest), the channel by sequence and laser. Returns (N,) uint8, 255 where
+    the point falls outside the capture's packets.
     """
     z = np.load(labels_npz)
     labels, toh = z["labels"], z["packet_toh_us"].astype(np.int64)
     mode = str(z["return_mode"])
     spp = sequences_per_packet(mode)
     toh_u = np.asarray(unwrap_toh_us(toh.tolist()), dtype=np.float64)
-    # points' device times, unwrapped like the packets' (captures shorter than an hour)
-    t = points.toh_us + np.where(points.toh_us < toh[0] - 1.8e9, 3.6e9, 0.0)
+    t = np.asarray(device_time)
+    if t.dtype.kind in "iu":  # ns on the lidar clock -> us past the hour
+        t = (t % HOUR_NS) / 1e3
+    t = t.astype(np.float64)
+    # unwrap the points' times like the packets' (captures shorter than an hour)
+    t = t + np.where(t < toh[0] - 1.8e9, 3.6e9, 0.0)
     p = np.clip(np.searchsorted(toh_u, t + 0.5, side="right") - 1, 0, len(toh_u) - 1)
-    laser = _LASER_OF_RING[np.clip(points.ring, 0, 15)]
+    laser = np.clip(np.asarray(laser, dtype=np.int64), 0, 15)
     off_ns = (t - toh_u[p]) * 1e3 - laser * FIRING_NS
     k = np.round(off_ns / SEQUENCE_NS).astype(np.int64)
-    ok = (k >= 0) & (k < spp)
+    ok = (k >= 0) & (k < spp) & (np.abs(off_ns - k * SEQUENCE_NS) < 2000)
     k = np.clip(k, 0, spp - 1)
     if mode == "dual":
-        block = 2 * (k // 2) + np.where(points.return_type == DEC_STRONGEST, 1, 0)
+        block = 2 * (k // 2) + np.where(np.asarray(return_type) == DEC_STRONGEST, 1, 0)
     else:
         block = k // 2
     ch = (k % 2) * 16 + laser
     out = labels[p, block, ch]
     return np.where(ok, out, 255).astype(np.uint8)
+
+
+def labeled_points(capture_dir: str | Path, max_packets: int | None = None,
+                   world: bool = True) -> tuple[np.ndarray, np.ndarray, DecodedPoints]:
+    """Decoded points of a capture with their true class: ``(xyz (N, 3), labels (N,), points)``.
+
+    ``world=True`` places every point with the true pose at its firing time (a perfectly
+    registered, labelled cloud: training and test data for segmentation); ``False`` keeps the
+    lidar frame. Labels are class ids (``CLASS_NAMES``), 255 where no join was possible.
+    """
+    _meta, cfg = load_meta(capture_dir)
+    pts = decode_capture(capture_dir, max_packets)
+    lab = join_labels(pts, Path(capture_dir) / LABELS_FILE)
+    if not world:
+        return pts.xyz, lab, pts
+    _scene, xyz, _origin = place_points(pts, cfg)
+    return xyz, lab, pts
 
 
 @dataclass
@@ -140,8 +182,8 @@ class Fidelity:
     range_err_robust_std_m: float = float("nan")
     configured_sigma_m: float = 0.0
     label_agreement: float = float("nan")
-    packets: dict = field(default_factory=dict)
-    imu: dict = field(default_factory=dict)
+    label_joined: float = float("nan")  # fraction of points the label join found
+    off_mesh_frac: float = float("nan")  # fraction of points farther than 5 mm from the mesh
 
 
 def place_points(points: DecodedPoints, cfg: SimConfig):
@@ -157,7 +199,8 @@ def _laser_offsets_world(points: DecodedPoints, cfg: SimConfig) -> np.ndarray:
     _scene, traj = build_rig(cfg)
     R, _ = traj.T_world_lidar((points.host_ns - cfg.start_unix_ns) * 1e-9)
     laser = _LASER_OF_RING[np.clip(points.ring, 0, 15)]
-    return R[:, :, 2] * LASER_VERT_OFFSET_M[laser][:, None]
+    offsets = LASER_VERT_OFFSET_M if cfg.lidar.vertical_offsets else np.zeros(16)
+    return R[:, :, 2] * offsets[laser][:, None]
 
 
 def geometry_check(capture_dir: str | Path, max_packets: int | None = None,
@@ -192,17 +235,19 @@ def geometry_check(capture_dir: str | Path, max_packets: int | None = None,
     err = rng_meas[fin] - t_true[fin]
     if cfg.lidar.return_mode != "strongest":
         # last returns of a split footprint lie on a surface behind the centre ray's hit
-        err = err[np.abs(err) < max(0.5 * cfg.lidar.dual_min_separation_m, 6 * cfg.lidar.range_noise_m)]
+        keep = max(0.5 * cfg.lidar.dual_min_separation_m, 6 * cfg.lidar.range_noise_m)
+        err = err[np.abs(err) < keep]
     res.n_points = int(len(dist))
     res.dist_median_m = float(np.median(dist))
     res.dist_p99_m = float(np.percentile(dist, 99))
+    res.off_mesh_frac = float(np.mean(dist > 0.005))
     res.range_err_std_m = float(np.std(err))
     res.range_err_robust_std_m = float(1.4826 * np.median(np.abs(err - np.median(err))))
     lab = join_labels(pts, Path(capture_dir) / LABELS_FILE)
     truth = scene.classes[closest]
     ok = lab != 255
     res.label_agreement = float(np.mean(lab[ok] == truth[ok])) if ok.any() else float("nan")
-    res.label_joined = float(np.mean(ok))  # type: ignore[attr-defined]
+    res.label_joined = float(np.mean(ok))
     return res
 
 

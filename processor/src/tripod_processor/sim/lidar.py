@@ -13,7 +13,8 @@ offset, as the decoder assumes) at its true pose (evaluated at the middle of the
 sequence: 18 us of head motion is < 0.1 mm) along the laser's elevation and the azimuth of the
 motor at the exact firing time. Two rays sample the beam footprint (centre and leading edge,
 ``beam_divergence_mrad`` apart): their hits form the firing's returns (separate when further
-apart than ``dual_min_separation_m``, else merged). Strongest = centre ray; last = farthest.
+apart than ``dual_min_separation_m``, else merged; with ``mixed_pixels`` a merged pair gives a
+range between the two surfaces, as at real edges). Strongest = centre ray; last = farthest.
 Range noise is Gaussian; no return (distance 0) on a miss, beyond ``max_range_m``, nearer than
 ``min_range_m``, at grazing incidence and with probability ``dropout``.
 
@@ -31,7 +32,7 @@ from tripod_shared import velodyne as v
 from tripod_shared.timebase import HOUR_NS
 
 from .config import LidarConfig
-from .scenes import NO_RETURN, Scene
+from .scenes import NO_RETURN, OTHER, Scene
 
 #: laser elevation [deg] by laser id (firing order), VLP-16 manual table 9-1
 LASER_ELEVATION_DEG = np.array([-15, 1, -13, 3, -11, 5, -9, 7, -7, 9, -5, 11, -3, 13, -1, 15],
@@ -73,6 +74,53 @@ def beam_directions(azimuth_deg: np.ndarray) -> np.ndarray:
     ce = np.cos(el)
     return np.stack([ce * np.cos(az), -ce * np.sin(az), np.broadcast_to(np.sin(el), az.shape)],
                     axis=-1)
+
+
+LEG_REFLECTIVITY = 30  # dark anodised aluminium
+
+
+def _hit_legs(o: np.ndarray, d: np.ndarray, tops: np.ndarray, feet: np.ndarray,
+              radius: float, block: int = 65536) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest entry of rays into finite cylinders (the tripod legs).
+
+    o, d : (M, 3) origins and unit directions; tops, feet : (M, L, 3) leg axis ends per ray.
+    Returns (range (M,), inf where no leg is hit; |cos incidence| (M,)).
+    """
+    t_out = np.full(len(o), np.inf)
+    c_out = np.zeros(len(o))
+    down = np.nonzero(d[:, 2] < 0.05)[0]  # the legs are below the head: rays going down only
+    for s in range(0, len(down), block):
+        i = down[s:s + block]
+        a, u = tops[i], feet[i] - tops[i]
+        length = np.linalg.norm(u, axis=2)
+        u = u / length[..., None]
+        m = o[i, None, :] - a
+        dd = d[i, None, :]
+        du = (dd * u).sum(-1)
+        mu = (m * u).sum(-1)
+        n = dd - du[..., None] * u
+        w = m - mu[..., None] * u
+        A = (n * n).sum(-1)
+        B = 2 * (n * w).sum(-1)
+        C = (w * w).sum(-1) - radius * radius
+        disc = B * B - 4 * A * C
+        ok = (disc >= 0) & (A > 1e-12)
+        t = (-B - np.sqrt(np.where(ok, disc, 0.0))) / np.where(ok, 2 * A, 1.0)
+        sl = mu + t * du
+        ok &= (t > 0) & (sl >= 0) & (sl <= length)
+        t = np.where(ok, t, np.inf)
+        j = np.argmin(t, axis=1)
+        r = np.arange(len(i))
+        tt = t[r, j]
+        q = o[i] + tt[:, None] * d[i] if np.isfinite(tt).any() else None
+        if q is None:
+            continue
+        hit = np.isfinite(tt)
+        axis_pt = a[r, j] + (sl[r, j])[:, None] * u[r, j]
+        nrm = (np.where(hit[:, None], q, 0.0) - axis_pt) / radius
+        t_out[i] = tt
+        c_out[i] = np.where(hit, np.abs((nrm * d[i]).sum(-1)), 0.0)
+    return t_out, c_out
 
 
 @dataclass
@@ -125,6 +173,7 @@ class Vlp16:
         self.deg_per_ns = 360.0 * cfg.rpm / 60.0 / 1e9
         self._mode = _MODE_BYTE[cfg.return_mode]
         self._cos_max_inc = float(np.cos(np.radians(cfg.max_incidence_deg)))
+        self.vert_offsets_m = LASER_VERT_OFFSET_M if cfg.vertical_offsets else np.zeros(16)
 
     # ---------------------------------------------------------------- geometry
     def azimuth_deg(self, t_ns: np.ndarray) -> np.ndarray:
@@ -137,14 +186,26 @@ class Vlp16:
         host = self.start_unix_ns + np.asarray(t_ns, dtype=np.int64) + self.cfg.clock_offset_ns
         return (np.mod(host, HOUR_NS) // 1000).astype(np.uint32)
 
-    def _cast(self, origins: np.ndarray, dirs: np.ndarray):
+    def _cast(self, origins: np.ndarray, dirs: np.ndarray, legs=None):
+        """(range, class, reflectivity, |cos incidence|) of each ray; range inf on a miss."""
         rays = np.concatenate([origins, dirs], axis=1).astype(np.float32)
         ans = self._rc.cast_rays(self._o3d.core.Tensor(rays), nthreads=self.nthreads)
         t = ans["t_hit"].numpy().astype(np.float64)
         prim = ans["primitive_ids"].numpy().astype(np.int64)
+        hit = np.isfinite(t)
+        prim = np.where(hit, prim, 0)
         nrm = ans["primitive_normals"].numpy()
-        cos_inc = np.abs(np.einsum("ij,ij->i", nrm, dirs))
-        return t, prim, cos_inc
+        cos_inc = np.abs((nrm * dirs).sum(axis=1))
+        cls = self.scene.classes[prim]
+        refl = self.scene.reflectivity[prim]
+        if legs is not None:
+            tl, cl = _hit_legs(origins, dirs, legs[0], legs[1], self.trajectory.cfg.leg_radius_m)
+            near = tl < t
+            t = np.where(near, tl, t)
+            cos_inc = np.where(near, cl, cos_inc)
+            cls = np.where(near, OTHER, cls)
+            refl = np.where(near, LEG_REFLECTIVITY, refl)
+        return t, cls, refl, cos_inc
 
     # ---------------------------------------------------------------- packets
     def packets(self, first: int, count: int) -> PacketBatch:
@@ -160,12 +221,17 @@ class Vlp16:
         d_lidar = beam_directions(az)  # (S, 16, 3)
         half = np.degrees(cfg.beam_divergence_mrad * 1e-3 / 2)
         d_edge = beam_directions(az + half)
-        d1 = np.einsum("sij,slj->sli", R, d_lidar).reshape(-1, 3)
-        d2 = np.einsum("sij,slj->sli", R, d_edge).reshape(-1, 3)
+        Rt = np.ascontiguousarray(np.swapaxes(R, 1, 2))
+        d1 = np.matmul(d_lidar, Rt).reshape(-1, 3)  # batched R @ d, much faster than einsum
+        d2 = np.matmul(d_edge, Rt).reshape(-1, 3)
         # each laser's own origin: lidar origin + its vertical offset along the lidar z axis
-        o = (p[:, None, :] + R[:, None, :, 2] * LASER_VERT_OFFSET_M[None, :, None]).reshape(-1, 3)
-        t1, prim1, c1 = self._cast(o, d1)
-        t2, prim2, c2 = self._cast(o, d2)
+        o = (p[:, None, :] + R[:, None, :, 2] * self.vert_offsets_m[None, :, None]).reshape(-1, 3)
+        legs = None
+        if getattr(self.trajectory.cfg, "tripod_legs", False):
+            tops, feet = self.trajectory.legs_world((t_seq_ns + 15 * FIRING_NS // 2) * 1e-9)
+            legs = (np.repeat(tops, 16, axis=0), np.repeat(feet, 16, axis=0))
+        t1, cls1, refl1, c1 = self._cast(o, d1, legs)
+        t2, cls2, refl2, c2 = self._cast(o, d2, legs)
 
         rng = np.random.default_rng([self.seed, 0x1DA7, first])
         m = len(t1)
@@ -181,26 +247,33 @@ class Vlp16:
         sep = np.abs(np.where(ok1 & ok2, t2 - t1, 0.0)) >= cfg.dual_min_separation_m
         two = ok1 & ok2 & sep  # two distinct returns
         s_ok = ok1 | ok2
+        if cfg.mixed_pixels:
+            # unresolved echoes from two surfaces merge into one pulse: a range in between,
+            # weighted towards the centre of the footprint
+            mix = ok1 & ok2 & ~sep & (np.abs(t2 - t1) > 0.02)
+            w = rng.uniform(0.5, 1.0, m)
+            t1 = np.where(mix, w * t1 + (1 - w) * t2, t1)
         if cfg.range_noise_m > 0:
             t1 = t1 + rng.normal(0.0, cfg.range_noise_m, m)
             t2 = t2 + rng.normal(0.0, cfg.range_noise_m, m)
 
         def pick(use2):
-            return np.where(use2, t2, t1), np.where(use2, prim2, prim1), np.where(use2, c2, c1)
+            return (np.where(use2, t2, t1), np.where(use2, cls2, cls1),
+                    np.where(use2, refl2, refl1), np.where(use2, c2, c1))
 
         strongest = ~ok1  # centre ray, else the edge when the centre has no return
         last = strongest | (two & (t2 > t1))  # the farthest return
         nearer = strongest | (two & (t2 < t1))  # dual: strongest block when strongest is last
-        s_t, s_p, s_c = pick(strongest)
-        l_t, l_p, l_c = pick(last)
+        strong = pick(strongest)
+        far = pick(last)
 
-        def encode(t, prim, cos_inc, ok):
+        def encode(t, cls, refl, cos_inc, ok):
             dist = np.where(ok, np.clip(np.round(t / v.DISTANCE_UNIT_M), 1, 65535), 0)
-            pr = np.where(ok, prim, 0)
-            refl = self.scene.reflectivity[pr].astype(np.float64) * (0.4 + 0.6 * cos_inc)
+            refl = refl.astype(np.float64) * (0.4 + 0.6 * cos_inc)
             refl = np.where(ok, np.clip(np.round(refl), 1, 100), 0)
-            lab = np.where(ok, self.scene.classes[pr], NO_RETURN)
-            return (dist.astype(np.uint16).reshape(n_seq, 16), refl.astype(np.uint8).reshape(n_seq, 16),
+            lab = np.where(ok, cls, NO_RETURN)
+            return (dist.astype(np.uint16).reshape(n_seq, 16),
+                    refl.astype(np.uint8).reshape(n_seq, 16),
                     lab.astype(np.uint8).reshape(n_seq, 16))
 
         pkt = np.zeros(count, dtype=PACKET_DTYPE)
@@ -211,7 +284,7 @@ class Vlp16:
         labels = np.empty((count, 12, 32), dtype=np.uint8)
         az_q = (np.round(az[:, 0] * 100).astype(np.int64) % 36000).astype(np.uint16)
         if cfg.return_mode == "dual":
-            ls = encode(l_t, l_p, l_c, s_ok)
+            ls = encode(*far, s_ok)
             ss = encode(*pick(nearer), s_ok)
             blk_az = az_q[0::2].reshape(count, 6)
             pkt["blocks"]["az"][:, 0::2] = blk_az
@@ -222,9 +295,9 @@ class Vlp16:
                 labels[:, out_slice] = ll.reshape(count, 6, 32)
         else:
             if cfg.return_mode == "last":
-                dd, rr, ll = encode(l_t, l_p, l_c, s_ok)
+                dd, rr, ll = encode(*far, s_ok)
             else:
-                dd, rr, ll = encode(s_t, s_p, s_c, s_ok)
+                dd, rr, ll = encode(*strong, s_ok)
             pkt["blocks"]["az"] = az_q[0::2].reshape(count, 12)
             pkt["blocks"]["ch"]["d"] = dd.reshape(count, 12, 32)
             pkt["blocks"]["ch"]["r"] = rr.reshape(count, 12, 32)

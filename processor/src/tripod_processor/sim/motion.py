@@ -16,9 +16,10 @@ Frames (all right-handed, metres):
 
 Timeline (seconds from the capture start): at every station the head rests ``settle_s``,
 pans one full turn plus ``pan_overlap_deg`` in ``pan_s`` (raised-cosine speed ramps), rests
-``settle_s`` again; between stations the tripod is carried for ``transit_s`` along the scene's
-route (minimum-jerk progress, sway in roll/pitch/height/sideways, heading change up to
-``max_yaw_change_deg``). The lidar and IMU stream the whole time.
+``settle_s`` again; between stations the tripod is carried for ``transit_s`` (longer for long
+walks: peak speed ``max_carry_speed_m_s``) along the scene's route (minimum-jerk progress,
+sway in roll/pitch/height/sideways, heading change up to ``max_yaw_change_deg``).
+The lidar and IMU stream the whole time.
 """
 
 from __future__ import annotations
@@ -151,10 +152,11 @@ class Trajectory:
     n_stations : number of stations
     cfg : MotionConfig
     rng : numpy Generator (stations, headings, sway phases)
+    floor_z : height of the floor [m]; tripod heights are above it
     """
 
     def __init__(self, route_xy: np.ndarray, closed: bool, n_stations: int, cfg: MotionConfig,
-                 rng: np.random.Generator):
+                 rng: np.random.Generator, floor_z: float = 0.0):
         self.cfg = cfg
         self.route = Route(route_xy, closed)
         self.n = n_stations
@@ -176,16 +178,22 @@ class Trajectory:
         yaw[1:] = yaw[0] + np.cumsum(rng.uniform(-1, 1, n - 1) * np.radians(cfg.max_yaw_change_deg))
         level = np.radians(cfg.level_error_deg)
         roll, pitch = rng.normal(0, level, n), rng.normal(0, level, n)
-        height = rng.uniform(cfg.tripod_height_m[0], cfg.tripod_height_m[1], n)
-        self.station_period_s = 2 * cfg.settle_s + cfg.pan_s + cfg.transit_s
-        self.duration_s = n * (2 * cfg.settle_s + cfg.pan_s) + (n - 1) * cfg.transit_s
+        self.floor_z = floor_z
+        height = floor_z + rng.uniform(cfg.tripod_height_m[0], cfg.tripod_height_m[1], n)
+        # carrying time: at least transit_s, longer when the walk would exceed the peak speed
+        # (minimum-jerk progress peaks at 1.875 x the mean speed)
+        walk = np.abs(np.diff(s)) if n > 1 else np.zeros(0)
+        self.transit_s = np.maximum(cfg.transit_s, 1.875 * walk / cfg.max_carry_speed_m_s)
+        dwell = 2 * cfg.settle_s + cfg.pan_s
+        self.period_start_s = np.concatenate([[0.0], np.cumsum(dwell + self.transit_s)])[:n]
+        self.duration_s = float(self.period_start_s[-1] + dwell)
         self.pan_total_rad = np.radians(360.0 + cfg.pan_overlap_deg)
         self.stations: list[Station] = []
         for k in range(n):
             p2, tan = self.route.at(np.array([s[k]]))
             normal = np.array([-tan[0, 1], tan[0, 0]])
             xy = p2[0] + lateral[k] * normal
-            t0 = k * self.station_period_s + cfg.settle_s
+            t0 = self.period_start_s[k] + cfg.settle_s
             self.stations.append(Station(k, t0, t0 + cfg.pan_s, np.array([xy[0], xy[1], height[k]]),
                                          float(yaw[k]), float(roll[k]), float(pitch[k]),
                                          float(s[k]), float(lateral[k])))
@@ -200,9 +208,8 @@ class Trajectory:
         """Base position (N, 3), yaw, roll, pitch (N,) [rad] and pan angle phi (N,) [rad]."""
         cfg = self.cfg
         t = np.asarray(t, dtype=np.float64)
-        P = self.station_period_s
-        k = np.clip(np.floor(t / P).astype(np.int64), 0, self.n - 1)
-        local = t - k * P  # time since this station's period began
+        k = np.clip(np.searchsorted(self.period_start_s, t, side="right") - 1, 0, self.n - 1)
+        local = t - self.period_start_s[k]  # time since this station's period began
         st = self.stations
         pos = np.array([s.position for s in st])
         yaw = np.array([s.yaw_rad for s in st])
@@ -222,7 +229,7 @@ class Trajectory:
         if np.any(moving):
             i = np.nonzero(moving)[0]
             kk = k[i]
-            u = np.clip(t_transit[i] / cfg.transit_s, 0.0, 1.0)
+            u = np.clip(t_transit[i] / self.transit_s[kk], 0.0, 1.0)
             g = _min_jerk(u)
             win = np.sin(np.pi * u)  # sway only while carried
             a0, a1 = arc[kk], arc[kk + 1]
@@ -233,7 +240,8 @@ class Trajectory:
             ph, gain = self._sway_phase[kk], self._sway_gain[kk]
             tt = t_transit[i]
             side = lat[kk] + (lat[kk + 1] - lat[kk]) * g
-            side = side + cfg.sway_side_m * gain[:, 0] * np.sin(2 * np.pi * 0.9 * tt + ph[:, 0]) * win
+            side = side + cfg.sway_side_m * gain[:, 0] * np.sin(
+                2 * np.pi * 0.9 * tt + ph[:, 0]) * win
             xy = xy + side[:, None] * normal
             z = pos[kk, 2] + (pos[kk + 1, 2] - pos[kk, 2]) * g
             z = z + cfg.lift_m * win**2 + cfg.sway_height_m * gain[:, 1] * np.sin(
@@ -252,6 +260,27 @@ class Trajectory:
         p, yaw, roll, pitch, _ = self.base_state(t)
         return rot_z(yaw) @ rot_y(pitch) @ rot_x(roll), p
 
+    def legs_world(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Tripod legs at times t: tops and feet (N, 3, 3) [m] in the world (leg, xyz).
+
+        Three legs 120 deg apart in the base frame, hinged 0.06 m from the pan axis 0.12 m
+        below the head, feet ``leg_spread_m`` from the axis on the floor of the current (or
+        last) station; they move rigidly with the base while carried.
+        """
+        t = np.asarray(t, dtype=np.float64)
+        R, p = self.T_world_base(t)
+        k = np.clip(np.searchsorted(self.period_start_s, t, side="right") - 1, 0, self.n - 1)
+        h = np.array([s.position[2] for s in self.stations])[k] - self.floor_z  # (N,)
+        a = np.radians([0.0, 120.0, 240.0])
+        top = np.stack([0.06 * np.cos(a), 0.06 * np.sin(a), np.full(3, -0.12)], axis=1)
+        sp = self.cfg.leg_spread_m
+        foot = np.stack([np.broadcast_to(sp * np.cos(a), (len(t), 3)),
+                         np.broadcast_to(sp * np.sin(a), (len(t), 3)),
+                         -np.repeat(h[:, None], 3, axis=1)], axis=2)  # (N, 3, 3)
+        tops_w = p[:, None, :] + np.einsum("nij,lj->nli", R, top)
+        feet_w = p[:, None, :] + np.matmul(foot, np.swapaxes(R, 1, 2))
+        return tops_w, feet_w
+
     def T_world_lidar(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(R_world_lidar (N, 3, 3), p_world_lidar (N, 3)) at capture-relative times t [s]."""
         p, yaw, roll, pitch, phi = self.base_state(t)
@@ -262,7 +291,7 @@ class Trajectory:
     def station_of(self, t: np.ndarray) -> np.ndarray:
         """Index of the station whose pan contains t, -1 outside pans (N,) int."""
         t = np.asarray(t, dtype=np.float64)
-        k = np.clip(np.floor(t / self.station_period_s).astype(np.int64), 0, self.n - 1)
-        local = t - k * self.station_period_s
+        k = np.clip(np.searchsorted(self.period_start_s, t, side="right") - 1, 0, self.n - 1)
+        local = t - self.period_start_s[k]
         inside = (local >= self.cfg.settle_s) & (local <= self.cfg.settle_s + self.cfg.pan_s)
         return np.where(inside, k, -1)

@@ -57,6 +57,13 @@ class Scene:
     params: dict = field(default_factory=dict)
 
     @property
+    def floor_z(self) -> float:
+        """Height of the floor [m]: the lowest floor triangle (else the lowest vertex)."""
+        f = self.classes == FLOOR
+        z = self.vertices[self.triangles[f]][..., 2] if f.any() else self.vertices[:, 2]
+        return float(z.min())
+
+    @property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         return self.vertices.min(axis=0), self.vertices.max(axis=0)
 
@@ -164,7 +171,7 @@ class MeshBuilder:
 
 
 def surface_reflectivity(classes: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Per-triangle reflectivity: the class's typical value, varied per quad (pairs of triangles)."""
+    """Per-triangle reflectivity: the class's typical value, varied per quad (triangle pair)."""
     base = np.array([CLASS_REFLECTIVITY[i] for i in range(len(CLASS_NAMES))], dtype=np.float64)
     b = base[np.minimum(classes, len(CLASS_NAMES) - 1)]
     var = rng.uniform(-12, 12, size=(len(classes) + 1) // 2).repeat(2)[: len(classes)]
@@ -241,8 +248,8 @@ def _office(rng: np.random.Generator):
     for y0, y1 in desk_rows:
         if y1 - y0 < 0.7:
             continue
-        x = 1.0
-        while x + 1.6 < w - 0.8:
+        x = 2.2  # the route's cross aisles run at x = 1.2 and w - 1.2
+        while x + 1.6 < w - 2.2:
             if rng.random() < 0.8:
                 mb.box((x, y0, 0.72), (x + 1.6, min(y0 + 0.8, y1), 0.75), OTHER)
                 mb.box((x + 0.05, y0 + 0.05, 0), (x + 0.10, y0 + 0.10, 0.72), OTHER)
@@ -254,18 +261,21 @@ def _office(rng: np.random.Generator):
     return mb, route, True, {"width_m": w, "depth_m": d, "height_m": h}
 
 
+def _centered_grid(length: float, margin: float, spacing: float) -> np.ndarray:
+    """Positions ``spacing`` apart, centred in [margin, length - margin] (at least one)."""
+    n = max(1, int((length - 2 * margin) // spacing) + 1)
+    return length / 2 + (np.arange(n) - (n - 1) / 2) * spacing
+
+
 def _hall(rng: np.random.Generator):
     w, d, h = rng.uniform(25.0, 40.0), rng.uniform(15.0, 25.0), rng.uniform(6.0, 10.0)
     mb = MeshBuilder()
     mb.floor_plan([(0, 0, w, d)], h)
     sp = rng.uniform(6.0, 8.0)
-    xs = np.arange(sp, w - sp / 2, sp)
-    ys = np.arange(sp, d - sp / 2, sp)
-    for x in xs:
-        for y in ys:
+    m = 3.0  # the route: a loop 3 m from the walls; columns fill the space inside it
+    for x in _centered_grid(w, m + 2.0, sp):
+        for y in _centered_grid(d, m + 2.0, sp):
             mb.prism(x, y, 0.3, 0.0, h, OTHER)
-    # route: a loop halfway between the outer columns and the walls
-    m = sp / 2
     route = [(m, m), (w - m, m), (w - m, d - m), (m, d - m)]
     return mb, route, True, {"width_m": w, "depth_m": d, "height_m": h, "column_spacing_m": sp}
 
@@ -275,12 +285,46 @@ _BUILDERS = {"room": _room, "corridor": _corridor, "two_rooms": _two_rooms, "off
 
 
 def make_scene(name: str, seed: int) -> Scene:
-    """Build parametric scene ``name`` (one of ``SCENE_NAMES``) with dimensions drawn from ``seed``."""
+    """Parametric scene ``name`` (one of ``SCENE_NAMES``), dimensions drawn from ``seed``."""
     if name not in _BUILDERS:
         raise ValueError(f"unknown scene {name!r} (choose from {', '.join(SCENE_NAMES)})")
     rng = np.random.default_rng([seed, 0x5CE7E])
     mb, route, closed, params = _BUILDERS[name](rng)
     return mb.build(name, route, closed, {k: round(float(v), 4) for k, v in params.items()}, rng)
+
+
+def check_route(scene: Scene, route_xy: np.ndarray, closed: bool, clearance_m: float = 0.25,
+                heights_m: tuple[float, ...] = (0.5, 1.0, 1.5, 1.7)) -> None:
+    """Raise ValueError (one line) unless the route keeps ``clearance_m`` from the mesh at the
+    tripod's heights above the floor and lies inside the scene (a ceiling above it)."""
+    import open3d as o3d
+
+    pts = np.asarray(route_xy, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2:
+        raise ValueError("a route needs at least two (x, y) points")
+    seq = np.vstack([pts, pts[:1]]) if closed else pts
+    samples = [seq[i] + (seq[i + 1] - seq[i]) * f for i in range(len(seq) - 1)
+               for f in np.linspace(0, 1, max(2, int(np.linalg.norm(seq[i + 1] - seq[i]) / 0.2)),
+                                    endpoint=False)]
+    xy = np.asarray(samples)
+    rc = o3d.t.geometry.RaycastingScene()
+    rc.add_triangles(o3d.core.Tensor(scene.vertices.astype(np.float32)),
+                     o3d.core.Tensor(scene.triangles.astype(np.uint32)))
+    z0 = scene.floor_z
+    for h in heights_m:
+        q = np.c_[xy, np.full(len(xy), z0 + h)].astype(np.float32)
+        d = rc.compute_distance(o3d.core.Tensor(q)).numpy()
+        bad = np.argmin(d)
+        if d[bad] < clearance_m:
+            raise ValueError(
+                f"the route passes {d[bad]:.2f} m from the mesh at ({xy[bad, 0]:.2f}, "
+                f"{xy[bad, 1]:.2f}), {h} m above the floor: give a free route with route_xy")
+    up = np.c_[xy, np.full(len(xy), z0 + 1.0), np.zeros((len(xy), 2)), np.ones(len(xy))]
+    t = rc.cast_rays(o3d.core.Tensor(up.astype(np.float32)))["t_hit"].numpy()
+    if not np.isfinite(t).all():
+        i = int(np.argmin(np.isfinite(t)))
+        raise ValueError(f"the route leaves the scene at ({xy[i, 0]:.2f}, {xy[i, 1]:.2f}) "
+                         "(no ceiling above): give a route inside it with route_xy")
 
 
 # --------------------------------------------------------------------------- mesh files
@@ -367,9 +411,9 @@ def _read_classified_ply(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray 
 
 
 def classify_by_normal(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """Class per triangle from its normal and height: horizontal faces in the lowest/highest
-    15 % of the height span are floor/ceiling, near-vertical faces taller than 1.5 m... are
-    walls when they span most of the height, everything else is other."""
+    """Class per triangle from its normal and height: horizontal faces in the lowest / highest
+    15 % of the mesh's height span are floor / ceiling, near-vertical faces spanning more than
+    half of the height are walls, everything else is other."""
     p = vertices[triangles]  # (T, 3, 3)
     n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
