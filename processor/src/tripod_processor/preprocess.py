@@ -16,22 +16,187 @@ def as_cloud(points) -> np.ndarray:
     return np.ascontiguousarray(a[:, :3], dtype=np.float32)
 
 
-def voxel_downsample(points, voxel_size: float, num_threads: int = 0) -> np.ndarray:
+VOXEL_ALIGNMENTS = ("origin", "min_bound")
+
+
+def voxel_downsample(
+    points, voxel_size: float, num_threads: int = 0, align: str = "origin"
+) -> np.ndarray:
     """Voxel-grid downsampling: one centroid per occupied voxel.
 
     Parameters
     ----------
     points : (N, 3) array_like of float [m]
     voxel_size : float
-        Voxel edge [m], > 0. Voxels are aligned to the origin (index = floor(p / size)), as in
-        Open3D's ``voxel_down_sample``.
+        Voxel edge [m], > 0.
+    num_threads : int
+        0 uses every core.
+    align : {"origin", "min_bound"}
+        Where the voxel lattice starts. ``"origin"`` (default): index = floor(p / size), the same
+        lattice for every cloud, so two overlapping scans share voxel boundaries.
+        ``"min_bound"``: index = floor((p - (min(p) - size / 2)) / size), exactly Open3D's
+        ``voxel_down_sample`` (same voxels, same centroids to the float32 bit).
+
+    Returns
+    -------
+    (M, 3) float32 ndarray of centroids, ordered by voxel index (x, then y, then z).
+    Non-finite points are dropped; an input with none left gives a (0, 3) array.
+    """
+    if not voxel_size > 0 or not np.isfinite(voxel_size):
+        raise ValueError(f"voxel_size must be a finite number > 0, got {voxel_size!r}")
+    if align not in VOXEL_ALIGNMENTS:
+        raise ValueError(f"align must be one of {VOXEL_ALIGNMENTS}, got {align!r}")
+    return _ext.voxel_downsample(
+        as_cloud(points), float(voxel_size), int(num_threads), align == "min_bound"
+    )
+
+
+def estimate_normals(
+    points,
+    num_neighbors: int = 20,
+    radius: float = 0.0,
+    viewpoint=(0.0, 0.0, 0.0),
+    num_threads: int = 0,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Normals and covariances by PCA of each point's neighbourhood (k-NN or radius).
+
+    Parameters
+    ----------
+    points : (N, 3) array_like of float [m]
+        Must be finite.
+    num_neighbors : int
+        k nearest neighbours (the point itself included); with ``radius`` > 0 a cap.
+    radius : float
+        Neighbourhood radius [m]; 0 uses k-NN only.
+    viewpoint : (3,) sequence of float
+        Normals are flipped to face it (the sensor position) [m].
     num_threads : int
         0 uses every core.
 
     Returns
     -------
-    (M, 3) float32 ndarray of centroids, ordered by voxel index. Non-finite points are dropped.
+    normals : (N, 3) float64 unit normals (0 where not ``valid``)
+    covariances : (N, 3, 3) float64 neighbourhood covariances [m^2]
+    curvature : (N,) float64 surface variation lambda_min / sum(lambda) (0 = flat)
+    valid : (N,) bool, False where the neighbourhood had < 3 points or was collinear
     """
-    if not voxel_size > 0:
-        raise ValueError("voxel_size must be > 0")
-    return _ext.voxel_downsample(as_cloud(points), float(voxel_size), int(num_threads))
+    pts = _finite_cloud(points)
+    if num_neighbors < 1 and not radius > 0:
+        raise ValueError("num_neighbors must be >= 1 (or give a radius)")
+    n, c, k, v = _ext.estimate_normals(pts, int(num_neighbors), float(radius),
+                                       np.asarray(viewpoint, dtype=np.float64).reshape(3),
+                                       int(num_threads))
+    return n, c.reshape(-1, 3, 3), k, v
+
+
+def statistical_outlier_removal(
+    points, num_neighbors: int = 20, std_ratio: float = 2.0, num_threads: int = 0
+) -> np.ndarray:
+    """Indices of the points kept by statistical outlier removal (as PCL's filter).
+
+    A point is an outlier when its mean distance to its ``num_neighbors`` nearest neighbours
+    exceeds mean + ``std_ratio`` * std of that distance over the cloud.
+
+    Parameters
+    ----------
+    points : (N, 3) array_like of float [m], finite
+    num_neighbors : int
+    std_ratio : float
+    num_threads : int
+
+    Returns
+    -------
+    (M,) int64 ndarray of kept row indices, ascending.
+    """
+    pts = _finite_cloud(points)
+    if num_neighbors < 1:
+        raise ValueError("num_neighbors must be >= 1")
+    return _ext.statistical_outlier_removal(pts, int(num_neighbors), float(std_ratio),
+                                            int(num_threads))
+
+
+def mls_smooth(points, radius: float, num_threads: int = 0) -> np.ndarray:
+    """Moving-least-squares smoothing: project each point onto a local quadratic surface.
+
+    Each point's neighbours within ``radius`` (Gaussian weights, sigma = radius / 2) define a
+    plane by weighted PCA and a second-order height polynomial over it; the point moves onto that
+    surface along the normal. Points with fewer than 6 neighbours stay where they are.
+
+    Parameters
+    ----------
+    points : (N, 3) array_like of float [m], finite
+    radius : float
+        [m], > 0 (a few times the point spacing).
+    num_threads : int
+
+    Returns
+    -------
+    (N, 3) float32 ndarray, row i the smoothed point i.
+    """
+    pts = _finite_cloud(points)
+    if not radius > 0:
+        raise ValueError("radius must be > 0")
+    return _ext.mls_smooth(pts, float(radius), int(num_threads))
+
+
+def normal_space_sampling(normals, num_samples: int, bins_per_axis: int = 4,
+                          seed: int = 0) -> np.ndarray:
+    """Normal-space sampling (Rusinkiewicz & Levoy 2001): indices spread evenly over normals.
+
+    Normals are bucketed on a ``bins_per_axis``^3 grid over their components and drawn round-robin
+    across buckets, so that rare orientations (a door frame, a step) survive the subsampling
+    that ICP needs to stay well constrained.
+
+    Parameters
+    ----------
+    normals : (N, 3) array_like of float, unit
+    num_samples : int
+        Wanted samples; all N indices when it is >= N.
+    bins_per_axis : int
+    seed : int
+
+    Returns
+    -------
+    (M,) int64 ndarray of row indices, ascending, M = min(num_samples, N).
+    """
+    nrm = np.ascontiguousarray(np.asarray(normals, dtype=np.float64))
+    if nrm.ndim != 2 or nrm.shape[1] != 3:
+        raise ValueError(f"expected (N, 3) normals, got shape {nrm.shape}")
+    if bins_per_axis < 1:
+        raise ValueError("bins_per_axis must be >= 1")
+    return _ext.normal_space_sampling(nrm, int(num_samples), int(bins_per_axis), int(seed))
+
+
+def compute_fpfh(points, normals, radius: float, max_neighbors: int = 100,
+                 num_threads: int = 0) -> np.ndarray:
+    """Fast Point Feature Histograms (3 x 11 bins as PCL and Open3D; each third sums to 200).
+
+    Parameters
+    ----------
+    points : (N, 3) array_like of float [m], finite
+    normals : (N, 3) array_like of float, unit (from :func:`estimate_normals`)
+    radius : float
+        Feature radius [m] (about 5 voxels).
+    max_neighbors : int
+        Cap on the neighbourhood (nearest first); 0 = no cap.
+    num_threads : int
+
+    Returns
+    -------
+    (N, 33) float32 ndarray; rows of points with < 2 neighbours are zero.
+    """
+    pts = _finite_cloud(points)
+    nrm = np.ascontiguousarray(np.asarray(normals, dtype=np.float64))
+    if nrm.shape != pts.shape:
+        raise ValueError(f"normals must have the shape of points {pts.shape}, got {nrm.shape}")
+    if not radius > 0:
+        raise ValueError("radius must be > 0")
+    return _ext.compute_fpfh(pts, nrm, float(radius), int(max_neighbors), int(num_threads))
+
+
+def _finite_cloud(points) -> np.ndarray:
+    pts = as_cloud(points)
+    if not np.isfinite(pts).all():
+        raise ValueError("points contain NaN or inf: drop them first (e.g. "
+                         "points[np.isfinite(points).all(axis=1)])")
+    return pts
