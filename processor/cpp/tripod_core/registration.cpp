@@ -179,6 +179,9 @@ Eigen::Isometry3d kabsch(const PreparedCloud& src, const PreparedCloud& tgt,
 
 namespace detail {
 
+/// Point-to-plane family: pairs whose normals differ by more than 60 deg are ignored.
+constexpr double kMinNormalCos = 0.5;
+
 void associate(const PreparedCloud& src, const PreparedCloud& tgt, const Eigen::Isometry3d& T,
                double max_sq_dist, std::vector<int>& corr, int num_threads) {
     const int64_t n = src.points.rows();
@@ -272,10 +275,15 @@ Normal linearize(Method method, const PreparedCloud& src, const PreparedCloud& t
                 default: {  // point-to-plane family (plane, symmetric, Ceres' model)
                     if (!tgt.normal_valid[j]) continue;
                     Eigen::Vector3d nrm = tgt.normals.row(j).transpose();
-                    if (method == Method::kSymmetric && src.normal_valid[i]) {
+                    if (src.normal_valid[i]) {
                         Eigen::Vector3d ns = R * src.normals.row(i).transpose();
                         if (ns.dot(nrm) < 0) ns = -ns;  // seen from the other side
-                        nrm = (nrm + ns).normalized();
+                        // normal compatibility: a pair on different surfaces (a wall point
+                        // matched to the floor near a corner) pulls the wrong way: drop it
+                        if (ns.dot(nrm) < kMinNormalCos) continue;
+                        if (method == Method::kSymmetric) nrm = (nrm + ns).normalized();
+                    } else if (method == Method::kSymmetric) {
+                        continue;
                     }
                     const double s = nrm.dot(e);
                     kernel(s * s * inv_s2, w, rho);

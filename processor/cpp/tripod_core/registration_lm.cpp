@@ -99,6 +99,10 @@ void register_ceres(const PreparedCloud& src, const PreparedCloud& tgt, Eigen::I
             for (size_t i = 0; i < corr.size(); ++i) {
                 const int j = corr[i];
                 if (j < 0 || !tgt.normal_valid[j]) continue;
+                if (src.normal_valid[i]) {  // normal compatibility, as the Gauss-Newton methods
+                    const Eigen::Vector3d ns = T.linear() * src.normals.row(i).transpose();
+                    if (std::fabs(ns.dot(tgt.normals.row(j).transpose())) < 0.5) continue;
+                }
                 auto* cost = new ceres::AutoDiffCostFunction<PointToPlaneError, 1, 4, 3>(
                     new PointToPlaneError(src.points.row(i).transpose().cast<double>(),
                                           tgt.points.row(j).transpose().cast<double>(),

@@ -304,6 +304,9 @@ def register(
     -----
     The default correspondence distance is 1 m, or ``(10 v, 3 v)`` as a two-stage schedule when
     ``voxel_size`` v is given; clouds at an unknown offset need :func:`register_global` first.
+    The point-to-plane family (plane, symmetric, lm) ignores pairs whose normals differ by more
+    than 60 deg. Point-to-point converges linearly: give it tight ``rotation_eps`` /
+    ``translation_eps`` and more iterations.
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")

@@ -1,0 +1,208 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""``tripod compress`` / ``decompress`` / ``rd`` / ``train-compressor``: the learned codec."""
+
+from __future__ import annotations
+
+import json
+import re
+import time
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from . import app
+from ._common import console, fail
+
+_PANEL = "Compression"
+_UNITS = {"": 1.0, "m": 1.0, "cm": 1e-2, "mm": 1e-3, "um": 1e-6}
+
+
+def parse_length(text: str) -> float:
+    """'2mm', '0.5 cm', '0.002' (metres) -> metres."""
+    m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:e-?[0-9]+)?)\s*([a-z]*)\s*", text.lower())
+    if not m or m.group(2) not in _UNITS:
+        raise ValueError(f"not a length: {text!r} (use e.g. 2mm, 0.5cm, 0.002)")
+    value = float(m.group(1)) * _UNITS[m.group(2)]
+    if value <= 0:
+        raise ValueError(f"length must be > 0: {text!r}")
+    return value
+
+
+def _read_cloud(path: Path):
+    from ..cloud_io import read_cloud
+
+    try:
+        return read_cloud(path)
+    except (OSError, ValueError) as exc:
+        fail(f"{path}: {exc}")
+
+
+def _read_points(path: Path):
+    import numpy as np
+
+    from ..cloud_io import xyz
+
+    return xyz(_read_cloud(path), np.float32)
+
+
+@app.command("compress", rich_help_panel=_PANEL)
+def compress_cmd(
+    cloud: Path = typer.Argument(..., help="Input cloud (PLY or PCD)."),
+    output: Path = typer.Option(..., "-o", "--output", help="Output .tpc file."),
+    error: Optional[str] = typer.Option(None, "--error",
+                                        help="Max distance of any point from its decoded position, "
+                                             "e.g. 2mm (the default: 2mm)."),
+    bpp: Optional[float] = typer.Option(None, "--bpp", help="Target bits per point instead."),
+    voxel: Optional[str] = typer.Option(None, "--voxel", help="Voxel edge instead, e.g. 5mm."),
+    intensity: bool = typer.Option(True, "--intensity/--no-intensity",
+                                   help="Keep the cloud's intensity field, if it has one "
+                                        "(mean per voxel)."),
+) -> None:
+    """Compress a cloud's geometry (and intensity) to a .tpc file (learned octree coder)."""
+    import numpy as np
+
+    from ..cloud_io import xyz
+    from ..compression import CodecError, compress_with_info
+    from ..compression.model import load_table
+
+    if sum(v is not None for v in (error, bpp, voxel)) > 1:
+        fail("give only one of --error, --bpp, --voxel")
+    try:
+        kw = {"bpp": bpp} if bpp is not None else (
+            {"voxel_size": parse_length(voxel)} if voxel is not None
+            else {"error": parse_length(error or "2mm")})
+    except ValueError as exc:
+        fail(str(exc))
+    structured = _read_cloud(cloud)
+    points = xyz(structured, np.float32)
+    names = structured.dtype.names or ()
+    if intensity and "intensity" in names:
+        kw["intensity"] = structured["intensity"]
+    load_table()  # once per machine (disk cache), not part of the speed shown
+    t = time.perf_counter()
+    try:
+        data, info = compress_with_info(points, **kw)
+    except CodecError as exc:
+        fail(str(exc))
+    dt = time.perf_counter() - t
+    output.parent.mkdir(parents=True, exist_ok=True)
+    output.write_bytes(data)
+    console.print(f"{cloud} -> {output}: {info.n_points} points -> {info.n_voxels} voxels of "
+                  f"{1e3 * info.voxel_size:.3g} mm, {len(data)} bytes, "
+                  f"{info.bits_per_point:.3f} bits/point, {info.n_points / dt / 1e6:.2f} M points/s")
+
+
+@app.command("decompress", rich_help_panel=_PANEL)
+def decompress_cmd(
+    tpc: Path = typer.Argument(..., help="Input .tpc file."),
+    output: Path = typer.Option(..., "-o", "--output", help="Output cloud (.ply or .pcd)."),
+) -> None:
+    """Decompress a .tpc file to a PLY/PCD cloud (one point per occupied voxel)."""
+    from ..cloud_io import make_cloud, write_cloud
+    from ..compression import CodecError, ContainerError
+    from ..compression.codec import decode_cloud
+    from ..compression.model import load_table
+
+    if not tpc.is_file():
+        fail(f"no such file: {tpc}")
+    if output.suffix.lower() not in (".ply", ".pcd"):
+        fail(f"unknown cloud extension {output.suffix!r} (use .ply or .pcd)")
+    load_table()
+    t = time.perf_counter()
+    try:
+        points, attributes, header = decode_cloud(tpc.read_bytes())
+    except (ContainerError, CodecError) as exc:
+        fail(f"{tpc}: {exc}")
+    dt = time.perf_counter() - t
+    output.parent.mkdir(parents=True, exist_ok=True)
+    write_cloud(output, make_cloud(points, **{k: v.astype("float32")
+                                              for k, v in attributes.items()}))
+    console.print(f"{tpc} -> {output}: {len(points)} points (voxel "
+                  f"{1e3 * header['voxel_size']:.3g} mm), {len(points) / max(dt, 1e-9) / 1e6:.2f} "
+                  f"M points/s")
+
+
+@app.command("rd", rich_help_panel=_PANEL)
+def rd_cmd(
+    clouds: list[Path] = typer.Argument(..., help="Cloud(s) (PLY or PCD)."),
+    plot: Path = typer.Option(Path("rd.png"), "--plot", help="RD plot (PNG); a .json beside it."),
+    q_min: int = typer.Option(8, help="Coarsest Draco quantisation [bits]."),
+    q_max: int = typer.Option(12, help="Finest Draco quantisation [bits]."),
+) -> None:
+    """Rate-distortion of the tripod codec against Draco: bits/point, D1 PSNR, speed, plot."""
+    from tqdm import tqdm
+
+    from ..compression.rd import draco_available, plot_rd, run_rd
+
+    if not 2 <= q_min <= q_max <= 20:
+        fail("need 2 <= --q-min <= --q-max <= 20")
+    with_draco = draco_available()
+    if not with_draco:
+        console.print("DracoPy is not installed (pip install 'tripod-processor[bench]'): "
+                      "showing the tripod codec only")
+    curves = {}
+    for path in clouds:
+        points = _read_points(path)
+        n_jobs = (q_max - q_min + 3) + (q_max - q_min + 1 if with_draco else 0)
+        with tqdm(total=n_jobs, desc=path.name, leave=False) as bar:
+            curves[path.name] = run_rd(points, range(q_min, q_max + 1), with_draco,
+                                       progress=lambda *_: bar.update())
+    print_rd_tables(curves)
+    plot.parent.mkdir(parents=True, exist_ok=True)
+    plot_rd(curves, plot)
+    plot.with_suffix(".json").write_text(json.dumps(
+        {k: [r.as_dict() for r in v] for k, v in curves.items()}, indent=1))
+    console.print(f"plot: {plot}")
+
+
+def print_rd_tables(curves: dict) -> None:
+    """One rich table per cloud: both codecs side by side at each q, and the rate ratio."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from ..compression.rd import ratio_at_equal_psnr
+
+    out = Console(width=max(Console().width, 150))
+    for name, rows in curves.items():
+        ratio = ratio_at_equal_psnr(rows)
+        table = Table(title=f"{name}: rate-distortion (bpp per input point, D1 PSNR, speed M pts/s)")
+        for col in ("codec", "q", "step mm", "bpp", "RMSE mm", "PSNR diag", "PSNR mpeg10",
+                    "enc M/s", "dec M/s", "enc M/cpu-s", "dec M/cpu-s", "bpp ratio @ equal PSNR"):
+            table.add_column(col, justify="right")
+        for r in sorted(rows, key=lambda r: (r.q_bits, r.codec)):
+            table.add_row(r.codec, str(r.q_bits), f"{1e3 * r.step_m:.2f}", f"{r.bpp:.3f}",
+                          f"{r.rmse_mm:.2f}", f"{r.psnr_diag_db:.2f}", f"{r.psnr_mpeg10_db:.2f}",
+                          f"{r.encode_mpts_s:.2f}", f"{r.decode_mpts_s:.2f}",
+                          f"{r.encode_mpts_cpu_s:.2f}", f"{r.decode_mpts_cpu_s:.2f}",
+                          f"{ratio[r.q_bits]:.2f}" if r.codec == "draco" and r.q_bits in ratio
+                          else "")
+        out.print(table)
+
+
+@app.command("train-compressor", rich_help_panel=_PANEL)
+def train_compressor_cmd(
+    output: Path = typer.Option(None, "-o", "--output",
+                                help="Weights file (default: the shipped one, overwritten)."),
+    clouds: Optional[list[Path]] = typer.Argument(None, help="Training clouds (PLY/PCD, e.g. "
+                                                  "tripod simulate output); default: built-in "
+                                                  "synthetic rooms."),
+    seed: int = typer.Option(8, help="Random seed (8 reproduces the shipped weights)."),
+    fragments: int = typer.Option(5, help="Fragments to simulate when no clouds are given."),
+    epochs: int = typer.Option(400, help="Full-batch epochs."),
+    source: str = typer.Option("sim", help="Without clouds: 'sim' (tripod simulate, the "
+                                           "default) or 'synthetic' (quick built-in rooms)."),
+) -> None:
+    """Train the occupancy-context model on the CPU (minutes) and save its integer weights."""
+    from ..compression.model import DEFAULT_WEIGHTS
+    from ..compression.train import train
+
+    for c in clouds or []:
+        if not c.is_file():
+            fail(f"no such file: {c}")
+    if source not in ("sim", "synthetic"):
+        fail(f"--source must be sim or synthetic, not {source!r}")
+    out = output or DEFAULT_WEIGHTS
+    train(out, clouds=clouds or None, n_fragments=fragments, seed=seed, epochs=epochs,
+          source_kind=source, log=console.print)
+    console.print(f"weights: {out}")

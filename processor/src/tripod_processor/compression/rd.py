@@ -1,0 +1,146 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""Rate-distortion comparison of the tripod codec with Google Draco (``tripod rd``).
+
+Draco (DracoPy, the processor's ``bench`` extra) runs at quantisation q bits (the bounding box's
+largest side split into 2^q - 1 steps); the tripod codec runs on voxel grids of the same steps,
+one octave beyond each end, so its curve brackets Draco's. The *ratio* compares rates at equal
+D1 PSNR: the tripod bits per point interpolated (log-rate, linear in PSNR) at each Draco point,
+divided by Draco's. Rates are bits per input point; speeds are input points per second, wall
+clock, with the threads the machine has; the ``*_cpu`` rates divide by the CPU time the process
+used instead (all threads summed), a load-independent and conservative figure for a shared
+machine.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from .codec import encode, decode
+from .metrics import d1
+from .model import load_table
+
+
+@dataclass
+class RDPoint:
+    """One operating point of one codec on one cloud."""
+
+    codec: str  # "tripod" or "draco"
+    q_bits: int  # quantisation bits of the step (the grid step is extent / (2^q - 1))
+    step_m: float
+    bpp: float  # bits per input point
+    rmse_mm: float  # symmetric D1 RMSE
+    psnr_diag_db: float
+    psnr_mpeg10_db: float
+    encode_mpts_s: float  # input points per second, wall clock [M/s]
+    decode_mpts_s: float
+    n_decoded: int
+    encode_mpts_cpu_s: float = float("nan")  # input points per CPU second [M/s]
+    decode_mpts_cpu_s: float = float("nan")
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def draco_available() -> bool:
+    try:
+        import DracoPy  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def _timed(fn, *args, repeat: int = 1, **kw):
+    """(result, best wall time [s], best CPU time [s]) over ``repeat`` runs."""
+    wall, cpu, out = math.inf, math.inf, None
+    for _ in range(repeat):
+        t, c = time.perf_counter(), time.process_time()
+        out = fn(*args, **kw)
+        wall = min(wall, time.perf_counter() - t)
+        cpu = min(cpu, time.process_time() - c)
+    return out, wall, max(cpu, 1e-9)
+
+
+def run_rd(points: np.ndarray, q_bits=range(8, 13), with_draco: bool = True,
+           repeat: int = 1, progress=None) -> list[RDPoint]:
+    """Measure both codecs on ``points`` (N, 3) [m]; returns all operating points."""
+    p = np.ascontiguousarray(np.asarray(points, np.float32)[:, :3])
+    p = p[np.isfinite(p).all(1)]
+    n = len(p)
+    ext = float((p.max(0) - p.min(0)).max())
+    load_table()  # build the table once, outside the timings
+    q_list = list(q_bits)
+    ours_q = list(range(min(q_list) - 1, max(q_list) + 2))
+    rows: list[RDPoint] = []
+    jobs = [("tripod", q) for q in ours_q]
+    if with_draco:
+        jobs += [("draco", q) for q in q_list]
+    for codec, q in jobs:
+        step = ext / (2**q - 1)
+        if codec == "tripod":
+            (data, _info), te, ce = _timed(encode, p, step, repeat=repeat)
+            (dec, _hdr), td, cd = _timed(decode, data, repeat=repeat)
+        else:
+            import DracoPy
+
+            data, te, ce = _timed(DracoPy.encode, p, quantization_bits=q, compression_level=10,
+                                  repeat=repeat)
+            mesh, td, cd = _timed(DracoPy.decode, data, repeat=repeat)
+            dec = np.asarray(mesh.points, np.float32)
+        m = d1(p, dec)
+        rows.append(RDPoint(codec, q, step, 8.0 * len(data) / n, 1e3 * m.rmse_m, m.psnr_diag_db,
+                            m.psnr_mpeg10_db, n / te / 1e6, n / td / 1e6, len(dec),
+                            n / ce / 1e6, n / cd / 1e6))
+        if progress is not None:
+            progress(codec, q)
+    return rows
+
+
+def ratio_at_equal_psnr(rows: list[RDPoint]) -> dict[int, float]:
+    """{Draco q: tripod bpp / Draco bpp at Draco's PSNR (diagonal peak)}, where bracketed."""
+    ours = sorted((r for r in rows if r.codec == "tripod"), key=lambda r: r.psnr_diag_db)
+    x = np.array([r.psnr_diag_db for r in ours])
+    y = np.log(np.array([r.bpp for r in ours]))
+    out = {}
+    for r in rows:
+        if r.codec != "draco" or len(ours) < 2:
+            continue
+        if x[0] <= r.psnr_diag_db <= x[-1]:
+            out[r.q_bits] = float(np.exp(np.interp(r.psnr_diag_db, x, y)) / r.bpp)
+    return out
+
+
+def plot_rd(curves: dict[str, list[RDPoint]], path) -> None:
+    """PNG of PSNR (diagonal peak) against bits per point, one panel per cloud."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from matplotlib.ticker import NullFormatter
+
+    k = len(curves)
+    cols = min(k, 2)
+    rows_n = (k + cols - 1) // cols
+    fig, axes = plt.subplots(rows_n, cols, figsize=(5.5 * cols, 4.0 * rows_n), squeeze=False)
+    for ax in axes.flat[k:]:
+        ax.set_visible(False)
+    for ax, (name, rows) in zip(axes.flat, curves.items()):
+        for codec, style in (("tripod", "o-"), ("draco", "s--")):
+            rs = sorted((r for r in rows if r.codec == codec), key=lambda r: r.bpp)
+            if rs:
+                ax.plot([r.bpp for r in rs], [r.psnr_diag_db for r in rs], style,
+                        label="tripod (learned octree)" if codec == "tripod" else "Draco q8-q12")
+        ax.set_xscale("log")
+        ax.xaxis.set_minor_formatter(NullFormatter())
+        ax.set_xlabel("bits per input point")
+        ax.set_ylabel("D1 PSNR [dB] (peak: bbox diagonal)")
+        ax.set_title(name)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
