@@ -31,7 +31,7 @@ def plot_topdown(path: Path, map_xyz: np.ndarray, T_st: np.ndarray, traj_T: np.n
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 6), dpi=110)
     if len(map_xyz):
-        sel = map_xyz[np.random.default_rng(0).choice(len(map_xyz), min(len(map_xyz), 150_000),
+        sel = map_xyz[np.random.default_rng(0).choice(len(map_xyz), min(len(map_xyz), 60_000),
                                                      replace=False)]
         z = sel[:, 2]
         lo, hi = np.percentile(z, [5, 95])
@@ -105,7 +105,9 @@ def plot_plane_violins(path: Path, errors: list[dict[str, np.ndarray]]) -> dict:
         for k, e in enumerate(errors):
             r = e[kind]
             if len(r) >= 10:
-                data.append(r * 100)
+                # the violin's shape from a sample; the statistics from every residual
+                shape = r if len(r) <= 5000 else np.random.default_rng(k).choice(r, 5000)
+                data.append(shape * 100)
                 pos.append(k)
                 stats[kind].append({"fragment": k, "n": int(len(r)),
                                     "median": float(np.median(r)),
@@ -117,8 +119,8 @@ def plot_plane_violins(path: Path, errors: list[dict[str, np.ndarray]]) -> dict:
             for b in parts["bodies"]:
                 b.set_facecolor("tab:blue" if kind == "horizontal" else "tab:green")
                 b.set_alpha(0.5)
-            for p, d in zip(pos, data):
-                q = np.percentile(d, [2.5, 50, 97.5])
+            for p, st in zip(pos, stats[kind]):
+                q = np.array([st["p2_5"], st["median"], st["p97_5"]]) * 100
                 ax.hlines(q[1], p - 0.35, p + 0.35, colors="k", lw=1.4)
                 ax.hlines([q[0], q[2]], p - 0.25, p + 0.25, colors="tab:red", lw=1.0)
         ax.axhline(0, c="0.6", lw=0.6)
