@@ -84,7 +84,7 @@ class SlamConfig(StrictModel):
     enabled: bool = True
     #: loop candidates: station pairs closer than this [m] (after odometry), not consecutive
     loop_radius_m: float = Field(default=8.0, gt=0)
-    max_loops_per_station: int = Field(default=4, ge=0)
+    max_loops_per_station: int = Field(default=2, ge=0)
     loss: Literal["none", "huber", "cauchy", "soft_l1"] = "cauchy"
     loss_scale: float = Field(default=4.74, gt=0)
     outlier_chi2: float = Field(default=22.46, gt=0)
