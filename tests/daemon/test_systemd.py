@@ -111,3 +111,19 @@ def test_journald_stream_gets_priority_prefixes(tmp_path, monkeypatch):
         logging.getLogger("tripod_daemon.test").error("boom")
     line = other.read_text()
     assert "ERROR tripod_daemon.test: boom" in line and not line.startswith("<")
+
+
+def test_notify_never_blocks_when_nobody_reads(tmp_path):
+    """A NOTIFY_SOCKET that is never read fills up; notify must drop, not stall the loop."""
+    path = str(tmp_path / "notify.sock")
+    server = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    server.bind(path)
+    try:
+        n = Notifier({"NOTIFY_SOCKET": path})
+        t0 = time.monotonic()
+        results = [n.status("x" * 200) for _ in range(5000)]
+        assert time.monotonic() - t0 < 5.0
+        assert results[0] is True and results[-1] is False  # the queue filled, then dropped
+        n.close()
+    finally:
+        server.close()

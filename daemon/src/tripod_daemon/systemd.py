@@ -26,6 +26,9 @@ class Notifier:
         if addr and addr[0] in "/@":
             self._addr = "\0" + addr[1:] if addr[0] == "@" else addr
             self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)
+            # Never block the receive loop: a notify socket nobody reads fills up, and then a
+            # message is dropped (and reported False) instead of stalling reception.
+            self._sock.setblocking(False)
         self.watchdog_interval_s = self._watchdog(env)
 
     @staticmethod
@@ -50,7 +53,7 @@ class Notifier:
             self._sock.sendto(state.encode("utf-8", "replace"), self._addr)
             return True
         except OSError:
-            return False  # systemd gone or socket full: never fatal
+            return False  # systemd gone or socket full (EAGAIN): never fatal, never blocks
 
     def ready(self, status: str = "") -> bool:
         return self.notify("READY=1" + (f"\nSTATUS={status}" if status else ""))
