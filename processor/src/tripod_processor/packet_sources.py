@@ -15,6 +15,8 @@ the packets' own device time (µs past the hour, unwrapped across hour rollovers
 
 from __future__ import annotations
 
+import abc
+
 import os
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -82,7 +84,7 @@ def group_packets(packets, max_data: int = 1024) -> Iterator[PacketBatch]:
                           np.frombuffer(b"".join(data), np.uint8).reshape(-1, size), others)
 
 
-class PacketSource:
+class PacketSource(abc.ABC):
     """Base of the sources: ``iter(source)`` yields ``(host_ns, payload)``."""
 
     kind = ""
@@ -95,8 +97,9 @@ class PacketSource:
         self.path = os.fspath(path)
         self.report = SourceReport()
 
-    def __iter__(self) -> Iterator[tuple[int, bytes]]:  # pragma: no cover - abstract
-        raise NotImplementedError
+    @abc.abstractmethod
+    def __iter__(self) -> Iterator[tuple[int, bytes]]:
+        """(host_ns, payload) of every packet in file order."""
 
     @property
     def size_bytes(self) -> int:

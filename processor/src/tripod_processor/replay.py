@@ -22,6 +22,8 @@ target.
 
 from __future__ import annotations
 
+import abc
+
 import errno
 import gc
 import heapq
@@ -147,7 +149,7 @@ class ReplaySource:
 # ----------------------------------------------------------------------------- IMU sinks
 
 
-class ImuSink:
+class ImuSink(abc.ABC):
     """Where IMU bytes go. ``write`` never blocks for long; undeliverable bytes are counted."""
 
     description = ""
@@ -156,8 +158,9 @@ class ImuSink:
         self.bytes_sent = 0
         self.bytes_dropped = 0
 
+    @abc.abstractmethod
     def write(self, data: bytes) -> None:
-        raise NotImplementedError
+        """Send ``data`` (or count it in ``bytes_dropped``)."""
 
     def close(self) -> None:
         pass
