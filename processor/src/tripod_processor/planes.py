@@ -173,7 +173,7 @@ def extract_planes(points, labels, *, classes=PLANAR_CLASSES, min_points: int = 
                    min_area: float = 0.5, max_band: float = 0.10, min_band: float = 0.01,
                    hypotheses: int = 200, sample: int = 20000, normal_deg: float = 20.0,
                    cell: float = 0.10, gap: float = 0.30, max_planes: int = 100, seed: int = 0,
-                   num_threads: int = 0) -> list[Plane]:
+                   max_search: int = 150_000, num_threads: int = 0) -> list[Plane]:
     """Planar segments of each planar class of a labelled cloud.
 
     Parameters
@@ -186,6 +186,8 @@ def extract_planes(points, labels, *, classes=PLANAR_CLASSES, min_points: int = 
     normal_deg : largest angle between a point's normal and the plane's [deg]
     cell, gap : grid cell of the connectivity test, widest gap inside one segment [m]
     seed : RANSAC seed (results are deterministic for a seed)
+    max_search : the search runs on at most this many random points of a class; each segment
+        found then takes all its points (within its band, normal test and grown footprint)
     num_threads : for the normals, 0 = all cores
 
     Returns
@@ -209,28 +211,34 @@ def extract_planes(points, labels, *, classes=PLANAR_CLASSES, min_points: int = 
         ls = _ext.voxel_local_shape(np.ascontiguousarray(p32[idx_all]), 0.05, 1, int(num_threads))
         N = ls[:, :3].astype(np.float64)
         planar = (ls[:, 4] - ls[:, 3]) / np.maximum(ls[:, 5], 1e-12) > 0.5
-        alive = np.ones(len(P), bool)
+        # search on a random subset (fast), then give each segment all its points (accurate)
+        S = np.sort(rng.choice(len(P), max_search, replace=False)) if len(P) > max_search \
+            else np.arange(len(P))
+        frac = len(S) / len(P)
+        min_sub = max(30, int(min_points * frac))
+        PS, NS, planar_S = P[S], N[S], planar[S]
+        alive = np.ones(len(S), bool)
+        assigned = np.zeros(len(P), bool)
         found: list[Plane] = []
         failures = 0
-        while alive.sum() >= min_points and len(found) < max_planes and failures < 3:
+        while alive.sum() >= min_sub and len(found) < max_planes and failures < 3:
             live = np.flatnonzero(alive)
             sub = live if len(live) <= sample else rng.choice(live, sample, replace=False)
-            seeds_pool = sub[planar[sub]]
+            seeds_pool = sub[planar_S[sub]]
             if len(seeds_pool) == 0:
                 break
-            best, best_score = None, 0
-            Ps, Ns = P[sub], N[sub]
+            Ps, Ns = PS[sub], NS[sub]
             cand = rng.choice(seeds_pool, min(hypotheses, len(seeds_pool)), replace=False)
-            # all hypotheses at once: (H, S) distance and normal tests in two matrix products
-            Hn = N[cand]
-            Hd = -np.einsum("ij,ij->i", Hn, P[cand])
+            # all hypotheses at once: (S, H) distance and normal tests in two matrix products
+            Hn = NS[cand]
+            Hd = -np.einsum("ij,ij->i", Hn, PS[cand])
             ok = (np.abs(Ps @ Hn.T + Hd) < max_band) & (np.abs(Ns @ Hn.T) > cos_tol)
             scores = ok.sum(0)
             k = int(np.argmax(scores))
             best, best_score = (Hn[k], float(Hd[k])), int(scores[k])
-            if best is None or best_score * len(live) / len(sub) < min_points:
+            if best_score * len(live) / len(sub) < min_sub:
                 break
-            Pl, Nl = P[live], N[live]
+            Pl, Nl = PS[live], NS[live]
             near = np.abs(Pl @ best[0] + best[1]) < 2 * max_band
             n, d, mask, sigma = _robust_refine(Pl[near], best[0], best[1], min_band, max_band)
             agree = np.abs(Nl[near] @ n) > cos_tol
@@ -240,19 +248,34 @@ def extract_planes(points, labels, *, classes=PLANAR_CLASSES, min_points: int = 
             band = float(np.clip(3.0 * sigma, min_band, max_band))
             tails = live[near][(np.abs(Pl[near] @ n + d) < 2 * band) & agree]
             alive[tails] = False
-            if len(members) < min_points:
+            if len(members) < min_sub:
                 failures += 1
                 continue
             alive[members] = False
             axes = _plane_axes(n)
-            uv = (P[members] - P[members].mean(0)) @ axes.T
+            o = PS[members].mean(0)
+            uv = (PS[members] - o) @ axes.T
+            # full-resolution candidates of this plane, once for all its pieces
+            free = np.flatnonzero(~assigned)
+            cand_full = free[(np.abs(P[free] @ n + d) < band) & (np.abs(N[free] @ n) > cos_tol * 0.9)]
+            uv_full = (P[cand_full] - o) @ axes.T
+            r = max(1, int(np.ceil(gap / cell / 2)))
+            from scipy import ndimage
+
             for m, occ, lo in _components(uv, cell, gap):
-                seg = members[m]
                 area = float(occ.sum()) * cell * cell
-                if len(seg) < min_points or area < min_area:
+                if m.sum() < min_sub or area < min_area:
+                    continue
+                grown = ndimage.binary_dilation(occ, iterations=r)
+                ij = np.floor((uv_full - lo) / cell).astype(np.int64)
+                inside = (ij >= 0).all(1) & (ij[:, 0] < occ.shape[0]) & (ij[:, 1] < occ.shape[1])
+                inside[inside] = grown[ij[inside, 0], ij[inside, 1]]
+                seg = cand_full[inside & ~assigned[cand_full]]
+                if len(seg) < min_points:
                     continue
                 n2, d2, mask2, sig2 = _robust_refine(P[seg], n, d, min_band, max_band, iters=3)
                 seg = seg[mask2]
+                assigned[seg] = True
                 # orient into the room
                 if c == FLOOR:
                     flip = n2[2] < 0
@@ -267,8 +290,10 @@ def extract_planes(points, labels, *, classes=PLANAR_CLASSES, min_points: int = 
                 ax = _plane_axes(n2)
                 uv2 = (P[seg] - origin) @ ax.T
                 outline2 = np.zeros((0, 2))
+                area = 0.0
                 for _, occ2, lo2 in _components(uv2, cell, gap):
                     outline2 = _outline(occ2, lo2, cell, tol=cell)
+                    area = float(occ2.sum()) * cell * cell
                     break
                 outline = origin + outline2 @ ax
                 found.append(Plane(int(c), n2, float(d2), idx_all[seg], origin, ax, outline,
