@@ -13,8 +13,10 @@ images under a 2-D rotation and translation gives the remaining yaw and x-y shif
    sub-pixel parabolic peak;
 3. **3-D** — the image transform is lifted to T_target_source through the two levelling
    transforms; Hu moments of the two floor footprints and the correlation peak are reported;
-4. **verify** (and optionally refine) — point-to-plane ICP from that guess; the overlap share
-   (fitness) and inlier RMSE say whether to trust it.
+4. **verify** (and optionally refine) — the best few coarse answers are refined; the one with
+   the highest image score among those whose overlap (fitness) passes wins (symmetric rooms
+   overlap equally well under each symmetry, only the furniture in the image tells them
+   apart); point-to-plane ICP polishes it; fitness and inlier RMSE say whether to trust it.
 
 Exposed to ``tripod register`` as its heightmap method through :func:`register_by_heightmaps`.
 """
@@ -72,6 +74,7 @@ class LevelledScan:
     z: np.ndarray
     floor_xy: np.ndarray
     height: float
+    labels: np.ndarray
 
 
 def level_scan(points, labels, *, seed: int = 0, max_points: int = 200_000) -> LevelledScan:
@@ -100,7 +103,7 @@ def level_scan(points, labels, *, seed: int = 0, max_points: int = 200_000) -> L
     else:
         height = float(np.percentile(Q[:, 2], 99.5))
     band = (Q[:, 2] > 0.10) & (Q[:, 2] < height - 0.10)
-    return LevelledScan(T, Q[band, :2], Q[band, 2], Q[fl.indices, :2], height)
+    return LevelledScan(T, Q[band, :2], Q[band, 2], Q[fl.indices, :2], height, labels[band])
 
 
 def _raster(xy: np.ndarray, val: np.ndarray, lo: np.ndarray, pixel: float, shape) -> np.ndarray:
@@ -120,12 +123,16 @@ def _normalise(img: np.ndarray) -> np.ndarray:
     return out
 
 
-def _xcorr_peak(F_target: np.ndarray, src: np.ndarray, window=None):
+def _xcorr_peak(F_target: np.ndarray, src: np.ndarray, window=None, extra=None):
     """Peak of the circular cross-correlation (shift of src onto target) with sub-pixel refinement.
-    window: optional ((i0, j0), radius) limiting the search to shifts near (i0, j0)."""
+    window: optional ((i0, j0), radius) limiting the search to shifts near (i0, j0);
+    extra: optional (F_target2, src2), a second channel whose correlation is added."""
     from scipy import fft
 
-    c = fft.irfft2(F_target * np.conj(fft.rfft2(src)), s=src.shape, workers=-1)
+    X = F_target * np.conj(fft.rfft2(src, workers=-1))
+    if extra is not None:
+        X = X + extra[0] * np.conj(fft.rfft2(extra[1], workers=-1))
+    c = fft.irfft2(X, s=src.shape, workers=-1)
     if window is not None:
         (i0, j0), r = window
         H, W = c.shape
@@ -150,38 +157,52 @@ def _xcorr_peak(F_target: np.ndarray, src: np.ndarray, window=None):
     return peak, np.array([si, sj])
 
 
+def _channels(xy, z, labels, lo, pixel, shape) -> list[np.ndarray]:
+    """Plan heightmap channels: walls (occupancy) and the rest (tallest point [m]); each
+    normalised. Walls give the room's outline, the rest breaks its symmetries."""
+    wall = labels == 2
+    return [_normalise(_raster(xy[wall], np.ones(wall.sum()), lo, pixel, shape)),
+            _normalise(_raster(xy[~wall], z[~wall], lo, pixel, shape))]
+
+
 def _search(src: LevelledScan, tgt: LevelledScan, yaws: np.ndarray, pixel: float, window=None,
-            max_points: int = 40_000, seed: int = 0):
-    """Best (score, yaw, shift [m]) over the yaws; shift maps rotated source xy onto target xy."""
+            max_points: int = 30_000, seed: int = 0, keep: int = 1):
+    """The ``keep`` best (score, yaw, shift [m]) over the yaws (at least 20 deg apart); shift maps
+    the rotated source xy onto the target xy."""
     from scipy import fft
 
     rng = np.random.default_rng(seed)
-    sx, sz = src.xy, src.z
+    sx, sz, sl = src.xy, src.z, src.labels
     if len(sx) > max_points:
         k = rng.choice(len(sx), max_points, replace=False)
-        sx, sz = sx[k], sz[k]
-    tx, tz = tgt.xy, tgt.z
+        sx, sz, sl = sx[k], sz[k], sl[k]
     r_src = float(np.sqrt((sx ** 2).sum(1)).max()) if len(sx) else 1.0
     t_lo, t_hi = tgt.xy.min(0), tgt.xy.max(0)
     span = (t_hi - t_lo) + 2 * r_src + 1.0
     n = int(2 ** np.ceil(np.log2(max(32, span.max() / pixel))))
     lo = t_lo - r_src - 0.5
     shape = (n, n)
-    T_img = _normalise(_raster(tx, tz, lo, pixel, shape))
-    F_t = fft.rfft2(T_img)
-    best = (-np.inf, 0.0, np.zeros(2))
+    F_t = [fft.rfft2(c) for c in _channels(tgt.xy, tgt.z, tgt.labels, lo, pixel, shape)]
+    results = []
     for yaw in yaws:
         c, s = np.cos(yaw), np.sin(yaw)
         rx = sx @ np.array([[c, s], [-s, c]])  # rows: R(yaw) x
-        S_img = _normalise(_raster(rx, sz, lo, pixel, shape))
+        S_c = _channels(rx, sz, sl, lo, pixel, shape)
         win = None
         if window is not None:
             centre = np.round(window[0] / pixel).astype(int)
             win = ((int(centre[0]), int(centre[1])), int(window[1]))
-        peak, shift = _xcorr_peak(F_t, S_img, win)
-        if peak > best[0]:
-            best = (peak, float(yaw), shift * pixel)
-    return best
+        # summed correlation of the channels; the peak position from their sum
+        peak, shift = _xcorr_peak(F_t[0] + 0.0, S_c[0], win, extra=(F_t[1], S_c[1]))
+        results.append((peak, float(yaw), shift * pixel))
+    results.sort(key=lambda r: -r[0])
+    out = []
+    for r in results:
+        if all(abs((r[1] - o[1] + np.pi) % (2 * np.pi) - np.pi) > np.deg2rad(20) for o in out):
+            out.append(r)
+        if len(out) == keep:
+            break
+    return out
 
 
 def hu_moments(mask: np.ndarray) -> np.ndarray:
@@ -228,9 +249,9 @@ def _log_hu(h):
 
 def register_by_heightmaps(source, target, *, source_labels=None, target_labels=None,
                            coarse_pixel: float = 0.10, coarse_step_deg: float = 2.0,
-                           fine_pixel: float = 0.05, fine_step_deg: float = 0.25,
+                           fine_pixel: float = 0.05, fine_step_deg: float = 0.5,
                            refine: bool = True, max_distance: float = 0.10,
-                           min_fitness: float = 0.3, weights=None, seed: int = 0,
+                           min_fitness: float = 0.2, candidates: int = 3, weights=None, seed: int = 0,
                            num_threads: int = 0) -> HeightmapMatch:
     """Rigid transform between two overlapping indoor scans by matching floor heightmaps.
 
@@ -245,6 +266,8 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
     refine : polish the image answer with point-to-plane ICP (Open3D); else only verify with it
     max_distance : correspondence distance of the ICP check [m]
     min_fitness : overlap share needed to call the match a success
+    candidates : coarse answers (yaws 20 deg apart) refined and checked; the best overlap wins
+        (a symmetric room has as many equally good image matches as symmetries)
     weights : segmenter weights when labels are None
 
     Returns
@@ -267,46 +290,72 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
     lt = level_scan(Tg, target_labels, seed=seed)
     stages["level"] = time.perf_counter() - t1
     t1 = time.perf_counter()
+    # the image must stay small for big halls: a coarser pixel there
+    extent = float(max(np.ptp(lt.xy, 0).max(), np.ptp(ls.xy, 0).max())) if len(lt.xy) and len(ls.xy) else 10.0
+    cp = max(coarse_pixel, extent / 150)
+    fp = max(fine_pixel, extent / 400)
     yaws = np.deg2rad(np.arange(0.0, 360.0, coarse_step_deg))
-    score, yaw, shift = _search(ls, lt, yaws, coarse_pixel, seed=seed)
+    coarse = _search(ls, lt, yaws, cp, seed=seed, keep=candidates)
     stages["coarse"] = time.perf_counter() - t1
     t1 = time.perf_counter()
-    fine = yaw + np.deg2rad(np.arange(-coarse_step_deg, coarse_step_deg + 1e-9, fine_step_deg))
-    score, yaw, shift = _search(ls, lt, fine, fine_pixel,
-                                window=(shift, int(np.ceil(2 * coarse_pixel / fine_pixel)) + 2),
-                                seed=seed)
-    stages["fine"] = time.perf_counter() - t1
-    # image transform: target_xy = R(yaw) source_xy + shift  (in the levelled frames)
-    # _search rasterises rotated source at (x - lo) and correlates: shift moves source onto target
-    c, s = np.cos(yaw), np.sin(yaw)
-    M = np.eye(4)
-    M[:2, :2] = [[c, -s], [s, c]]
-    M[:2, 3] = shift
-    T = np.linalg.inv(lt.T_level_scan) @ M @ ls.T_level_scan
     hu_s = _log_hu(hu_moments(_footprint_mask(ls.floor_xy)))
     hu_t = _log_hu(hu_moments(_footprint_mask(lt.floor_xy)))
     hu_d = float(np.abs(hu_s[:4] - hu_t[:4]).sum())
+    checker = _IcpCheck(S, Tg, max_distance)
+    best = None
+    for score0, yaw0, shift0 in coarse:
+        fine = yaw0 + np.deg2rad(np.arange(-coarse_step_deg, coarse_step_deg + 1e-9, fine_step_deg))
+        score, yaw, shift = _search(ls, lt, fine, fp, window=(shift0, int(np.ceil(2 * cp / fp)) + 2),
+                                    seed=seed)[0]
+        # image transform: target_xy = R(yaw) source_xy + shift (in the levelled frames)
+        c, s = np.cos(yaw), np.sin(yaw)
+        M = np.eye(4)
+        M[:2, :2] = [[c, -s], [s, c]]
+        M[:2, 3] = shift
+        T = np.linalg.inv(lt.T_level_scan) @ M @ ls.T_level_scan
+        fitness = checker.fitness(T)
+        # the image score decides (walls, floor and ceiling of a symmetric hall overlap equally
+        # well under each symmetry, so overlap alone would pick at random); overlap only vetoes
+        key = (fitness >= min_fitness, score)
+        if best is None or key > best[0]:
+            best = (key, score, T)
+    stages["fine"] = time.perf_counter() - t1
     t1 = time.perf_counter()
-    fitness, rmse, T = _icp_check(S, Tg, T, max_distance, refine)
+    _, score, T = best
+    fitness, rmse, T = checker.final(T, refine)
     stages["verify"] = time.perf_counter() - t1
     return HeightmapMatch(T, float(score), fitness, rmse, hu_d, fitness >= min_fitness,
                           time.perf_counter() - t0, stages)
 
 
-def _icp_check(S, Tg, T, max_distance, refine, voxel: float = 0.05):
-    import open3d as o3d
+class _IcpCheck:
+    """Overlap of two clouds under a transform (Open3D), and the final point-to-plane polish."""
 
-    def pcd(p):
-        c = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p))
-        c = c.voxel_down_sample(voxel)
-        c.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=4 * voxel, max_nn=20))
-        return c
+    def __init__(self, S, Tg, max_distance: float, voxel: float = 0.05) -> None:
+        import open3d as o3d
 
-    src, tgt = pcd(S), pcd(Tg)
-    reg = o3d.pipelines.registration
-    if refine:
-        res = reg.registration_icp(src, tgt, max_distance, T, reg.TransformationEstimationPointToPlane(),
-                                   reg.ICPConvergenceCriteria(max_iteration=30))
-        T = np.asarray(res.transformation)
-    res = reg.evaluate_registration(src, tgt, max_distance, T)
-    return float(res.fitness), float(res.inlier_rmse), np.asarray(T)
+        self.o3d = o3d
+        self.max_distance = max_distance
+
+        def pcd(p, v):
+            c = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p))
+            c = c.voxel_down_sample(v)
+            c.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=4 * v, max_nn=20))
+            return c
+
+        self.src, self.tgt = pcd(S, voxel), pcd(Tg, voxel)
+        self.src_coarse = self.src.voxel_down_sample(0.15)
+
+    def fitness(self, T) -> float:
+        reg = self.o3d.pipelines.registration
+        return float(reg.evaluate_registration(self.src_coarse, self.tgt, 2 * self.max_distance, T).fitness)
+
+    def final(self, T, refine: bool):
+        reg = self.o3d.pipelines.registration
+        if refine:
+            res = reg.registration_icp(self.src, self.tgt, self.max_distance, T,
+                                       reg.TransformationEstimationPointToPlane(),
+                                       reg.ICPConvergenceCriteria(max_iteration=30))
+            T = np.asarray(res.transformation)
+        res = reg.evaluate_registration(self.src, self.tgt, self.max_distance, T)
+        return float(res.fitness), float(res.inlier_rmse), np.asarray(T)
