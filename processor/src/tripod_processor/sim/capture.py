@@ -1,0 +1,273 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""Write one simulated capture directory (the output of ``tripod simulate``).
+
+Steps: scene -> trajectory -> lidar packets in chunks (ray cast, encode, write pcap, keep
+labels) -> IMU stream -> ground truth, mesh, meta. See the README section "Digital twin" for
+every file.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from tripod_shared import velodyne as v
+from tripod_shared.timebase import HOUR_NS
+
+from ..imu_log import write_imu_log
+from ..pcap import PcapWriter
+from .config import SimConfig
+from .imu import R_lidar_imu, simulate_imu, wxyz
+from .lidar import (LASER_ELEVATION_DEG, SEQUENCE_NS, Vlp16, gprmc, packet_period_ns,
+                    position_packet, position_schedule)
+from .motion import Trajectory
+from .scenes import CLASS_NAMES, NO_RETURN, Scene, load_scene_file, make_scene, write_mesh_ply
+
+FORMAT_VERSION = 1
+CAPTURE_FILE = "capture.pcap"
+IMU_FILE = "imu.tripimu"
+LABELS_FILE = "labels.npz"
+MESH_FILE = "mesh.ply"
+META_FILE = "meta.json"
+CONFIG_FILE = "config.yaml"
+GT_DIR = "gt"
+
+
+@dataclass
+class SimSummary:
+    out_dir: Path
+    duration_s: float
+    data_packets: int
+    position_packets: int
+    imu_samples: int
+    stations: int
+    wall_s: float
+
+    @property
+    def realtime_factor(self) -> float:
+        """Sensor time per wall time (> 1: faster than real time)."""
+        return self.duration_s / max(self.wall_s, 1e-9)
+
+
+def build_scene(cfg: SimConfig) -> Scene:
+    if cfg.scene_file:
+        return load_scene_file(cfg.scene_file, cfg.seed)
+    return make_scene(cfg.scene, cfg.seed)
+
+
+def build_rig(cfg: SimConfig, scene: Scene | None = None) -> tuple[Scene, Trajectory]:
+    """The scene and the trajectory of a config (deterministic per seed)."""
+    scene = scene or build_scene(cfg)
+    traj = Trajectory(scene.route, scene.closed_route, cfg.stations, cfg.motion,
+                      np.random.default_rng([cfg.seed, 0x7A3]))
+    return scene, traj
+
+
+def _tum_line(t_ns: int, p, q_wxyz) -> str:
+    s, ns = divmod(int(t_ns), 1_000_000_000)
+    return (f"{s}.{ns:09d} {p[0]:.6f} {p[1]:.6f} {p[2]:.6f} "
+            f"{q_wxyz[1]:.9f} {q_wxyz[2]:.9f} {q_wxyz[3]:.9f} {q_wxyz[0]:.9f}\n")
+
+
+def _T(R: np.ndarray, p) -> list[list[float]]:
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = p
+    return [[round(float(x), 12) for x in row] for row in T]
+
+
+def simulate(cfg: SimConfig, out_dir: str | os.PathLike, *, nthreads: int = 0,
+             progress: Callable[[int, int], None] | None = None,
+             chunk_packets: int = 754) -> SimSummary:
+    """Simulate the capture described by ``cfg`` into ``out_dir`` (created if needed).
+
+    ``progress(done, total)`` is called after each chunk of data packets.
+    """
+    wall0 = time.perf_counter()
+    out = Path(out_dir)
+    (out / GT_DIR).mkdir(parents=True, exist_ok=True)
+    scene, traj = build_rig(cfg)
+    lc = cfg.lidar
+    start = cfg.start_unix_ns
+    duration_ns = int(round(traj.duration_s * 1e9))
+    period = packet_period_ns(lc.return_mode)
+    n_packets = duration_ns // period
+    lidar = Vlp16(lc, scene, traj, start, cfg.seed, nthreads=nthreads)
+
+    # position packets: send times, then payloads (toh on the lidar clock)
+    pos_rng = np.random.default_rng([cfg.seed, 0x905])
+    pos_t = position_schedule(duration_ns, cfg.seed) if lc.position_packets else np.zeros(0, int)
+    pos_recv = start + pos_t + np.round(lc.network_latency_us * 1e3 + pos_rng.exponential(
+        max(lc.network_jitter_us, 1e-9) * 1e3, len(pos_t))).astype(np.int64)
+    pos_recv = np.maximum.accumulate(pos_recv) if len(pos_recv) else pos_recv
+    pps = 2 if lc.gps else 0
+
+    labels = np.empty((n_packets, 12, 32), dtype=np.uint8)
+    toh = np.empty(n_packets, dtype=np.uint32)
+    recv = np.empty(n_packets, dtype=np.int64)
+    first_fire = np.empty(n_packets, dtype=np.int64)
+    pi = 0  # next position packet
+    with PcapWriter(out / CAPTURE_FILE, src_ip=lc.src_ip, dst_ip=lc.dst_ip) as pw:
+        def write_positions(until_ns: int) -> None:
+            nonlocal pi
+            while pi < len(pos_t) and pos_recv[pi] <= until_ns:
+                dev_ns = start + int(pos_t[pi]) + lc.clock_offset_ns
+                nmea = gprmc(dev_ns, lc.gps_lat_deg, lc.gps_lon_deg) if lc.gps else ""
+                pw.write_udp(int(pos_recv[pi]), position_packet((dev_ns % HOUR_NS) // 1000, pps,
+                                                                nmea),
+                             v.POSITION_PORT, v.POSITION_PORT)
+                pi += 1
+
+        for first in range(0, n_packets, chunk_packets):
+            count = min(chunk_packets, n_packets - first)
+            batch = lidar.packets(first, count)
+            sl = slice(first, first + count)
+            labels[sl] = batch.labels
+            toh[sl] = batch.payloads[:, v.TIMESTAMP_OFFSET:v.TIMESTAMP_OFFSET + 4].copy().view(
+                "<u4")[:, 0]
+            rv = batch.recv_ns
+            if first > 0:  # never earlier than the previous packet (one NIC queue)
+                rv = np.maximum(rv, recv[first - 1])
+            rv = np.maximum.accumulate(rv)
+            recv[sl] = rv
+            first_fire[sl] = start + batch.first_firing_ns
+            for i in range(count):
+                write_positions(int(rv[i]))
+                pw.write_udp(int(rv[i]), batch.payloads[i].tobytes(), v.DATA_PORT, v.DATA_PORT)
+            if progress:
+                progress(first + count, n_packets)
+        write_positions(start + duration_ns + 10**9)
+        n_pos = pi
+
+    np.savez_compressed(out / LABELS_FILE, labels=labels, packet_toh_us=toh,
+                        packet_recv_ns=recv, packet_first_firing_ns=first_fire,
+                        class_names=np.array(CLASS_NAMES), no_return=np.uint8(NO_RETURN),
+                        return_mode=np.array(lc.return_mode))
+
+    # IMU
+    imu = simulate_imu(cfg.imu, traj, duration_ns, start, cfg.seed)
+    write_imu_log(out / IMU_FILE, cfg.imu.protocol, imu.host_ns, imu.chunks)
+    with open(out / GT_DIR / "imu_truth.csv", "w") as fh:
+        fh.write("# host_ns,sample_ns,qw,qx,qy,qz  (host_realtime ns; R_ref_imu without noise)\n")
+        for h, s_, q in zip(imu.host_ns.tolist(), (start + imu.sample_ns).tolist(),
+                            imu.q_true.tolist()):
+            fh.write(f"{h},{s_},{q[0]:.9f},{q[1]:.9f},{q[2]:.9f},{q[3]:.9f}\n")
+
+    _write_ground_truth(out, cfg, scene, traj, duration_ns)
+    write_mesh_ply(out / MESH_FILE, scene)
+    wall = time.perf_counter() - wall0
+    summary = SimSummary(out, duration_ns * 1e-9, int(n_packets), int(n_pos), len(imu.host_ns),
+                         cfg.stations, wall)
+    _write_meta(out, cfg, scene, traj, lidar, summary, duration_ns)
+    with open(out / CONFIG_FILE, "w") as fh:
+        fh.write("# effective config of this capture: tripod simulate --config config.yaml\n")
+        yaml.safe_dump(cfg.model_dump(mode="json"), fh, sort_keys=False)
+    return summary
+
+
+def _write_ground_truth(out: Path, cfg: SimConfig, scene: Scene, traj: Trajectory,
+                        duration_ns: int) -> None:
+    start = cfg.start_unix_ns
+    gt = out / GT_DIR
+    step = int(round(1e9 / cfg.gt_rate_hz))
+    t_ns = np.arange(0, duration_ns + 1, step, dtype=np.int64)
+    with open(gt / "trajectory.tum", "w") as fh:
+        fh.write("# T_world_lidar: timestamp[s host_realtime] x y z qx qy qz qw\n")
+        for c in range(0, len(t_ns), 20000):
+            tt = t_ns[c:c + 20000]
+            R, p = traj.T_world_lidar(tt * 1e-9)
+            q = wxyz(R)
+            fh.write("".join(_tum_line(start + a, b, qq) for a, b, qq in zip(tt, p, q)))
+    with open(gt / "stations.tum", "w") as fh, open(gt / "stations.csv", "w") as fc:
+        fh.write("# T_world_base of each station at its pan start: t x y z qx qy qz qw\n")
+        fc.write("index,pan_start_ns,pan_end_ns,x,y,z,qw,qx,qy,qz\n")
+        for st in traj.stations:
+            q = wxyz(st.R_world_base[None])[0]
+            t0 = start + int(round(st.t_pan_start_s * 1e9))
+            t1 = start + int(round(st.t_pan_end_s * 1e9))
+            fh.write(_tum_line(t0, st.position, q))
+            x, y, z = st.position
+            fc.write(f"{st.index},{t0},{t1},{x:.6f},{y:.6f},{z:.6f},"
+                     f"{q[0]:.9f},{q[1]:.9f},{q[2]:.9f},{q[3]:.9f}\n")
+    ic = cfg.imu
+    calib = {
+        "frames": "world (z up), base (tripod head, station pose), pan = base turned Rz(phi), "
+                  "lidar (velodyne-decoder output frame), imu; T_a_b maps points of b into a",
+        "T_pan_lidar": _T(traj.R_pan_lidar, traj.t_pan_lidar),
+        "T_lidar_imu": _T(R_lidar_imu(ic), ic.t_lidar_imu_m),
+        "imu_reference": {
+            "description": "the IMU reports R_ref_imu = Rz(yaw_offset + yaw_drift * t) R_world_imu, "
+                           "t = seconds since the capture start",
+            "yaw_offset_deg": ic.yaw_offset_deg,
+            "yaw_drift_deg_per_min": ic.yaw_drift_deg_per_min,
+        },
+        "laser_elevation_deg": LASER_ELEVATION_DEG.tolist(),
+    }
+    (gt / "calibration.json").write_text(json.dumps(calib, indent=2) + "\n")
+    lc = cfg.lidar
+    clocks = {
+        "start_unix_ns": start,
+        "duration_ns": duration_ns,
+        "lidar_clock_offset_ns": lc.clock_offset_ns,
+        "lidar_clock_description": "lidar_toh = (host_realtime + lidar_clock_offset_ns) mod 1 h, "
+                                   "in us, truncated",
+        "lidar_receive_latency_us": {"mean": lc.network_latency_us + lc.network_jitter_us,
+                                     "after": "the last firing of the packet"},
+        "imu_latency_ms": {"mean": cfg.imu.latency_ms + cfg.imu.latency_jitter_ms,
+                           "after": "the instant the sample describes"},
+        "imu_clock_drift_ppm": cfg.imu.clock_drift_ppm,
+        "firing": {"sequence_ns": SEQUENCE_NS, "laser_ns": 2304,
+                   "first_sequence_at_ns": start},
+    }
+    (gt / "clocks.json").write_text(json.dumps(clocks, indent=2) + "\n")
+
+
+def _write_meta(out: Path, cfg: SimConfig, scene: Scene, traj: Trajectory, lidar: Vlp16,
+                s: SimSummary, duration_ns: int) -> None:
+    import open3d
+
+    meta = {
+        "format_version": FORMAT_VERSION,
+        "generator": "tripod simulate",
+        "config": cfg.model_dump(mode="json"),
+        "scene": {"name": scene.name, "params": scene.params, "triangles": len(scene.triangles),
+                  "class_triangles": scene.class_counts(),
+                  "bounds_m": [b.round(4).tolist() for b in scene.bounds],
+                  "route_length_m": round(traj.route.length, 4)},
+        "derived": {
+            "duration_s": s.duration_s,
+            "data_packets": s.data_packets,
+            "position_packets": s.position_packets,
+            "imu_samples": s.imu_samples,
+            "packet_period_ns": packet_period_ns(cfg.lidar.return_mode),
+            "packets_per_s": 1e9 / packet_period_ns(cfg.lidar.return_mode),
+            "azimuth0_deg": lidar.azimuth0_deg,
+            "transit_s": [round(float(x), 6) for x in traj.transit_s],
+            "stations": [{"index": st.index, "pan_start_s": st.t_pan_start_s,
+                          "pan_end_s": st.t_pan_end_s} for st in traj.stations],
+        },
+        "files": {
+            CAPTURE_FILE: "VLP-16 data (2368) and position (8308) packets, Ethernet/IPv4/UDP, "
+                          "ns pcap, host receive times",
+            IMU_FILE: "IMU byte stream with host read times (tripod IMU log)",
+            LABELS_FILE: "class of every block/channel of every data packet",
+            MESH_FILE: "scene mesh with per-face class and reflectivity",
+            "gt/trajectory.tum": "T_world_lidar at gt_rate_hz",
+            "gt/stations.tum": "T_world_base per station", "gt/stations.csv": "stations, times",
+            "gt/calibration.json": "extrinsics", "gt/clocks.json": "clock offsets, latencies",
+            "gt/imu_truth.csv": "noise-free IMU quaternions",
+            CONFIG_FILE: "effective config",
+        },
+        "generation": {"wall_s": round(s.wall_s, 3), "realtime_factor": round(s.realtime_factor, 3),
+                       "python": platform.python_version(), "open3d": open3d.__version__,
+                       "cpus": os.cpu_count()},
+    }
+    (out / META_FILE).write_text(json.dumps(meta, indent=2) + "\n")

@@ -1,0 +1,240 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""tripod replay on loopback: UDP timing and rate, IMU over a pty and a brickd-like TCP port."""
+
+from __future__ import annotations
+
+import os
+import selectors
+import socket
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+from sim_fixtures import make_capture
+
+from tripod_processor.imu_log import ImuLogReader
+from tripod_processor.pcap import PcapReader
+from tripod_processor.replay import (BrickdImuSink, PtyImuSink, Replayer, ReplayInputError,
+                                     ReplaySource, open_imu_sink)
+from tripod_shared import tfp
+from tripod_shared import velodyne as v
+from tripod_shared.messages import ImuSample
+from tripod_shared.recording import RecordingWriter
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory):
+    return make_capture(tmp_path_factory.mktemp("replay"), "single")
+
+
+@pytest.fixture(scope="module")
+def dual(tmp_path_factory):
+    return make_capture(tmp_path_factory.mktemp("replay"), "dual", lidar={"return_mode": "dual"})
+
+
+class UdpSink:
+    """Two loopback UDP sockets on ephemeral ports, drained by a thread (bounded: stops itself)."""
+
+    def __init__(self):
+        self.socks = []
+        for _ in range(2):
+            s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 8 << 20)
+            s.bind(("127.0.0.1", 0))
+            s.setblocking(False)
+            self.socks.append(s)
+        self.got = [[], []]
+        self._stop = threading.Event()
+        self._t = threading.Thread(target=self._run, daemon=True)
+        self._t.start()
+
+    def addr(self, i):
+        return self.socks[i].getsockname()
+
+    def _run(self):
+        sel = selectors.DefaultSelector()
+        for i, s in enumerate(self.socks):
+            sel.register(s, selectors.EVENT_READ, i)
+        deadline = time.monotonic() + 60
+        while not self._stop.is_set() and time.monotonic() < deadline:
+            for key, _ in sel.select(0.05):
+                while True:
+                    try:
+                        self.got[key.data].append(key.fileobj.recv(2048))
+                    except BlockingIOError:
+                        break
+
+    def stop(self):
+        time.sleep(0.1)
+        self._stop.set()
+        self._t.join()
+        for s in self.socks:
+            s.close()
+
+
+def _pcap_payloads(path, port, limit_ns=None):
+    out, t0 = [], None
+    for d in PcapReader(path):
+        t0 = d.t_ns if t0 is None else t0
+        if limit_ns is not None and d.t_ns - t0 > limit_ns:
+            break
+        if d.dst_port == port:
+            out.append(d.payload)
+    return out
+
+
+def test_real_time_replay_keeps_timing_and_bytes(capture):
+    sink = UdpSink()
+    try:
+        rp = Replayer(ReplaySource.open(capture), rate=1.0, lidar_addr=sink.addr(0),
+                      position_addr=sink.addr(1), limit_s=1.5, realtime_priority=10)
+        st = rp.run()
+    finally:
+        sink.stop()
+    want = _pcap_payloads(capture / "capture.pcap", v.DATA_PORT, 1_500_000_000)
+    assert st.sent["lidar"] == len(want) and sink.got[0] == want
+    assert st.sent["position"] == len(sink.got[1]) > 0
+    assert st.achieved_rate == pytest.approx(1.0, abs=0.01)
+    if st.scheduling.startswith("SCHED_FIFO"):
+        assert st.jitter_us(99) < 500.0
+    else:  # no CAP_SYS_NICE: a loaded machine may delay us by a scheduler time slice
+        assert st.jitter_us(50) < 500.0
+
+
+def test_rate_10_and_max(dual, capture):
+    st = Replayer(ReplaySource.open(capture), rate=10.0, lidar_addr=("127.0.0.1", 9),
+                  position_addr=("127.0.0.1", 9), limit_s=3.0, realtime_priority=10).run()
+    assert st.achieved_rate == pytest.approx(10.0, rel=0.03 if "FIFO" in st.scheduling else 0.1)
+    # as fast as possible: at least 20x the dual-return packet rate (1507/s)
+    blackhole = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    blackhole.bind(("127.0.0.1", 0))
+    try:
+        st = Replayer(ReplaySource.open(dual), rate=float("inf"),
+                      lidar_addr=blackhole.getsockname(),
+                      position_addr=blackhole.getsockname()).run()
+    finally:
+        blackhole.close()
+    n = len(_pcap_payloads(dual / "capture.pcap", v.DATA_PORT))
+    assert st.sent["lidar"] == n and st.send_errors == 0
+    assert st.packets_per_s >= 20 * 1507
+
+
+def test_imu_over_pty_is_byte_exact(capture):
+    sink = PtyImuSink()
+    got = bytearray()
+    fd = os.open(sink.path, os.O_RDONLY | os.O_NOCTTY)
+    stop = threading.Event()
+
+    def reader():
+        import select
+
+        while True:
+            r, _, _ = select.select([fd], [], [], 0.2)
+            if not r:
+                if stop.is_set():
+                    return
+                continue
+            got.extend(os.read(fd, 4096))
+
+    t = threading.Thread(target=reader, daemon=True)
+    t.start()
+    try:
+        st = Replayer(ReplaySource.open(capture), rate=20.0, lidar_addr=("127.0.0.1", 9),
+                      position_addr=("127.0.0.1", 9), imu_sink=sink).run()
+        time.sleep(0.2)
+    finally:
+        stop.set()
+        t.join(5)
+        os.close(fd)
+        sink.close()
+    want = b"".join(r.data for r in ImuLogReader(capture / "imu.tripimu"))
+    assert st.sent["imu"] > 0 and st.imu_bytes_dropped == 0
+    assert bytes(got) == want
+    pk = tfp.TfpStreamParser().feed(bytes(got))
+    assert len(pk) == st.sent["imu"] and all(p.function_id == 39 for p in pk)
+
+
+def test_brickd_tcp_answers_enumerate_and_streams(capture):
+    uid = tfp.base58_decode("6wVE7W")
+    sink = open_imu_sink("tcp:0", uid=uid)
+    assert isinstance(sink, BrickdImuSink)
+    c = socket.create_connection(("127.0.0.1", sink.port), timeout=5)
+    try:
+        c.sendall(tfp.encode_enumerate(sequence=1))
+        c.sendall(tfp.encode_set_quaternion_period(uid, 10, sequence=2))
+        assert sink.wait_for_client(5)
+        time.sleep(0.2)
+        st = Replayer(ReplaySource.open(capture), rate=20.0, lidar_addr=("127.0.0.1", 9),
+                      position_addr=("127.0.0.1", 9), imu_sink=sink, limit_s=2.0).run()
+        c.settimeout(0.5)
+        data = bytearray()
+        while True:
+            try:
+                chunk = c.recv(65536)
+            except socket.timeout:
+                break
+            if not chunk:
+                break
+            data += chunk
+    finally:
+        c.close()
+        sink.close()
+    p = tfp.TfpStreamParser()
+    pk = p.feed(bytes(data))
+    enum = [x for x in pk if x.function_id == tfp.FID_CALLBACK_ENUMERATE]
+    assert len(enum) == 1 and tfp.decode_enumerate_callback(enum[0].payload) == (uid, 18)
+    acks = [x for x in pk if x.function_id == tfp.FID_SET_QUATERNION_PERIOD]
+    assert len(acks) == 1 and acks[0].sequence == 2
+    quats = [x for x in pk if x.function_id == tfp.FID_CALLBACK_QUATERNION]
+    assert len(quats) == st.sent["imu"] > 0 and p.garbage_bytes == 0
+
+
+def test_mcap_recording_replays(tmp_path, capture):
+    rec = tmp_path / "rec.mcap"
+    n_lidar = 0
+    with RecordingWriter(rec) as w:
+        for i, d in enumerate(PcapReader(capture / "capture.pcap")):
+            if d.dst_port == v.DATA_PORT:
+                w.write_lidar_packet(d.t_ns, d.payload)
+                n_lidar += 1
+            if i > 800:
+                break
+        for r in list(ImuLogReader(capture / "imu.tripimu"))[:50]:
+            q = tfp.decode_quaternion(r.data[8:])
+            w.write_imu(ImuSample(r.host_ns, *q, raw=r.data))
+    sink = UdpSink()
+    try:
+        st = Replayer(ReplaySource.open(rec), rate=float("inf"), lidar_addr=sink.addr(0),
+                      position_addr=sink.addr(1), imu_sink=None).run()
+    finally:
+        sink.stop()
+    assert st.sent["lidar"] == n_lidar == len(sink.got[0])
+    assert st.sent["imu"] == 0  # no IMU sink: IMU events are skipped, nothing else breaks
+
+
+def test_bad_inputs(tmp_path):
+    with pytest.raises(ReplayInputError, match="no such"):
+        ReplaySource.open(tmp_path / "missing.pcap")
+    junk = tmp_path / "junk.bin"
+    junk.write_bytes(b"hello world, not a capture")
+    with pytest.raises(ReplayInputError, match="neither"):
+        ReplaySource.open(junk)
+    with pytest.raises(ReplayInputError, match="bad IMU output"):
+        open_imu_sink("usb:3")
+
+
+def test_cli_replay(capture):
+    env = dict(os.environ, COLUMNS="120")
+    r = subprocess.run([sys.executable, "-m", "tripod_processor", "replay", str(capture),
+                        "--rate", "max", "--imu", "tcp:0"], capture_output=True, text=True,
+                       timeout=60, env=env)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.startswith("imu: brickd tcp:127.0.0.1:")
+    n = len(_pcap_payloads(capture / "capture.pcap", v.DATA_PORT))
+    row = next(line for line in r.stdout.splitlines() if "lidar sent" in line)
+    assert row.split()[-2] == str(n)
+    bad = subprocess.run([sys.executable, "-m", "tripod_processor", "replay", "/nonexistent"],
+                         capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "no such" in bad.stderr
