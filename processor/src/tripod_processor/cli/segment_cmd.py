@@ -88,12 +88,36 @@ def segment_cmd(
     console.print(table)
 
 
+def _labelled_cloud(path: Path, label_field: str):
+    """(points (N, 3) float32, labels (N,) int64) of a labelled PLY/PCD, an .npz with ``points``
+    and ``labels``, or a ``tripod simulate`` capture folder (true poses and labels)."""
+    import numpy as np
+
+    from ..cloud_io import read_cloud, xyz
+
+    if path.is_dir():
+        from ..sim.fidelity import labeled_points
+
+        p, lab, _ = labeled_points(path)
+        return p.astype(np.float32), lab.astype(np.int64)
+    if path.suffix.lower() == ".npz":
+        with np.load(path) as z:
+            if "points" not in z.files or "labels" not in z.files:
+                raise ValueError("an .npz needs arrays 'points' and 'labels'")
+            return z["points"].astype(np.float32), z["labels"].astype(np.int64)
+    c = read_cloud(path)
+    if label_field not in (c.dtype.names or ()):
+        raise ValueError(f"no field {label_field!r} (use --label-field)")
+    return xyz(c, dtype="float32"), c[label_field].astype(np.int64)
+
+
 @app.command("train-segmenter", rich_help_panel="Scene understanding")
 def train_segmenter_cmd(
     output: Path = typer.Option(..., "-o", "--output", help="weights file to write (.npz)"),
     data: list[Path] = typer.Option(None, "--data",
-                                    help=f"labelled clouds (PLY/PCD files or folders of them) with an "
-                                         f"integer field ({CLASS_HELP}; 255 = ignore)"),
+                                    help=f"labelled clouds: PLY/PCD with an integer field ({CLASS_HELP}; "
+                                         f"255 = ignore), .npz with points + labels, `tripod simulate` "
+                                         f"capture folders, or folders of these"),
     label_field: str = typer.Option("label", "--label-field", help="name of the truth field"),
     s3dis: Path = typer.Option(None, "--s3dis", help="S3DIS root (Area_N/<room>/Annotations)"),
     s3dis_areas: str = typer.Option("1,2,3,4,6", "--s3dis-areas", help="S3DIS areas to train on"),
@@ -110,14 +134,17 @@ def train_segmenter_cmd(
     from rich.table import Table
     from tqdm import tqdm
 
-    from ..cloud_io import read_cloud, xyz
     from ..segmentation.model import save_weights
     from ..segmentation.train import features_of, train
 
     files: list[Path] = []
     for d in data or []:
-        if d.is_dir():
-            files += sorted(p for p in d.rglob("*") if p.suffix.lower() in (".ply", ".pcd"))
+        if d.is_dir() and (d / "labels.npz").is_file():
+            files.append(d)  # a simulated capture
+        elif d.is_dir():
+            files += sorted(p for p in d.rglob("*") if p.suffix.lower() in (".ply", ".pcd", ".npz")
+                            and p.name != "labels.npz")
+            files += sorted(p.parent for p in d.rglob("labels.npz"))
         elif d.is_file():
             files.append(d)
         else:
@@ -125,12 +152,9 @@ def train_segmenter_cmd(
     sources: list = []
     for f in files:
         try:
-            c = read_cloud(f)
-        except Exception as exc:  # noqa: BLE001 - any unreadable file is one line
-            fail(f"{f}: {exc}")
-        if label_field not in (c.dtype.names or ()):
-            fail(f"{f}: no field {label_field!r} (use --label-field)")
-        sources.append((xyz(c, dtype="float32"), c[label_field].astype(np.int64)))
+            sources.append(_labelled_cloud(f, label_field))
+        except Exception as exc:  # noqa: BLE001 - any unreadable input is one line
+            fail(f"{f}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}")
     if s3dis is not None:
         from ..segmentation.s3dis import S3DISError, iter_rooms
 

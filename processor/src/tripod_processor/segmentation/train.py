@@ -51,16 +51,20 @@ def augment(points: np.ndarray, labels: np.ndarray, rng: np.random.Generator,
 
 
 def features_of(clouds: Iterable[tuple[np.ndarray, np.ndarray]], copies: int, seed: int,
-                progress: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
+                progress: Callable | None = None,
+                keep_per_copy: int = 400_000) -> tuple[np.ndarray, np.ndarray]:
     """Features and labels of ``copies`` augmented copies of every labelled cloud (the first copy
-    unperturbed)."""
+    unperturbed). Features are computed on the whole copy (context needs the full density), then
+    at most ``keep_per_copy`` random points of it are kept for training."""
     rng = np.random.default_rng(seed)
     F, L = [], []
     for points, labels in clouds:
         for k in range(copies):
             p, lab = (np.asarray(points, np.float32), np.asarray(labels)) if k == 0 else augment(
                 points, labels, rng)
-            ok = (lab >= 0) & (lab < NUM_CLASSES)
+            ok = np.flatnonzero((lab >= 0) & (lab < NUM_CLASSES))
+            if len(ok) > keep_per_copy:
+                ok = np.sort(rng.choice(ok, keep_per_copy, replace=False))
             f = point_features(p)
             F.append(f[ok])
             L.append(lab[ok].astype(np.int64))
