@@ -15,7 +15,7 @@ from tripod_processor.heightmaps import (Heightmap, low_poly_mesh, plane_heightm
                                          truth_heightmap, write_mesh_ply)
 from tripod_processor.planes import WALL, extract_planes
 
-from .scene_fixtures import room_scan
+from scene_fixtures import room_scan
 
 
 def test_relief_of_a_box_on_a_wall():

@@ -13,7 +13,7 @@ from tripod_processor.segmentation import DEFAULT_WEIGHTS, Segmenter, point_feat
 from tripod_processor.segmentation.features import FEATURE_NAMES, floor_and_ceiling
 from tripod_processor.segmentation.metrics import confusion, iou, overall_accuracy
 
-from .scene_fixtures import room_scan
+from scene_fixtures import room_scan
 
 
 def test_local_shape_matches_numpy_pca():

@@ -134,6 +134,8 @@ def plane_heightmap(points, plane: Plane, *, pixel: float = 0.05, behind: float 
     seg_pix[sc[:, 1], sc[:, 0]] = True
     from scipy import ndimage
 
+    # things on the surface hide it: fill the segment's holes so their relief is kept
+    seg_pix = ndimage.binary_fill_holes(ndimage.binary_closing(seg_pix, iterations=2) | seg_pix)
     seg_pix = ndimage.binary_dilation(seg_pix, iterations=1)
     ok &= seg_pix[np.clip(row, 0, H - 1), np.clip(col, 0, W - 1)]
     flat = row[ok] * W + col[ok]
@@ -159,8 +161,22 @@ def _triangulate(poly: np.ndarray) -> list[tuple[int, int, int]]:
     n = len(poly)
     if n < 3:
         return []
+    scale = float(np.ptp(poly, 0).max()) or 1.0
+    eps = 1e-9 * scale * scale
+    # drop repeated and collinear corners first (they block every ear)
     idx = list(range(n))
-    area = 0.5 * np.sum(poly[:, 0] * np.roll(poly[:, 1], -1) - np.roll(poly[:, 0], -1) * poly[:, 1])
+    changed = True
+    while changed and len(idx) > 3:
+        changed = False
+        for k in range(len(idx)):
+            a, b, c = poly[idx[k - 1]], poly[idx[k]], poly[idx[(k + 1) % len(idx)]]
+            if abs((b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])) <= eps:
+                idx.pop(k)
+                changed = True
+                break
+    n = len(idx)
+    q = poly[idx]
+    area = 0.5 * np.sum(q[:, 0] * np.roll(q[:, 1], -1) - np.roll(q[:, 0], -1) * q[:, 1])
     if area < 0:
         idx.reverse()
 
@@ -174,14 +190,14 @@ def _triangulate(poly: np.ndarray) -> list[tuple[int, int, int]]:
         for k in range(len(idx)):
             i0, i1, i2 = idx[k - 1], idx[k], idx[(k + 1) % len(idx)]
             a, b, c = poly[i0], poly[i1], poly[i2]
-            if cross(a, b, c) <= 1e-12:
+            if cross(a, b, c) <= eps:
                 continue
             inside = False
             for j in idx:
                 if j in (i0, i1, i2):
                     continue
                 p = poly[j]
-                if cross(a, b, p) >= 0 and cross(b, c, p) >= 0 and cross(c, a, p) >= 0:
+                if cross(a, b, p) > eps and cross(b, c, p) > eps and cross(c, a, p) > eps:
                     inside = True
                     break
             if not inside:

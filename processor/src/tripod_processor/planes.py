@@ -123,19 +123,29 @@ def _components(uv: np.ndarray, cell: float, gap: float):
         yield m, occ & (lab == k), lo
 
 
-def _outline(occ: np.ndarray, lo: np.ndarray, cell: float, tol: float) -> np.ndarray:
-    """Simplified outer boundary (K, 2) of an occupancy grid, in plane coordinates [m]."""
+def _outline(occ: np.ndarray, lo: np.ndarray, cell: float, tol: float, close: int = 2) -> np.ndarray:
+    """Simplified outer boundary (K, 2) of an occupancy grid, in plane coordinates [m]: the grid
+    is closed (gaps up to 2 ``close`` cells), its holes filled, and the contour enclosing the
+    largest area is kept."""
     import contourpy
     from scipy import ndimage
 
-    filled = ndimage.binary_fill_holes(ndimage.binary_closing(occ, iterations=2, border_value=0) | occ)
-    z = np.pad(filled.astype(np.float64), 1)
-    gen = contourpy.contour_generator(z=z, line_type=contourpy.LineType.Separate)
+    pad = close + 2
+    z = np.pad(occ, pad)
+    z = ndimage.binary_fill_holes(ndimage.binary_closing(z, iterations=close) | z)
+    gen = contourpy.contour_generator(z=z.astype(np.float64), line_type=contourpy.LineType.Separate)
     lines = gen.lines(0.5)
     if not lines:
         return np.zeros((0, 2))
-    line = max(lines, key=len)  # (K, 2) in (col, row) = (j, i) grid units
-    pts = np.stack([line[:, 1] - 1 + 0.5, line[:, 0] - 1 + 0.5], 1) * cell + lo
+
+    def area(line):
+        x, y = line[:, 0], line[:, 1]
+        return abs(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+
+    line = max(lines, key=area)  # (K, 2) in (col, row) = (j, i) grid units
+    pts = np.stack([line[:, 1] - pad + 0.5, line[:, 0] - pad + 0.5], 1) * cell + lo
+    if len(pts) > 1 and np.allclose(pts[0], pts[-1]):
+        pts = pts[:-1]
     return _simplify(pts, tol)
 
 
@@ -292,7 +302,8 @@ def extract_planes(points, labels, *, classes=PLANAR_CLASSES, min_points: int = 
                 outline2 = np.zeros((0, 2))
                 area = 0.0
                 for _, occ2, lo2 in _components(uv2, cell, gap):
-                    outline2 = _outline(occ2, lo2, cell, tol=cell)
+                    outline2 = _outline(occ2, lo2, cell, tol=cell,
+                                        close=max(1, int(np.ceil(gap / cell / 2))))
                     area = float(occ2.sum()) * cell * cell
                     break
                 outline = origin + outline2 @ ax
