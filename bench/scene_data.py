@@ -2,7 +2,8 @@
 """Simulated, labelled scans for training and benchmarking scene understanding.
 
 ``python bench/scene_data.py --split train|test [-o DIR]`` runs ``tripod simulate`` for every
-scene type with the split's seeds (training seeds 1-2, test seeds 101-102: different layouts,
+scene type with the split's seeds (training seed 1 and a few more
+(``EXTRA``), test seed 101: different layouts,
 never used in training), places the points with the true poses and writes
 ``<scene>_s<seed>.npz`` (``points`` (N, 3) float32 [m], ``labels`` (N,) uint8, subsampled to at
 most ``--max-points``). Cached: existing files are kept.
@@ -20,6 +21,9 @@ import numpy as np
 
 SCENES = ("room", "corridor", "two_rooms", "office", "hall")
 SPLITS = {"train": (1,), "test": (101,)}
+#: more training captures of the scenes whose "other" is rare and whose walls are varied
+#: (partition walls seen through a door, long corridors)
+EXTRA = {"train": {"two_rooms": (2, 3), "corridor": (2,), "room": (2,)}, "test": {}}
 DEFAULT_DIR = Path(__file__).resolve().parents[1] / ".cache" / "scene_data"
 
 
@@ -41,7 +45,7 @@ def make(split: str, out_dir: Path, stations: int = 1, max_points: int = 2_000_0
     tripod = Path(sys.executable).with_name("tripod")
     files = []
     for scene in scenes:
-        for seed in SPLITS[split]:
+        for seed in SPLITS[split] + EXTRA[split].get(scene, ()):
             out = out_dir / f"{scene}_s{seed}.npz"
             files.append(out)
             if out.exists():

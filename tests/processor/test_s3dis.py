@@ -143,10 +143,11 @@ def test_area5_and_six_fold_evaluation(s3dis_root):
     def predict_fn(model, points):
         import torch
 
-        from tripod_processor.segmentation.features import point_features
+        from tripod_processor.segmentation.features import voxel_features
 
+        f, point_voxel = voxel_features(points)
         with torch.inference_mode():
-            return model(torch.from_numpy(point_features(points))).argmax(1).numpy()
+            return model(torch.from_numpy(f)).argmax(1).numpy()[point_voxel]
 
     conf5, per5 = evaluate(s3dis_root, area5_split(), train_fn, predict_fn)
     n5 = sum(len(r.points) for r in iter_rooms(s3dis_root, [5]))

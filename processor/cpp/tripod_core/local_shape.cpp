@@ -131,6 +131,37 @@ FeaturesF voxel_local_shape(const PointsXYZ& points, double voxel_size, int radi
     return out;
 }
 
+void voxel_assign(const PointsXYZ& points, double voxel_size, PointsXYZ& centroids,
+                  std::vector<int32_t>& point_voxel, std::vector<int32_t>& counts,
+                  int num_threads) {
+    if (!(voxel_size > 0)) throw std::invalid_argument("voxel_size must be > 0");
+    const int nt = threads(num_threads);
+    const Eigen::Index n = points.rows();
+    const double inv = 1.0 / voxel_size;
+    auto key_of = [&](Eigen::Index i) -> int64_t {
+        const auto p = points.row(i);
+        if (!p.allFinite()) return -1;
+        return pack(int64_t(std::floor(p.x() * inv)), int64_t(std::floor(p.y() * inv)),
+                    int64_t(std::floor(p.z() * inv)));
+    };
+    Grid g = build_grid(n, key_of, nt);
+    const size_t nv = g.keys.size();
+    std::vector<double> sum(nv * 3, 0.0);
+    counts.assign(nv, 0);
+    for (Eigen::Index i = 0; i < n; ++i) {
+        const int32_t c = g.point_cell[i];
+        if (c < 0) continue;
+        sum[size_t(c) * 3 + 0] += points(i, 0);
+        sum[size_t(c) * 3 + 1] += points(i, 1);
+        sum[size_t(c) * 3 + 2] += points(i, 2);
+        counts[c] += 1;
+    }
+    centroids.resize(static_cast<Eigen::Index>(nv), 3);
+    for (size_t v = 0; v < nv; ++v)
+        for (int k = 0; k < 3; ++k) centroids(Eigen::Index(v), k) = float(sum[v * 3 + k] / counts[v]);
+    point_voxel = std::move(g.point_cell);
+}
+
 FeaturesF column_context(const PointsXYZ& points, const uint8_t* upright, double cell_size,
                          double z_low, double z_high,
                          int num_directions, double skip, double max_range, int num_threads) {

@@ -6,6 +6,7 @@
 
 #include <Eigen/Core>
 #include <cstdint>
+#include <vector>
 
 #include "tripod_core/voxel_grid.hpp"
 
@@ -27,6 +28,17 @@ using FeaturesF = Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::Ro
 ///         eigenvalue), eigenvalues l0 <= l1 <= l2 of the covariance [m^2], neighbour count
 FeaturesF voxel_local_shape(const PointsXYZ& points, double voxel_size, int radius_voxels,
                             int num_threads = 0);
+
+/// Points grouped by cubic voxel: the centroid of each occupied voxel, and each point's voxel.
+/// Voxels are numbered in sorted key order (deterministic). Non-finite points get index -1.
+/// @param points      N x 3 [m]
+/// @param voxel_size  edge [m], > 0
+/// @param centroids   out: M x 3 centroids [m]
+/// @param point_voxel out: N voxel indices
+/// @param counts      out: M point counts
+void voxel_assign(const PointsXYZ& points, double voxel_size, PointsXYZ& centroids,
+                  std::vector<int32_t>& point_voxel, std::vector<int32_t>& counts,
+                  int num_threads = 0);
 
 /// Context of every point in the horizontal plane of a z-up scan.
 ///

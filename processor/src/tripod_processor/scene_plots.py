@@ -27,14 +27,18 @@ def plot_labels(ax, points: np.ndarray, labels: np.ndarray, view: str = "top", m
     """Scatter of a labelled cloud: "top" (x-y, ceiling drawn last below walls) or "side" (x-z)."""
     idx = _subsample(len(points), max_points)
     p, lab = points[idx], np.clip(labels[idx], 0, 3)
-    if view == "top":  # draw ceiling first so that walls and other stay visible
-        order = np.argsort(np.select([lab == 0, lab == 1], [0, 1], 2 + (lab == 3)), kind="stable")
-        ax.scatter(p[order, 0], p[order, 1], s=0.2, c=CLASS_RGB[lab[order]], linewidths=0)
+    size = float(np.clip(3e4 / max(len(p), 1), 0.2, 2.0))
+    if view == "top":  # the ceiling hides everything from above: leave it out
+        keep = lab != 0
+        order = np.argsort(np.select([lab[keep] == 1], [0], 1 + (lab[keep] == 3)), kind="stable")
+        q, lq = p[keep][order], lab[keep][order]
+        ax.scatter(q[:, 0], q[:, 1], s=size, c=CLASS_RGB[lq], linewidths=0)
         ax.set_xlabel("x [m]"), ax.set_ylabel("y [m]")
+        ax.set_aspect("equal")
     else:
-        ax.scatter(p[:, 0], p[:, 2], s=0.2, c=CLASS_RGB[lab], linewidths=0)
+        ax.scatter(p[:, 0], p[:, 2], s=size, c=CLASS_RGB[lab], linewidths=0)
         ax.set_xlabel("x [m]"), ax.set_ylabel("z [m]")
-    ax.set_aspect("equal")
+        ax.set_aspect("auto")
     if title:
         ax.set_title(title, fontsize=9)
 
@@ -49,10 +53,14 @@ def legend(fig) -> None:
 def save_labels_picture(path, clouds: list[tuple[np.ndarray, np.ndarray, str]]) -> None:
     """One column per cloud: top view and side view, coloured by class."""
     plt = _plt()
-    fig, axes = plt.subplots(2, len(clouds), figsize=(4.2 * len(clouds), 6.4), squeeze=False)
+    fig, axes = plt.subplots(2, len(clouds), figsize=(5.5 * len(clouds), 8.0), squeeze=False,
+                             gridspec_kw={"height_ratios": [2.2, 1]})
     for j, (p, lab, title) in enumerate(clouds):
-        plot_labels(axes[0, j], p, lab, "top", title=title + " (top)")
-        plot_labels(axes[1, j], p, lab, "side", title=title + " (side)")
+        # frame the room, not the few far returns through doors and windows
+        lo, hi = np.nanpercentile(p, 2, axis=0), np.nanpercentile(p, 98, axis=0)
+        sel = np.all((p >= lo - 1) & (p <= hi + 1), axis=1)
+        plot_labels(axes[0, j], p[sel], lab[sel], "top", title=title + " (top, ceiling hidden)")
+        plot_labels(axes[1, j], p[sel], lab[sel], "side", title=title + " (side)")
     legend(fig)
     fig.tight_layout(rect=(0, 0.04, 1, 1))
     fig.savefig(path, dpi=90)
@@ -90,7 +98,7 @@ def save_overview(path, points, labels, planes, heightmaps, title: str = "") -> 
     plt = _plt()
     fig = plt.figure(figsize=(13, 6.5))
     ax1 = fig.add_subplot(1, 3, 1)
-    plot_labels(ax1, points, labels, "top", title="labels (top) and plane outlines")
+    plot_labels(ax1, points, labels, "top", title="labels (top, ceiling hidden), wall outlines")
     for pl in planes:
         if len(pl.outline) >= 3 and pl.label == 2:
             o = np.vstack([pl.outline, pl.outline[:1]])

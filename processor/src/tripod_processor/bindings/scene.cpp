@@ -33,6 +33,26 @@ TRIPOD_BINDING(scene) {
         "Per-point normal, covariance eigenvalues and neighbour count from voxel moments.\n"
         "points: (N,3) float32 [m]; returns (N,7) float32: nx ny nz l0 l1 l2 count.");
     m.def(
+        "voxel_assign",
+        [](CloudIn points, double voxel_size, int num_threads) {
+            tripod::PointsXYZ in = to_eigen(points);
+            tripod::PointsXYZ cen;
+            auto* idx = new std::vector<int32_t>();
+            auto* cnt = new std::vector<int32_t>();
+            {
+                nb::gil_scoped_release release;
+                tripod::voxel_assign(in, voxel_size, cen, *idx, *cnt, num_threads);
+            }
+            nb::capsule own_idx(idx, [](void* p) noexcept { delete static_cast<std::vector<int32_t>*>(p); });
+            nb::capsule own_cnt(cnt, [](void* p) noexcept { delete static_cast<std::vector<int32_t>*>(p); });
+            using IntOut = nb::ndarray<nb::numpy, int32_t, nb::ndim<1>>;
+            return nb::make_tuple(to_numpy(std::move(cen)), IntOut(idx->data(), {idx->size()}, own_idx),
+                                  IntOut(cnt->data(), {cnt->size()}, own_cnt));
+        },
+        nb::arg("points"), nb::arg("voxel_size"), nb::arg("num_threads") = 0,
+        "Group points by voxel. points: (N,3) float32 [m]; returns (centroids (M,3) float32,\n"
+        "point_voxel (N,) int32 (-1 for non-finite points), counts (M,) int32).");
+    m.def(
         "column_context",
         [](CloudIn points, nb::ndarray<const uint8_t, nb::ndim<1>, nb::c_contig, nb::device::cpu> upright,
            double cell_size, double z_low, double z_high, int num_directions,

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .features import point_features
+from .features import point_features, voxel_features
 from .model import CLASS_NAMES, DEFAULT_WEIGHTS, NUM_CLASSES, load_model
 
 __all__ = ["segment", "Segmenter", "CLASS_NAMES", "NUM_CLASSES", "DEFAULT_WEIGHTS",
@@ -34,18 +34,20 @@ class Segmenter:
         self.chunk = int(chunk)
 
     def probabilities(self, points) -> np.ndarray:
-        """(N, 4) float32 class probabilities of (N, 3) points [m], z up."""
+        """(N, 4) float32 class probabilities of (N, 3) points [m], z up; the network runs once
+        per occupied 4 cm voxel. Non-finite points get 1/4 each (and label "other")."""
         import torch
 
         if self.num_threads > 0:
             torch.set_num_threads(self.num_threads)
-        f = point_features(points, self.num_threads)
-        out = np.empty((len(f), NUM_CLASSES), np.float32)
+        f, point_voxel = voxel_features(points, self.num_threads)
+        vox = np.empty((len(f) + 1, NUM_CLASSES), np.float32)
+        vox[-1] = [0.25, 0.25, 0.25, 0.25 + 1e-6]  # index -1: non-finite points
         with torch.inference_mode():
             for s in range(0, len(f), self.chunk):
                 logits = self.model(torch.from_numpy(f[s:s + self.chunk]))
-                out[s:s + self.chunk] = torch.softmax(logits, 1).numpy()
-        return out
+                vox[s:min(s + self.chunk, len(f))] = torch.softmax(logits, 1).numpy()
+        return vox[point_voxel]
 
     def __call__(self, points) -> np.ndarray:
         """(N,) int32 labels (0 ceiling, 1 floor, 2 wall, 3 other), in the input's order."""

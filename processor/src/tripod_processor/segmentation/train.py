@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .features import point_features
+from .features import voxel_features
 from .model import NUM_CLASSES, build_model
 
 
@@ -62,11 +62,12 @@ def features_of(clouds: Iterable[tuple[np.ndarray, np.ndarray]], copies: int, se
         for k in range(copies):
             p, lab = (np.asarray(points, np.float32), np.asarray(labels)) if k == 0 else augment(
                 points, labels, rng)
-            ok = np.flatnonzero((lab >= 0) & (lab < NUM_CLASSES))
+            f, point_voxel = voxel_features(p)
+            ok = np.flatnonzero((lab >= 0) & (lab < NUM_CLASSES) & (point_voxel >= 0))
             if len(ok) > keep_per_copy:
                 ok = np.sort(rng.choice(ok, keep_per_copy, replace=False))
-            f = point_features(p)
-            F.append(f[ok])
+            # each sampled point: its voxel's features, its own label (voxels count by points)
+            F.append(f[point_voxel[ok]])
             L.append(lab[ok].astype(np.int64))
             if progress:
                 progress()
@@ -78,7 +79,7 @@ def train(features: np.ndarray, labels: np.ndarray, *, seed: int = 0, steps: int
           progress: Callable | None = None):
     """Train the per-point MLP; returns (model, TrainReport).
 
-    features : (N, F) float32 from :func:`point_features`; labels : (N,) int in [0, 4)
+    features : (N, F) float32 from :func:`features_of`; labels : (N,) int in [0, 4)
     Classes are weighted by 1/sqrt(frequency) so that the small "other" class is not drowned.
     """
     import torch
