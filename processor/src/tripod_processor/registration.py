@@ -1,0 +1,423 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""Pairwise registration of point clouds on the native core (numpy in, numpy out, GIL released).
+
+Local registration (:func:`register`) refines an initial guess with one of five residual models;
+global registration (:func:`register_global`) finds the pose from scratch with FPFH + RANSAC,
+optionally constrained by gravity. Both return ``T_target_source``, the 4x4 rigid transform that
+maps source coordinates into the target frame (``p_target = T @ p_source``), in metres.
+
+Clouds used more than once (odometry against several neighbours, pose-graph edges) should be
+prepared once with :func:`prepare` and passed as :class:`PreparedCloud`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from . import _ext
+from .preprocess import as_cloud, voxel_downsample
+
+#: Local registration methods: point-to-point (closed-form SVD), point-to-plane, Generalized ICP,
+#: symmetric ICP, and robust non-linear point-to-plane ICP in Ceres' Levenberg-Marquardt.
+METHODS = ("icp", "plane", "gicp", "symmetric", "lm")
+#: Robust kernels, applied to the residual whitened by ``point_sigma`` (scale ``loss_scale`` [m]).
+LOSSES = ("none", "huber", "cauchy", "tukey")
+
+
+@dataclass(frozen=True)
+class RegistrationResult:
+    """Outcome of :func:`register`.
+
+    Attributes
+    ----------
+    T_target_source : (4, 4) float64 ndarray
+        Rigid transform source -> target [m].
+    converged : bool
+        The last stage's update fell below the convergence thresholds and the problem is not
+        degenerate.
+    status : str
+        ``"converged"``, ``"max_iterations"``, ``"degenerate"`` (some direction of the pose is not
+        constrained by the geometry, e.g. a single plane or a featureless corridor) or
+        ``"too_few_correspondences"``.
+    iterations : int
+        Iterations over all stages.
+    num_inliers : int
+        Source points with a target point within the final correspondence distance.
+    fitness : float
+        ``num_inliers / len(source)`` (Open3D's definition).
+    inlier_rmse : float
+        RMS distance of those pairs [m].
+    final_error : float
+        Robust chi-square cost at the solution.
+    information : (6, 6) float64 ndarray
+        Inverse covariance of the pose for a right perturbation ``T @ exp(xi)``, ``xi = (rx, ry,
+        rz, tx, ty, tz)`` in the source frame [1/rad^2, 1/m^2] (the convention of GTSAM/g2o
+        pose-graph edges), assuming range noise ``point_sigma``. Locked directions (fixed
+        rotation, target-frame z) lie in its null space.
+    condition : float
+        Smallest / largest eigenvalue of the surfaces' (point-to-plane) information, rotations
+        scaled by the cloud's extent (1 = equally constrained in every direction; below 1e-4 the
+        status is "degenerate"; a corridor is about 5e-3, a furnished room about 4e-2).
+    """
+
+    T_target_source: np.ndarray
+    converged: bool
+    status: str
+    iterations: int
+    num_inliers: int
+    fitness: float
+    inlier_rmse: float
+    final_error: float
+    information: np.ndarray
+    condition: float
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """(6, 6) pseudo-inverse of :attr:`information` [rad^2, m^2]."""
+        return np.linalg.pinv(self.information)
+
+    def to_dict(self) -> dict:
+        """JSON-friendly dict (lists for the matrices)."""
+        return {
+            "T_target_source": self.T_target_source.tolist(),
+            "converged": self.converged,
+            "status": self.status,
+            "iterations": self.iterations,
+            "num_inliers": self.num_inliers,
+            "fitness": self.fitness,
+            "inlier_rmse": self.inlier_rmse,
+            "final_error": self.final_error,
+            "information": self.information.tolist(),
+            "condition": self.condition,
+        }
+
+
+@dataclass(frozen=True)
+class GlobalResult:
+    """Outcome of :func:`register_global`.
+
+    Attributes
+    ----------
+    T_target_source : (4, 4) float64 ndarray
+        Rigid transform source -> target [m] (identity when ``success`` is False).
+    success : bool
+        A consensus of at least 3 (2 with gravity) correspondences was found.
+    status : str
+        ``"success"``, ``"no_correspondences"`` or ``"no_consensus"``.
+    num_correspondences, num_inlier_correspondences : int
+        Feature matches, and those agreeing with the pose.
+    iterations : int
+        RANSAC hypotheses drawn.
+    fitness : float
+        Fraction of (downsampled) source points within ``inlier_distance`` of the target.
+    inlier_rmse : float
+        [m]
+    """
+
+    T_target_source: np.ndarray
+    success: bool
+    status: str
+    num_correspondences: int
+    num_inlier_correspondences: int
+    iterations: int
+    fitness: float
+    inlier_rmse: float
+
+    def to_dict(self) -> dict:
+        d = dict(self.__dict__)
+        d["T_target_source"] = self.T_target_source.tolist()
+        return d
+
+
+@dataclass
+class PreparedCloud:
+    """A cloud ready for registration: finite points, k-d tree, normals, GICP covariances.
+
+    Build it with :func:`prepare`. Arrays are copies made on access.
+    """
+
+    _native: object = field(repr=False)
+    voxel_size: float | None = None
+
+    def __len__(self) -> int:
+        return len(self._native)
+
+    @property
+    def points(self) -> np.ndarray:
+        """(N, 3) float32 [m]: the finite (and downsampled) points."""
+        return self._native.points
+
+    @property
+    def normals(self) -> np.ndarray:
+        """(N, 3) float64 unit normals facing the viewpoint (0 where ``normal_valid`` is False)."""
+        return self._native.normals
+
+    @property
+    def normal_valid(self) -> np.ndarray:
+        """(N,) bool."""
+        return self._native.normal_valid
+
+    @property
+    def covariances(self) -> np.ndarray:
+        """(N, 3, 3) float64 plane-regularised GICP covariances [m^2]."""
+        return self._native.covariances.reshape(-1, 3, 3)
+
+    @property
+    def num_dropped(self) -> int:
+        """Non-finite input rows dropped."""
+        return self._native.num_dropped
+
+
+def prepare(
+    points,
+    voxel_size: float | None = None,
+    num_neighbors: int = 20,
+    radius: float = 0.0,
+    viewpoint: Sequence[float] = (0.0, 0.0, 0.0),
+    point_sigma: float = 0.02,
+    num_threads: int = 0,
+) -> PreparedCloud:
+    """Prepare a cloud for :func:`register`: voxel-downsample, build the tree, fit local planes.
+
+    Parameters
+    ----------
+    points : (N, 3) array_like of float [m]
+        Non-finite rows are dropped (counted in ``num_dropped``).
+    voxel_size : float, optional
+        Voxel edge [m] for downsampling (origin-aligned lattice); None keeps every point.
+    num_neighbors : int
+        k of the k-NN neighbourhood for normals and covariances (a cap when ``radius`` > 0).
+    radius : float
+        Neighbourhood radius [m]; 0 uses k-NN only.
+    viewpoint : (3,) sequence of float
+        The sensor position in the cloud's frame [m]: normals are oriented towards it.
+    point_sigma : float
+        Range noise [m]; scales GICP covariances so the cost is a chi-square.
+    num_threads : int
+        0 uses every core.
+
+    Returns
+    -------
+    PreparedCloud
+    """
+    pts = as_cloud(points)
+    if voxel_size is not None:
+        pts = voxel_downsample(pts, voxel_size, num_threads=num_threads)
+    if num_neighbors < 3 and not radius > 0:
+        raise ValueError("num_neighbors must be >= 3 (or give a radius)")
+    vp = np.asarray(viewpoint, dtype=np.float64).reshape(3)
+    native = _ext.prepare_cloud(
+        pts, int(num_neighbors), float(radius), vp, float(point_sigma), int(num_threads)
+    )
+    return PreparedCloud(native, voxel_size)
+
+
+def _as_prepared(cloud, voxel_size, num_neighbors, point_sigma, num_threads) -> PreparedCloud:
+    if isinstance(cloud, PreparedCloud):
+        return cloud
+    return prepare(cloud, voxel_size, num_neighbors, point_sigma=point_sigma,
+                   num_threads=num_threads)
+
+
+def _as_pose(T, name: str) -> np.ndarray:
+    if T is None:
+        return np.eye(4)
+    a = np.asarray(T, dtype=np.float64)
+    if a.shape != (4, 4):
+        raise ValueError(f"{name} must be a 4x4 matrix, got shape {a.shape}")
+    return np.ascontiguousarray(a)
+
+
+def register(
+    source,
+    target,
+    method: str = "gicp",
+    init=None,
+    voxel_size: float | None = None,
+    max_correspondence_distance: float | Sequence[float] | None = None,
+    max_iterations: int = 64,
+    rotation_eps: float = 1e-3,
+    translation_eps: float = 5e-4,
+    loss: str = "none",
+    loss_scale: float = 0.1,
+    rotation_prior=None,
+    rotation_prior_sigma: float = 0.0,
+    lock_z: bool = False,
+    num_neighbors: int = 20,
+    point_sigma: float = 0.02,
+    num_threads: int = 0,
+) -> RegistrationResult:
+    """Local registration: refine ``init`` so that ``target ~ T_target_source @ source``.
+
+    Parameters
+    ----------
+    source, target : (N, 3) array_like of float [m] or PreparedCloud
+        Arrays are prepared here (``voxel_size``, ``num_neighbors``); a PreparedCloud is used as is.
+    method : {"icp", "plane", "gicp", "symmetric", "lm"}
+        Residual model: point-to-point (closed-form SVD per iteration; Gauss-Newton when
+        constrained), point-to-plane, Generalized ICP (plane-to-plane covariances), symmetric ICP
+        (sum of both normals), or point-to-plane solved by Ceres' Levenberg-Marquardt (use it
+        with a robust ``loss``).
+    init : (4, 4) array_like, optional
+        Initial T_target_source; identity if None.
+    voxel_size : float, optional
+        Downsampling voxel [m] for array inputs.
+    max_correspondence_distance : float or sequence of float, optional
+        Pairs farther apart are ignored [m]. A sequence is a coarse-to-fine schedule, one stage
+        per value. Default: see Notes.
+    max_iterations : int
+        Per stage.
+    rotation_eps, translation_eps : float
+        Converged when an update rotates less than this [rad] and moves less than this [m].
+    loss : {"none", "huber", "cauchy", "tukey"}
+        Robust kernel (iteratively reweighted for the Gauss-Newton methods, Ceres' loss for lm).
+    loss_scale : float
+        Kernel scale [m].
+    rotation_prior : (3, 3) array_like, optional
+        Prior on the rotation of T_target_source, e.g. from the IMU: R_prior =
+        R_world_target^T R_world_source.
+    rotation_prior_sigma : float
+        Its standard deviation [rad]; 0 fixes the rotation to the prior (translation only).
+    lock_z : bool
+        Keep the z translation of ``init`` (tripod height unchanged between stations).
+    num_neighbors : int
+        k-NN for normals/covariances of array inputs.
+    point_sigma : float
+        Range noise [m] that whitens residuals (information matrix, robust scale).
+    num_threads : int
+        OpenMP threads; 0 uses every core.
+
+    Returns
+    -------
+    RegistrationResult
+
+    Raises
+    ------
+    ValueError
+        Unknown method/loss, a non-rigid ``init``, bad options, or a cloud with too few finite
+        points for the method (3 for icp, 6 otherwise), or a target without any normal.
+
+    Notes
+    -----
+    The default correspondence distance is 1 m, or ``(10 v, 3 v)`` as a two-stage schedule when
+    ``voxel_size`` v is given; clouds at an unknown offset need :func:`register_global` first.
+    """
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if loss not in LOSSES:
+        raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
+    if max_correspondence_distance is None:
+        vs = voxel_size
+        if vs is None and isinstance(source, PreparedCloud):
+            vs = source.voxel_size
+        max_correspondence_distance = [1.0] if vs is None else [max(10 * vs, 0.3), 3 * vs]
+    dists = np.atleast_1d(np.asarray(max_correspondence_distance, dtype=np.float64)).tolist()
+    src = _as_prepared(source, voxel_size, num_neighbors, point_sigma, num_threads)
+    tgt = _as_prepared(target, voxel_size, num_neighbors, point_sigma, num_threads)
+    R_prior = None
+    if rotation_prior is not None:
+        R_prior = np.ascontiguousarray(np.asarray(rotation_prior, dtype=np.float64))
+        if R_prior.shape != (3, 3):
+            raise ValueError(f"rotation_prior must be 3x3, got shape {R_prior.shape}")
+    d = _ext.register_local(
+        src._native, tgt._native, _as_pose(init, "init"), method, dists, int(max_iterations),
+        float(rotation_eps), float(translation_eps), float(point_sigma), loss, float(loss_scale),
+        R_prior, float(rotation_prior_sigma), bool(lock_z), int(num_threads),
+    )
+    return RegistrationResult(**d)
+
+
+def register_global(
+    source,
+    target,
+    voxel_size: float,
+    up_source: Sequence[float] | None = None,
+    up_target: Sequence[float] | None = None,
+    gravity_aligned: bool = False,
+    normal_radius: float | None = None,
+    feature_radius: float | None = None,
+    inlier_distance: float | None = None,
+    max_neighbors: int = 100,
+    mutual_filter: bool = False,
+    edge_length_ratio: float = 0.9,
+    max_iterations: int = 100_000,
+    confidence: float = 0.999,
+    viewpoint_source: Sequence[float] = (0.0, 0.0, 0.0),
+    viewpoint_target: Sequence[float] = (0.0, 0.0, 0.0),
+    rotation_prior=None,
+    rotation_tolerance: float = np.radians(30.0),
+    seed: int = 0,
+    num_threads: int = 0,
+) -> GlobalResult:
+    """Global registration from scratch: FPFH features, (mutual) matches, RANSAC.
+
+    Parameters
+    ----------
+    source, target : (N, 3) array_like of float [m]
+        Downsampled here with ``voxel_size`` (origin-aligned).
+    voxel_size : float
+        [m]; sets the default radii: normals 2 v, FPFH 5 v, inlier distance 1.5 v.
+    up_source, up_target : (3,) sequence of float, optional
+        Gravity: the "up" direction in each cloud's frame (from the IMU roll/pitch). When given,
+        the search is over yaw and translation only, so a symmetric room cannot come out tilted
+        or upside down.
+    gravity_aligned : bool
+        Shorthand for ``up_source = up_target = (0, 0, 1)`` (both clouds already levelled).
+    normal_radius, feature_radius, inlier_distance : float, optional
+        [m]; defaults from ``voxel_size`` as above.
+    max_neighbors : int
+        Cap on a neighbourhood's size.
+    mutual_filter : bool
+        Keep only mutually nearest feature matches (off by default: on sparse or repetitive
+        scenes it throws away the few right matches; hypotheses are scored on the geometry).
+    edge_length_ratio : float
+        Reject samples whose pairwise distances differ by more than this ratio.
+    max_iterations : int
+        Hypotheses at most; RANSAC stops early at ``confidence``.
+    confidence : float
+        In (0, 1).
+    viewpoint_source, viewpoint_target : (3,) sequence of float
+        Sensor positions [m] (normal orientation).
+    rotation_prior : (3, 3) array_like, optional
+        Prior R_target_source, e.g. the IMU's relative orientation (yaw from the gyro included):
+        poses rotated more than ``rotation_tolerance`` away from it are rejected. Gravity alone
+        cannot tell a symmetric room from its 180 deg turned twin; this can.
+    rotation_tolerance : float
+        [rad], default 30 deg.
+    seed : int
+        Same seed, same result, whatever ``num_threads``.
+    num_threads : int
+        0 uses every core.
+
+    Returns
+    -------
+    GlobalResult
+        Refine it with :func:`register` (``init=result.T_target_source``).
+    """
+    if not voxel_size > 0:
+        raise ValueError("voxel_size must be > 0")
+    if gravity_aligned:
+        up_source = up_target = (0.0, 0.0, 1.0)
+    if (up_source is None) != (up_target is None):
+        raise ValueError("give both up_source and up_target, or neither")
+    zero = np.zeros(3)
+    us = zero if up_source is None else np.asarray(up_source, dtype=np.float64).reshape(3)
+    ut = zero if up_target is None else np.asarray(up_target, dtype=np.float64).reshape(3)
+    if up_source is not None and (np.linalg.norm(us) == 0 or np.linalg.norm(ut) == 0):
+        raise ValueError("up vectors must be non-zero")
+    src = voxel_downsample(as_cloud(source), voxel_size, num_threads=num_threads)
+    tgt = voxel_downsample(as_cloud(target), voxel_size, num_threads=num_threads)
+    d = _ext.register_global(
+        src, tgt,
+        float(normal_radius or 2 * voxel_size), float(feature_radius or 5 * voxel_size),
+        int(max_neighbors), float(inlier_distance or 1.5 * voxel_size), float(edge_length_ratio),
+        bool(mutual_filter), int(max_iterations), float(confidence), us, ut,
+        np.asarray(viewpoint_source, dtype=np.float64).reshape(3),
+        np.asarray(viewpoint_target, dtype=np.float64).reshape(3),
+        None if rotation_prior is None else np.asarray(rotation_prior, dtype=np.float64).reshape(3, 3),
+        float(rotation_tolerance), int(seed), int(num_threads),
+    )
+    return GlobalResult(**d)
