@@ -141,3 +141,24 @@ def test_hu_moments_are_rotation_invariant():
     r = ndimage.rotate(m.astype(float), 37, order=0, reshape=True) > 0.5
     h1, h2 = hu_moments(m), hu_moments(r)
     np.testing.assert_allclose(h1[:4], h2[:4], rtol=0.05)
+
+
+def test_cli_register_heightmaps_method(tmp_path, capsys):
+    from tripod_processor.synthetic_rooms import free_station, make_room, scan
+
+    scene = make_room(43)
+    rng = np.random.default_rng(43)
+    a, b = free_station(scene, rng), free_station(scene, rng)
+    pa, _ = scan(scene, a, head_steps=10, noise_m=0.03, seed=1)
+    pb, _ = scan(scene, b, head_steps=10, noise_m=0.03, seed=2)
+    src, Tb = _turn(pb, 2.5, [2, -1, 0])
+    write_ply(tmp_path / "t.ply", make_cloud(pa))
+    write_ply(tmp_path / "s.ply", make_cloud(src))
+    capsys.readouterr()
+    assert main(["register", str(tmp_path / "s.ply"), str(tmp_path / "t.ply"), "--method", "heightmaps",
+                 "-o", str(tmp_path / "r.json")]) == 0
+    out = json.loads(capsys.readouterr().out)
+    E = Tb @ np.array(out["T_target_source"])  # truth: T_target_source = Tb^-1
+    ang = np.degrees(np.arccos(np.clip((np.trace(E[:3, :3]) - 1) / 2, -1, 1)))
+    assert ang < 1.0 and np.linalg.norm(E[:3, 3]) < 0.05, (ang, E[:3, 3])
+    assert out["method"] == "heightmaps" and (tmp_path / "r.json").is_file()

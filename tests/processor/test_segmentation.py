@@ -66,17 +66,21 @@ def test_metrics_on_a_known_confusion():
     assert overall_accuracy(c) == pytest.approx(6 / 8)
 
 
-@pytest.mark.parametrize("seed", [9001, 9002])
-def test_shipped_model_on_unseen_rooms(seed):
-    """Rooms from seeds the shipped weights never saw, 3 cm range noise."""
+def test_shipped_model_on_unseen_rooms():
+    """Rooms from seeds the shipped weights never saw, 3 cm range noise; IoU from the confusion
+    summed over the rooms (one room can hold only a few thousand "other" points)."""
     assert DEFAULT_WEIGHTS.is_file()
-    p, lab, _, _ = room_scan(seed, head_steps=12)
-    pred = Segmenter()(p)
-    assert pred.shape == lab.shape and pred.dtype == np.int32
-    ious = iou(confusion(lab, pred))
+    seg = Segmenter()
+    total = np.zeros((4, 4), np.int64)
+    for seed in (9001, 9002):
+        p, lab, _, _ = room_scan(seed, head_steps=12)
+        pred = seg(p)
+        assert pred.shape == lab.shape and pred.dtype == np.int32
+        total += confusion(lab, pred)
+    ious = iou(total)
     assert ious[0] > 0.95 and ious[1] > 0.95, ious
     assert ious[2] > 0.85, ious
-    assert ious[3] > 0.5, ious
+    assert ious[3] > 0.6, ious
 
 
 def test_segmenter_is_invariant_to_yaw_and_position():
