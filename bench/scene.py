@@ -269,8 +269,10 @@ def main(argv=None) -> int:
     table = Table(title=f"bench/scene.py ({time.perf_counter() - t0:.0f} s, {os.cpu_count()} cores)")
     for c in ("section", "item", "value"):
         table.add_column(c, justify="right" if c == "value" else "left")
+    from rich.markup import escape
+
     for r in rows:
-        table.add_row(*r)
+        table.add_row(*(escape(c) for c in r))
     Console(width=130).print(table)
     return 0
 

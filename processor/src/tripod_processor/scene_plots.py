@@ -89,39 +89,41 @@ def save_heightmaps_picture(path, heightmaps, max_tiles: int = 8, title: str = "
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    fig.savefig(path, dpi=72)
     plt.close(fig)
 
 
 def save_overview(path, points, labels, planes, heightmaps, title: str = "") -> None:
-    """Top view with plane outlines, side view, and the floor/ceiling/largest-wall heightmaps."""
+    """Top view with the wall outlines and side view (top row); floor, ceiling and the two
+    largest walls' heightmaps (bottom row)."""
     plt = _plt()
-    fig = plt.figure(figsize=(13, 6.5))
-    ax1 = fig.add_subplot(1, 3, 1)
-    plot_labels(ax1, points, labels, "top", title="labels (top, ceiling hidden), wall outlines")
+    fig = plt.figure(figsize=(14, 9.5))
+    gs = fig.add_gridspec(2, 4, height_ratios=[1.5, 1])
+    ax1 = fig.add_subplot(gs[0, :2])
+    plot_labels(ax1, points, labels, "top", title="labels (top, ceiling hidden), plane outlines")
     for pl in planes:
-        if len(pl.outline) >= 3 and pl.label == 2:
+        if len(pl.outline) >= 3 and pl.label in (1, 2):
             o = np.vstack([pl.outline, pl.outline[:1]])
-            ax1.plot(o[:, 0], o[:, 1], "-", color="k", lw=0.8)
-        elif len(pl.outline) >= 3 and pl.label == 1:
-            o = np.vstack([pl.outline, pl.outline[:1]])
-            ax1.plot(o[:, 0], o[:, 1], "--", color="saddlebrown", lw=0.8)
-    ax2 = fig.add_subplot(1, 3, 2)
+            ax1.plot(o[:, 0], o[:, 1], "-" if pl.label == 2 else "--",
+                     color="k" if pl.label == 2 else "saddlebrown", lw=0.9)
+    ax2 = fig.add_subplot(gs[0, 2:])
     plot_labels(ax2, points, labels, "side", title="labels (side)")
     picks = [h for h in heightmaps if h.label in (0, 1)][:2]
     walls = sorted([h for h in heightmaps if h.label == 2], key=lambda h: -np.isfinite(h.height).sum())
-    picks += walls[:2]
+    picks += walls[:4 - len(picks)]
     for k, hm in enumerate(picks[:4]):
-        ax = fig.add_subplot(4, 3, 3 * k + 3)
+        ax = fig.add_subplot(gs[1, k])
         h = hm.height * 100
-        im = ax.imshow(np.ma.masked_invalid(h), origin="lower", cmap="viridis", vmin=-5, vmax=30,
+        im = ax.imshow(np.ma.masked_invalid(h), origin="lower", cmap="viridis", vmin=-5, vmax=25,
                        extent=(0, h.shape[1] * hm.pixel, 0, h.shape[0] * hm.pixel), aspect="equal")
-        ax.set_title(f"heightmap: {CLASS_NAMES[hm.label]}", fontsize=8)
-        ax.tick_params(labelsize=6)
-        fig.colorbar(im, ax=ax, shrink=0.9, label="cm")
+        ax.set_title(f"heightmap: {CLASS_NAMES[hm.label]} ({hm.pixel * 100:.0f} cm px)", fontsize=9)
+        ax.set_xlabel("u [m]", fontsize=8)
+        ax.set_ylabel("v [m]", fontsize=8)
+        ax.tick_params(labelsize=7)
+        fig.colorbar(im, ax=ax, shrink=0.8, label="height [cm]")
     legend(fig)
     if title:
         fig.suptitle(title, fontsize=11)
     fig.tight_layout(rect=(0, 0.04, 1, 0.97))
-    fig.savefig(path, dpi=80)
+    fig.savefig(path, dpi=72)
     plt.close(fig)
