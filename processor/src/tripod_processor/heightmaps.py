@@ -296,3 +296,11 @@ def relief_rmse(hm: Heightmap, raycasting_scene, behind: float = 0.10, relief: f
         return float("nan"), 0
     err = hm.height[valid] - truth[valid]
     return float(np.sqrt(np.mean(err ** 2))), int(valid.sum())
+
+
+def register_by_heightmaps(source, target, **kwargs):
+    """Registration by heightmap matching; see
+    :func:`tripod_processor.heightmap_registration.register_by_heightmaps` (re-exported here)."""
+    from .heightmap_registration import register_by_heightmaps as _register
+
+    return _register(source, target, **kwargs)
