@@ -18,6 +18,18 @@ def _plt():
     return plt
 
 
+def _save(fig, path, dpi: int) -> None:
+    """PNG with a 256-colour palette: a few 100 kB instead of a MB, same look for these plots."""
+    import io
+
+    from PIL import Image
+
+    buf = io.BytesIO()
+    fig.savefig(buf, dpi=dpi, format="png")
+    buf.seek(0)
+    Image.open(buf).convert("RGB").quantize(256, method=Image.Quantize.MEDIANCUT).save(path, optimize=True)
+
+
 def _subsample(n: int, k: int, seed: int = 0) -> np.ndarray:
     return np.arange(n) if n <= k else np.sort(np.random.default_rng(seed).choice(n, k, replace=False))
 
@@ -63,7 +75,7 @@ def save_labels_picture(path, clouds: list[tuple[np.ndarray, np.ndarray, str]]) 
         plot_labels(axes[1, j], p[sel], lab[sel], "side", title=title + " (side)")
     legend(fig)
     fig.tight_layout(rect=(0, 0.04, 1, 1))
-    fig.savefig(path, dpi=90)
+    _save(fig, path, 90)
     plt.close(fig)
 
 
@@ -89,7 +101,7 @@ def save_heightmaps_picture(path, heightmaps, max_tiles: int = 8, title: str = "
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=72)
+    _save(fig, path, 72)
     plt.close(fig)
 
 
@@ -125,5 +137,5 @@ def save_overview(path, points, labels, planes, heightmaps, title: str = "") -> 
     if title:
         fig.suptitle(title, fontsize=11)
     fig.tight_layout(rect=(0, 0.04, 1, 0.97))
-    fig.savefig(path, dpi=72)
+    _save(fig, path, 72)
     plt.close(fig)
