@@ -169,3 +169,12 @@ def test_cli_train_segmenter_on_s3dis(s3dis_root, tmp_path):
     _, meta = load_model(out)
     assert meta["s3dis_areas"] == "1,2,3,4,6" and meta["steps"] == 40
     assert main(["train-segmenter", "-o", str(out), "--s3dis", str(tmp_path / "none")]) == 2
+
+
+def test_cli_s3dis_eval(s3dis_root, capsys):
+    assert main(["s3dis-eval", str(s3dis_root), "--protocol", "area5", "--steps", "40",
+                 "--threads", "1"]) == 0
+    err = capsys.readouterr().err
+    assert "IoU" in err and "ceiling" in err and "overall accuracy" in err
+    assert main(["s3dis-eval", str(s3dis_root), "--protocol", "7fold"]) == 2
+    assert main(["s3dis-eval", str(s3dis_root.parent / "missing")]) == 2
