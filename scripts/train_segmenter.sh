@@ -9,4 +9,5 @@ PY=.venv/bin/python
 $PY bench/scene_data.py --split train
 .venv/bin/tripod train-segmenter \
   -o processor/src/tripod_processor/segmentation/weights/segmenter.npz \
-  --data .cache/scene_data/train --synthetic 30 --copies 2 --steps 1500 --batch 4096 --seed 0
+  --data .cache/scene_data/train --synthetic 30 --copies 2 --steps 2000 --batch 4096 \
+  --hidden 128,128 --seed 0

@@ -124,8 +124,9 @@ def train_segmenter_cmd(
     synthetic: int = typer.Option(0, "--synthetic",
                                   help="also generate this many labelled synthetic rooms"),
     copies: int = typer.Option(2, "--copies", help="augmented copies of each cloud (first unperturbed)"),
-    steps: int = typer.Option(1500, "--steps", help="optimiser steps"),
+    steps: int = typer.Option(2000, "--steps", help="optimiser steps"),
     batch: int = typer.Option(4096, "--batch", help="points per step"),
+    hidden: str = typer.Option("128,128", "--hidden", help="hidden layer widths of the MLP"),
     seed: int = typer.Option(0, "--seed", help="seed of sampling, augmentation and init"),
     threads: int = typer.Option(0, "--threads", help="CPU threads, 0 = all"),
 ) -> None:
@@ -175,6 +176,12 @@ def train_segmenter_cmd(
             sources.append((p, lab))
     if not sources:
         fail("no training data: give --data, --s3dis or --synthetic")
+    try:
+        hidden_sizes = tuple(int(h) for h in hidden.split(",") if h.strip())
+        if not hidden_sizes or min(hidden_sizes) < 1:
+            raise ValueError
+    except ValueError:
+        fail(f"--hidden: expected widths like 128,128, got {hidden!r}")
     bar = tqdm(total=len(sources) * copies, desc="features", unit="cloud")
     F, L = features_of(sources, copies=copies, seed=seed, progress=lambda: bar.update())
     bar.close()
@@ -185,7 +192,8 @@ def train_segmenter_cmd(
         if step % 50 == 0:
             bar.set_postfix(loss=f"{loss:.4f}")
 
-    model, rep = train(F, L, seed=seed, steps=steps, batch=batch, num_threads=threads, progress=prog)
+    model, rep = train(F, L, seed=seed, steps=steps, batch=batch, hidden=hidden_sizes,
+                       num_threads=threads, progress=prog)
     bar.close()
     import sys
 

@@ -16,7 +16,7 @@ from .features import FEATURE_NAMES
 
 CLASS_NAMES = ("ceiling", "floor", "wall", "other")
 NUM_CLASSES = len(CLASS_NAMES)
-HIDDEN = (64, 64)
+HIDDEN = (128, 128)
 DEFAULT_WEIGHTS = Path(__file__).with_name("weights") / "segmenter.npz"
 
 

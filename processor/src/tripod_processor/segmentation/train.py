@@ -75,7 +75,7 @@ def features_of(clouds: Iterable[tuple[np.ndarray, np.ndarray]], copies: int, se
 
 
 def train(features: np.ndarray, labels: np.ndarray, *, seed: int = 0, steps: int = 3000,
-          batch: int = 8192, lr: float = 3e-3, hidden=(64, 64), num_threads: int = 0,
+          batch: int = 8192, lr: float = 3e-3, hidden=(128, 128), num_threads: int = 0,
           progress: Callable | None = None):
     """Train the per-point MLP; returns (model, TrainReport).
 
