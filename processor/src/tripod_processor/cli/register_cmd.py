@@ -21,7 +21,8 @@ def register_cmd(
     source: Path = typer.Argument(..., help="Source cloud (PLY or PCD, binary_compressed too)."),
     target: Path = typer.Argument(..., help="Target cloud (PLY or PCD)."),
     method: str = typer.Option("gicp", "--method", "-m",
-                               help="gicp, icp (point-to-point), plane, symmetric or lm (Ceres)."),
+                               help="gicp, icp (point-to-point), plane, symmetric, lm (Ceres) or heightmaps "
+                                    "(global: match floor heightmaps of the segmented clouds)."),
     init: str = typer.Option("identity", "--init",
                              help="'identity' or a text file with the 4x4 initial T_target_source."),
     voxel: Optional[float] = typer.Option(None, "--voxel", help="Downsampling voxel in m."),
@@ -46,8 +47,13 @@ def register_cmd(
 
     from .. import cloud_io, registration as reg
 
-    if method not in reg.METHODS:
-        fail(f"unknown method '{method}' (choose from {', '.join(reg.METHODS)})")
+    if method == "heightmaps":  # scene understanding's global method (no initial guess needed)
+        from ._heightmap_register import register_heightmaps_cmd
+
+        register_heightmaps_cmd(source, target, output, threads, _dumps)
+        return
+    if method not in reg.METHODS + ("heightmaps",):
+        fail(f"unknown method '{method}' (choose from {', '.join(reg.METHODS + ('heightmaps',))})")
     if loss not in reg.LOSSES:
         fail(f"unknown loss '{loss}' (choose from {', '.join(reg.LOSSES)})")
     if global_ and not voxel:

@@ -1,0 +1,296 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""Scene understanding benchmark: prints one table.
+
+* segmentation IoU per class on simulated captures never used in training (``tripod simulate``,
+  seed 101, all five scene types; the weights were trained on seed 1 and synthetic rooms),
+  training time (from the weights' provenance) and inference points/s;
+* the real PCL room scans: label shares and the share of floor/ceiling/wall points within 5 cm
+  of their fitted planes;
+* planes on a simulated room of ~1 M points against the true planes, time, vs Open3D's
+  planar-patch detector;
+* heightmap relief RMSE against the mesh (3 cm range noise);
+* registration by heightmaps over random pairs of overlapping simulated scans (synthetic rooms
+  of ``tripod_processor.synthetic_rooms``, VLP-16 on a turning head, 3 cm noise; >= 30 % of one
+  scan within 10 cm of the other; random yaw, position and 0.3 deg levelling error; success:
+  <= 1 deg and <= 5 cm) with its time, next to FPFH + RANSAC + ICP (Open3D) on the same pairs.
+
+Usage: ``python bench/scene.py [--pairs 50] [--pictures]`` (``--pictures`` rewrites docs/*.png).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "bench"))
+REAL = REPO.parent / "shared" / "data" / "registration" / "pcl"
+DOCS = REPO / "docs"
+
+rows: list[tuple[str, str, str]] = []
+
+
+def row(section: str, item: str, value: str) -> None:
+    rows.append((section, item, value))
+    print(f"  {section:<14} {item:<58} {value}", flush=True)
+
+
+def rot_err_deg(R) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1))))
+
+
+# ------------------------------------------------------------------------------ segmentation
+def bench_segmentation(pictures: bool) -> None:
+    from scene_data import make
+
+    from tripod_processor.segmentation import Segmenter
+    from tripod_processor.segmentation.metrics import confusion, iou
+
+    files = make("test", REPO / ".cache" / "scene_data" / "test")
+    seg = Segmenter()
+    total = np.zeros((4, 4), np.int64)
+    best_rate = 0.0
+    for f in files:
+        z = np.load(f)
+        p, lab = z["points"], z["labels"].astype(np.int64)
+        seg(p[:1000])  # warm-up
+        t0 = time.perf_counter()
+        pred = seg(p)
+        dt = time.perf_counter() - t0
+        best_rate = max(best_rate, len(p) / dt)
+        c = confusion(lab, pred)
+        total += c
+        row("segmentation", f"{f.stem}: IoU ceil/floor/wall/other ({len(p) / 1e6:.1f} M pts)",
+            " / ".join(f"{v:.3f}" for v in iou(c)))
+    ious = iou(total)
+    for name, v, goal in zip(("ceiling", "floor", "wall", "other"), ious, (0.98, 0.98, 0.95, 0.85)):
+        row("segmentation", f"IoU {name}, all held-out captures (goal >= {goal})", f"{v:.4f}")
+    row("segmentation", "training time [s] (weights' provenance)",
+        f"{seg.meta.get('train_seconds', float('nan')):.0f}")
+    row("segmentation", f"inference [M points/s] (best capture, {os.cpu_count()} cores, shared)",
+        f"{best_rate / 1e6:.2f}")
+
+
+# ---------------------------------------------------------------------------------- real
+def bench_real(pictures: bool) -> None:
+    from tripod_processor.cloud_io import read_cloud, xyz
+    from tripod_processor.planes import extract_planes, plane_inlier_share
+    from tripod_processor.segmentation import Segmenter
+
+    seg = Segmenter()
+    shown = []
+    for name in ("room_scan1", "room_scan2"):
+        p = xyz(read_cloud(REAL / f"{name}.pcd"), dtype=np.float32)
+        lab = seg(p)
+        planes = extract_planes(p, lab)
+        share = plane_inlier_share(p, lab, planes, 0.05)
+        counts = np.bincount(lab, minlength=4) / len(lab)
+        row("real scans", f"{name}: label shares ceil/floor/wall/other",
+            " / ".join(f"{v:.1%}" for v in counts))
+        row("real scans", f"{name}: floor/ceil/wall points within 5 cm of their planes",
+            f"{share:.1%} ({len(planes)} planes)")
+        shown.append((p, lab, name))
+    if pictures:
+        from tripod_processor.scene_plots import save_labels_picture
+
+        save_labels_picture(DOCS / "scene_real_labels.png", shown)
+
+
+# ---------------------------------------------------------------------------------- planes
+def true_planes(scene):
+    from tripod_processor.planes import CEILING, FLOOR, WALL
+
+    out = [(FLOOR, np.array([0, 0, 1.0]), 0.0), (CEILING, np.array([0, 0, 1.0]), -scene.height)]
+    fp = scene.footprint
+    for (ax, ay), (bx, by) in zip(fp, fp[1:] + fp[:1]):
+        n = np.cross([bx - ax, by - ay, 0.0], [0, 0, 1.0])
+        n /= np.linalg.norm(n)
+        out.append((WALL, n, -float(n @ [ax, ay, 0])))
+    return out
+
+
+def bench_planes(pictures: bool) -> None:
+    import open3d as o3d
+
+    from tripod_processor.heightmaps import plane_heightmap, relief_rmse
+    from tripod_processor.planes import extract_planes
+    from tripod_processor.synthetic_rooms import free_station, make_room, scan
+
+    scene = make_room(7, kind="box", size=(7.0, 5.5), height=2.8)
+    st = free_station(scene, np.random.default_rng(3))
+    p, lab = scan(scene, st, head_steps=70, noise_m=0.03, seed=7)
+    row("planes", "simulated room: points, range noise", f"{len(p):,}, 3 cm")
+    t0, c0 = time.perf_counter(), time.process_time()
+    planes = extract_planes(p, lab)
+    dt, dc = time.perf_counter() - t0, time.process_time() - c0
+    worst_a, worst_o, found, expected = 0.0, 0.0, 0, 0
+    for label, n, d in true_planes(scene):
+        if ((lab == label) & (np.abs(p @ n + d) < 0.1)).sum() < 3000:
+            continue
+        expected += 1
+        cand = [(pl, float(np.degrees(np.arccos(min(1.0, abs(pl.normal @ n))))),
+                 abs(np.sign(pl.normal @ n) * pl.offset - d)) for pl in planes if pl.label == label]
+        cand = [c for c in cand if c[1] < 5 and c[2] < 0.2]
+        if cand:
+            found += 1
+            pl, a, o = max(cand, key=lambda c: len(c[0].indices))
+            worst_a, worst_o = max(worst_a, a), max(worst_o, o)
+    row("planes", "floor/ceiling/wall planes found / present", f"{found} / {expected}")
+    row("planes", "worst normal error [deg] (goal <= 1)", f"{worst_a:.3f}")
+    row("planes", "worst offset error [mm] (goal <= 5)", f"{worst_o * 1000:.2f}")
+    row("planes", "tripod planes: wall time / CPU time [s] (goal <= 5 s)", f"{dt:.2f} / {dc:.2f}")
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p.astype(np.float64)))
+    t0 = time.perf_counter()
+    pc.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(30))
+    patches = pc.detect_planar_patches(normal_variance_threshold_deg=60, coplanarity_deg=75,
+                                       outlier_ratio=0.75, min_plane_edge_length=0.5, min_num_points=0,
+                                       search_param=o3d.geometry.KDTreeSearchParamKNN(knn=30))
+    dt_o3d = time.perf_counter() - t0
+    row("planes", "Open3D detect_planar_patches (+normals): time [s], patches",
+        f"{dt_o3d:.2f}, {len(patches)}")
+    # heightmaps of the same room against the mesh
+    rs = scene.raycasting_scene()
+    rmses = []
+    hms = []
+    from tripod_processor import _ext
+
+    normals = _ext.voxel_local_shape(p, 0.05, 1, 0)[:, :3]
+    for pl in planes:
+        hm = plane_heightmap(p, pl, normals=normals)
+        hms.append(hm)
+        r, n = relief_rmse(hm, rs)
+        if n > 200:
+            rmses.append(r)
+    row("heightmaps", "relief RMSE vs mesh, median / worst plane [mm] (noise 30)",
+        f"{np.median(rmses) * 1000:.1f} / {np.max(rmses) * 1000:.1f}")
+    if pictures:
+        from tripod_processor.scene_plots import save_heightmaps_picture, save_overview
+
+        save_heightmaps_picture(DOCS / "scene_heightmaps.png", hms, max_tiles=6,
+                                title="heightmaps (5 cm pixels) of a simulated room, 3 cm range noise")
+        save_overview(DOCS / "scene_overview.png", p, lab, planes, hms,
+                      title=f"simulated room, {len(p) / 1e6:.1f} M points: labels, plane outlines, heightmaps")
+
+
+# ---------------------------------------------------------------------------- registration
+def bench_registration(n_pairs: int) -> None:
+    import open3d as o3d
+
+    from tripod_processor.heightmap_registration import register_by_heightmaps
+    from tripod_processor.synthetic_rooms import _axis_angle, free_station, make_room, scan
+
+    def rand_T(rng):
+        T = np.eye(4)
+        T[:3, :3] = _axis_angle([0, 0, 1], rng.uniform(-np.pi, np.pi)) @ _axis_angle(
+            [*rng.normal(size=2), 0], np.deg2rad(rng.normal(0, 0.3)))  # IMU levelling error
+        T[:3, 3] = [*rng.uniform(-5, 5, 2), rng.uniform(-0.3, 0.3)]
+        return T
+
+    def fpfh_ransac(src, tgt, voxel=0.10):
+        reg = o3d.pipelines.registration
+
+        def prep(p):
+            c = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p.astype(np.float64)))
+            c = c.voxel_down_sample(voxel)
+            c.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2 * voxel, max_nn=30))
+            f = reg.compute_fpfh_feature(c, o3d.geometry.KDTreeSearchParamHybrid(radius=5 * voxel, max_nn=100))
+            return c, f
+
+        s, fs = prep(src)
+        t, ft = prep(tgt)
+        res = reg.registration_ransac_based_on_feature_matching(
+            s, t, fs, ft, True, 1.5 * voxel, reg.TransformationEstimationPointToPoint(False), 3,
+            [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(1.5 * voxel)],
+            reg.RANSACConvergenceCriteria(100000, 0.999))
+        fine = reg.registration_icp(s, t, voxel, res.transformation,
+                                    reg.TransformationEstimationPointToPlane())
+        return np.asarray(fine.transformation)
+
+    from scipy.spatial import cKDTree
+
+    ok_h, ok_f, t_h, t_f, kinds, overlaps = 0, 0, [], [], {}, []
+    for k in range(n_pairs):
+        rng = np.random.default_rng(1000 + k)
+        scene = make_room(5000 + k)
+        a = free_station(scene, rng)
+        pa, la = scan(scene, a, head_steps=12, noise_m=0.03, seed=k)
+        tree = cKDTree(pa)
+        # an overlapping pair: >= 30 % of the second scan within 10 cm of the first (a station
+        # in the other room of a two-room scene sees it only through the door: drawn again)
+        for attempt in range(20):
+            b = free_station(scene, rng)
+            pb, lb = scan(scene, b, head_steps=12, noise_m=0.03, seed=k + 77 + attempt)
+            overlap = float((tree.query(pb[::10], distance_upper_bound=0.1)[0] < 0.1).mean())
+            if overlap >= 0.3:
+                break
+        overlaps.append(overlap)
+        Ta, Tb = rand_T(rng), rand_T(rng)
+        tgt = (pa @ Ta[:3, :3].T + Ta[:3, 3]).astype(np.float32)
+        src = (pb @ Tb[:3, :3].T + Tb[:3, 3]).astype(np.float32)
+        T_true = Ta @ np.linalg.inv(Tb)
+        t0 = time.perf_counter()
+        r = register_by_heightmaps(src, tgt)  # labels from the shipped segmenter
+        t_h.append(time.perf_counter() - t0)
+        E = np.linalg.inv(T_true) @ r.T_target_source
+        good_h = rot_err_deg(E[:3, :3]) <= 1.0 and np.linalg.norm(E[:3, 3]) <= 0.05
+        t0 = time.perf_counter()
+        Tf = fpfh_ransac(src, tgt)
+        t_f.append(time.perf_counter() - t0)
+        E = np.linalg.inv(T_true) @ Tf
+        good_f = rot_err_deg(E[:3, :3]) <= 1.0 and np.linalg.norm(E[:3, 3]) <= 0.05
+        ok_h += good_h
+        ok_f += good_f
+        kind = "hall" if scene.height > 3.5 else f"{len(scene.footprint)}-corner"
+        kinds.setdefault(kind, [0, 0])
+        kinds[kind][0] += good_h
+        kinds[kind][1] += 1
+        print(f"    pair {k}: heightmaps {'ok' if good_h else 'FAIL'} {t_h[-1]:.1f} s, "
+              f"fpfh {'ok' if good_f else 'FAIL'} {t_f[-1]:.1f} s", flush=True)
+    row("registration", f"heightmaps: success <= 1 deg / 5 cm over {n_pairs} pairs (goal >= 95 %)",
+        f"{ok_h / n_pairs:.0%}")
+    row("registration", "heightmaps: time per pair incl. segmentation, median [s]", f"{np.median(t_h):.2f}")
+    row("registration", "FPFH + RANSAC (+ICP), Open3D: success", f"{ok_f / n_pairs:.0%}")
+    row("registration", "FPFH + RANSAC (+ICP): time per pair, median [s]", f"{np.median(t_f):.2f}")
+    row("registration", "pairs: overlap (share within 10 cm), min / median",
+        f"{min(overlaps):.2f} / {np.median(overlaps):.2f}")
+    row("registration", "heightmaps success by room kind",
+        ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in sorted(kinds.items())))
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description="scene understanding benchmark")
+    ap.add_argument("--pairs", type=int, default=50, help="registration pairs")
+    ap.add_argument("--pictures", action="store_true", help="rewrite docs/scene_*.png")
+    ap.add_argument("--only", choices=("segmentation", "real", "planes", "registration"), default=None)
+    a = ap.parse_args(argv)
+    DOCS.mkdir(exist_ok=True)
+    t0 = time.perf_counter()
+    if a.only in (None, "segmentation"):
+        bench_segmentation(a.pictures)
+    if a.only in (None, "real"):
+        bench_real(a.pictures)
+    if a.only in (None, "planes"):
+        bench_planes(a.pictures)
+    if a.only in (None, "registration"):
+        bench_registration(a.pairs)
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=f"bench/scene.py ({time.perf_counter() - t0:.0f} s, {os.cpu_count()} cores)")
+    for c in ("section", "item", "value"):
+        table.add_column(c, justify="right" if c == "value" else "left")
+    from rich.markup import escape
+
+    for r in rows:
+        table.add_row(*(escape(c) for c in r))
+    Console(width=130).print(table)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

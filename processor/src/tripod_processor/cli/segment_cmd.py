@@ -1,0 +1,265 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""``tripod segment`` and ``tripod train-segmenter``: floor / wall / ceiling / other labels."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import typer
+
+from . import app
+from ._common import console, fail
+
+CLASS_HELP = "0 ceiling, 1 floor, 2 wall, 3 other"
+
+
+def _read_points(path: Path):
+    from ..cloud_io import CloudFormatError, read_cloud, xyz
+
+    try:
+        cloud = read_cloud(path)
+    except FileNotFoundError:
+        fail(f"no such file: {path}")
+    except (CloudFormatError, ValueError, OSError) as exc:
+        fail(f"{path}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}")
+    if cloud.dtype.names is None or not {"x", "y", "z"} <= set(cloud.dtype.names):
+        fail(f"{path}: the cloud has no x, y, z fields")
+    return cloud, xyz(cloud, dtype="float32")
+
+
+@app.command("segment", rich_help_panel="Scene understanding")
+def segment_cmd(
+    cloud: Path = typer.Argument(..., help="input cloud (PLY or PCD), z up"),
+    output: Path = typer.Option(..., "-o", "--output", help="labelled cloud (.ply or .pcd)"),
+    weights: Path = typer.Option(None, "--weights", help="segmenter weights (.npz); default: shipped"),
+    truth_field: str = typer.Option(None, "--truth-field",
+                                    help=f"score against this integer field of the input ({CLASS_HELP})"),
+    threads: int = typer.Option(0, "--threads", help="CPU threads, 0 = all"),
+) -> None:
+    """Label every point ceiling / floor / wall / other (field `label`: 0 ceiling, 1 floor,
+    2 wall, 3 other). The output keeps the input's points, order and fields."""
+    import numpy as np
+    from rich.table import Table
+
+    from ..cloud_io import write_cloud
+    from ..scene_config import SceneConfig, SegmentConfig
+    from ..segmentation import CLASS_NAMES, Segmenter
+    from ..segmentation.metrics import confusion, iou
+
+    if output.suffix.lower() not in (".ply", ".pcd"):
+        fail(f"output must end in .ply or .pcd, not {output.suffix!r}")
+    src, pts = _read_points(cloud)
+    if truth_field and truth_field not in src.dtype.names:
+        fail(f"{cloud}: no field {truth_field!r} to score against")
+    try:
+        seg = Segmenter(weights, num_threads=threads)
+    except (FileNotFoundError, ValueError, KeyError, OSError) as exc:
+        fail(f"segmenter weights: {exc}")
+    t0 = time.perf_counter()
+    labels = seg(pts)
+    dt = time.perf_counter() - t0
+    names = [n for n in src.dtype.names if n != "label"]
+    out = np.empty(len(src), dtype=[(n, src.dtype[n]) for n in names] + [("label", "<i4")])
+    for n in names:
+        out[n] = src[n]
+    out["label"] = labels
+    output.parent.mkdir(parents=True, exist_ok=True)
+    write_cloud(output, out)
+    from tripod_shared.config_io import dump_config
+
+    cfg = SceneConfig(segment=SegmentConfig(weights=str(weights) if weights else None,
+                                            num_threads=threads))
+    dump_config(cfg, output.with_name(output.stem + ".config.yaml"))
+    table = Table(title=f"tripod segment: {len(pts):,} points in {dt:.2f} s "
+                        f"({len(pts) / max(dt, 1e-9) / 1e6:.2f} M points/s)")
+    table.add_column("class")
+    table.add_column("points", justify="right")
+    table.add_column("share", justify="right")
+    if truth_field:
+        table.add_column("IoU", justify="right")
+        ious = iou(confusion(src[truth_field], labels))
+    counts = np.bincount(labels, minlength=4)
+    for k, name in enumerate(CLASS_NAMES):
+        row = [name, f"{counts[k]:,}", f"{counts[k] / max(len(labels), 1):.1%}"]
+        if truth_field:
+            row.append(f"{ious[k]:.3f}")
+        table.add_row(*row)
+    console.print(table)
+
+
+def _labelled_cloud(path: Path, label_field: str):
+    """(points (N, 3) float32, labels (N,) int64) of a labelled PLY/PCD, an .npz with ``points``
+    and ``labels``, or a ``tripod simulate`` capture folder (true poses and labels)."""
+    import numpy as np
+
+    from ..cloud_io import read_cloud, xyz
+
+    if path.is_dir():
+        from ..sim.fidelity import labeled_points
+
+        p, lab, _ = labeled_points(path)
+        return p.astype(np.float32), lab.astype(np.int64)
+    if path.suffix.lower() == ".npz":
+        with np.load(path) as z:
+            if "points" not in z.files or "labels" not in z.files:
+                raise ValueError("an .npz needs arrays 'points' and 'labels'")
+            return z["points"].astype(np.float32), z["labels"].astype(np.int64)
+    c = read_cloud(path)
+    if label_field not in (c.dtype.names or ()):
+        raise ValueError(f"no field {label_field!r} (use --label-field)")
+    return xyz(c, dtype="float32"), c[label_field].astype(np.int64)
+
+
+@app.command("train-segmenter", rich_help_panel="Scene understanding")
+def train_segmenter_cmd(
+    output: Path = typer.Option(..., "-o", "--output", help="weights file to write (.npz)"),
+    data: list[Path] = typer.Option(None, "--data",
+                                    help=f"labelled clouds: PLY/PCD with an integer field ({CLASS_HELP}; "
+                                         f"255 = ignore), .npz with points + labels, `tripod simulate` "
+                                         f"capture folders, or folders of these"),
+    label_field: str = typer.Option("label", "--label-field", help="name of the truth field"),
+    s3dis: Path = typer.Option(None, "--s3dis", help="S3DIS root (Area_N/<room>/Annotations)"),
+    s3dis_areas: str = typer.Option("1,2,3,4,6", "--s3dis-areas", help="S3DIS areas to train on"),
+    synthetic: int = typer.Option(0, "--synthetic",
+                                  help="also generate this many labelled synthetic rooms"),
+    copies: int = typer.Option(2, "--copies", help="augmented copies of each cloud (first unperturbed)"),
+    steps: int = typer.Option(2000, "--steps", help="optimiser steps"),
+    batch: int = typer.Option(4096, "--batch", help="points per step"),
+    hidden: str = typer.Option("128,128", "--hidden", help="hidden layer widths of the MLP"),
+    seed: int = typer.Option(0, "--seed", help="seed of sampling, augmentation and init"),
+    threads: int = typer.Option(0, "--threads", help="CPU threads, 0 = all"),
+) -> None:
+    """Train the per-point segmenter on labelled clouds (CPU, minutes) and write its weights."""
+    import numpy as np
+    from rich.table import Table
+    from tqdm import tqdm
+
+    from ..segmentation.model import save_weights
+    from ..segmentation.train import features_of, train
+
+    files: list[Path] = []
+    for d in data or []:
+        if d.is_dir() and (d / "labels.npz").is_file():
+            files.append(d)  # a simulated capture
+        elif d.is_dir():
+            files += sorted(p for p in d.rglob("*") if p.suffix.lower() in (".ply", ".pcd", ".npz")
+                            and p.name != "labels.npz")
+            files += sorted(p.parent for p in d.rglob("labels.npz"))
+        elif d.is_file():
+            files.append(d)
+        else:
+            fail(f"no such file or folder: {d}")
+    sources: list = []
+    for f in files:
+        try:
+            sources.append(_labelled_cloud(f, label_field))
+        except Exception as exc:  # noqa: BLE001 - any unreadable input is one line
+            fail(f"{f}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}")
+    if s3dis is not None:
+        from ..segmentation.s3dis import S3DISError, iter_rooms
+
+        try:
+            areas = [int(a) for a in s3dis_areas.split(",") if a.strip()]
+            for room in iter_rooms(s3dis, areas):
+                sources.append((room.points, room.labels4))
+        except (S3DISError, ValueError) as exc:
+            fail(str(exc))
+    if synthetic:
+        from ..synthetic_rooms import scan_room
+
+        rng = np.random.default_rng(seed)
+        for k in tqdm(range(synthetic), desc="synthetic rooms", unit="room"):
+            p, lab, _ = scan_room(10_000 + seed * 1000 + k, n_stations=int(rng.integers(1, 3)),
+                                  head_steps=int(rng.integers(6, 16)),
+                                  noise_m=float(rng.uniform(0.005, 0.035)))
+            sources.append((p, lab))
+    if not sources:
+        fail("no training data: give --data, --s3dis or --synthetic")
+    try:
+        hidden_sizes = tuple(int(h) for h in hidden.split(",") if h.strip())
+        if not hidden_sizes or min(hidden_sizes) < 1:
+            raise ValueError
+    except ValueError:
+        fail(f"--hidden: expected widths like 128,128, got {hidden!r}")
+    bar = tqdm(total=len(sources) * copies, desc="features", unit="cloud")
+    F, L = features_of(sources, copies=copies, seed=seed, progress=lambda: bar.update())
+    bar.close()
+    bar = tqdm(total=steps, desc="training", unit="step")
+
+    def prog(step, loss):
+        bar.update()
+        if step % 50 == 0:
+            bar.set_postfix(loss=f"{loss:.4f}")
+
+    model, rep = train(F, L, seed=seed, steps=steps, batch=batch, hidden=hidden_sizes,
+                       num_threads=threads, progress=prog)
+    bar.close()
+    import sys
+
+    meta = {"seed": seed, "steps": steps, "batch": batch, "copies": copies, "synthetic": synthetic,
+            "data": [str(f) for f in files], "s3dis": str(s3dis) if s3dis else None,
+            "s3dis_areas": s3dis_areas if s3dis else None, "train_seconds": rep.seconds,
+            "points": rep.points, "class_counts": rep.class_counts,
+            "command": "tripod " + " ".join(sys.argv[1:])}
+    save_weights(model, output, meta)
+    table = Table(title=f"tripod train-segmenter -> {output}")
+    table.add_column("item")
+    table.add_column("value", justify="right")
+    table.add_row("clouds", str(len(sources)))
+    table.add_row("training points", f"{rep.points:,}")
+    table.add_row("steps x batch", f"{steps} x {batch}")
+    table.add_row("final loss", f"{rep.final_loss:.4f}")
+    table.add_row("training time [s]", f"{rep.seconds:.1f}")
+    table.add_row("weights [kB]", f"{output.stat().st_size / 1024:.1f}")
+    console.print(table)
+
+
+@app.command("s3dis-eval", rich_help_panel="Scene understanding")
+def s3dis_eval_cmd(
+    root: Path = typer.Argument(..., help="S3DIS root (Area_N/<room>/Annotations)"),
+    protocol: str = typer.Option("area5", "--protocol", help="area5 or 6fold"),
+    steps: int = typer.Option(1500, "--steps", help="optimiser steps per trained fold"),
+    copies: int = typer.Option(1, "--copies", help="augmented copies of each training room"),
+    seed: int = typer.Option(0, "--seed", help="training seed"),
+    threads: int = typer.Option(0, "--threads", help="CPU threads, 0 = all"),
+) -> None:
+    """Standard S3DIS evaluation: train on the other areas, test on the held-out one (Area 5,
+    or each area in turn for 6-fold); per-class IoU from the confusion summed over rooms/folds."""
+    import numpy as np
+    from rich.table import Table
+
+    from ..segmentation.features import voxel_features
+    from ..segmentation.metrics import iou, overall_accuracy
+    from ..segmentation.model import CLASS_NAMES
+    from ..segmentation.s3dis import S3DISError, area5_split, evaluate, six_fold_splits
+    from ..segmentation.train import features_of, train
+
+    if protocol not in ("area5", "6fold"):
+        fail(f"unknown protocol {protocol!r} (area5 or 6fold)")
+    splits = area5_split() if protocol == "area5" else six_fold_splits()
+
+    def train_fn(rooms):
+        F, L = features_of([(r.points, r.labels4) for r in rooms], copies=copies, seed=seed)
+        model, _ = train(F, L, seed=seed, steps=steps, num_threads=threads)
+        return model
+
+    def predict_fn(model, points):
+        import torch
+
+        f, point_voxel = voxel_features(points, threads)
+        with torch.inference_mode():
+            lab = model(torch.from_numpy(f)).argmax(1).numpy().astype(np.int32)
+        return np.where(point_voxel >= 0, lab[point_voxel], 3)
+
+    try:
+        total, per = evaluate(root, splits, train_fn, predict_fn)
+    except S3DISError as exc:
+        fail(str(exc))
+    table = Table(title=f"S3DIS {protocol}: IoU from the summed confusion ({int(total.sum()):,} points)")
+    table.add_column("class")
+    table.add_column("IoU", justify="right")
+    for name, v in zip(CLASS_NAMES, iou(total)):
+        table.add_row(name, f"{v:.3f}")
+    table.add_row("overall accuracy", f"{overall_accuracy(total):.3f}")
+    console.print(table)

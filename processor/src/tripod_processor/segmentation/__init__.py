@@ -1,0 +1,59 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""Scene understanding, part 1: label every point ceiling / floor / wall / other.
+
+``segment(points)`` computes :mod:`.features` in the C++ core and runs the small per-point
+network of :mod:`.model` (PyTorch, CPU). :mod:`.train` trains it on labelled clouds (simulated
+scenes, S3DIS via :mod:`.s3dis`); :mod:`.metrics` scores it.
+Labels: 0 ceiling, 1 floor, 2 wall, 3 other.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .features import point_features, voxel_features
+from .model import CLASS_NAMES, DEFAULT_WEIGHTS, NUM_CLASSES, load_model
+
+__all__ = ["segment", "Segmenter", "CLASS_NAMES", "NUM_CLASSES", "DEFAULT_WEIGHTS",
+           "point_features"]
+
+
+class Segmenter:
+    """A loaded segmenter (keeps the model between clouds).
+
+    Parameters
+    ----------
+    weights : path of a ``.npz`` weight file; None = the shipped weights
+    num_threads : CPU threads for features and inference, 0 = all
+    chunk : points per inference batch
+    """
+
+    def __init__(self, weights=None, num_threads: int = 0, chunk: int = 1 << 18) -> None:
+        self.model, self.meta = load_model(weights)
+        self.num_threads = int(num_threads)
+        self.chunk = int(chunk)
+
+    def probabilities(self, points) -> np.ndarray:
+        """(N, 4) float32 class probabilities of (N, 3) points [m], z up; the network runs once
+        per occupied 4 cm voxel. Non-finite points get 1/4 each (and label "other")."""
+        import torch
+
+        if self.num_threads > 0:
+            torch.set_num_threads(self.num_threads)
+        f, point_voxel = voxel_features(points, self.num_threads)
+        vox = np.empty((len(f) + 1, NUM_CLASSES), np.float32)
+        vox[-1] = [0.25, 0.25, 0.25, 0.25 + 1e-6]  # index -1: non-finite points
+        with torch.inference_mode():
+            for s in range(0, len(f), self.chunk):
+                logits = self.model(torch.from_numpy(f[s:s + self.chunk]))
+                vox[s:min(s + self.chunk, len(f))] = torch.softmax(logits, 1).numpy()
+        return vox[point_voxel]
+
+    def __call__(self, points) -> np.ndarray:
+        """(N,) int32 labels (0 ceiling, 1 floor, 2 wall, 3 other), in the input's order."""
+        return self.probabilities(points).argmax(1).astype(np.int32)
+
+
+def segment(points, weights=None, num_threads: int = 0) -> np.ndarray:
+    """Label (N, 3) points [m] (z up): (N,) int32, 0 ceiling, 1 floor, 2 wall, 3 other."""
+    return Segmenter(weights, num_threads)(points)

@@ -1,0 +1,130 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""Per-point input features of the segmenter: local shape at two scales, height in the room and
+horizontal context (is this surface the boundary of the scanned space?).
+
+Everything heavy runs in the C++ core (one crossing per cloud, O(N) after one sort), and on the
+centroids of 4 cm voxels (:func:`voxel_features`), so features come at millions of points per
+second. Clouds are expected z-up (the IMU places them so);
+the model is trained with a few degrees of tilt so that small errors do not matter.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import _ext
+from ..preprocess import as_cloud
+
+FEATURE_NAMES = (
+    "abs_nz_s", "linearity_s", "planarity_s", "scattering_s", "log_count_s",
+    "abs_nz_l", "linearity_l", "planarity_l", "scattering_l",
+    "abs_nz_xl", "linearity_xl", "planarity_xl", "scattering_xl",
+    "h_floor", "h_ceiling", "h_relative",
+    "open_fraction", "free_distance",
+    "column_bottom", "column_top", "above_column_bottom", "below_column_top", "log_column_count",
+)
+SMALL_VOXEL = 0.05  # [m], 3x3x3 voxels -> 15 cm neighbourhood
+LARGE_VOXEL = 0.15  # [m], 45 cm neighbourhood
+XL_VOXEL = 0.4  # [m], 1.2 m neighbourhood: a wall is planar at this scale, a pillar is not
+COLUMN_CELL = 0.10  # [m]
+LABEL_VOXEL = 0.04  # [m] points in one such voxel share features and label
+
+
+def _shape(ls: np.ndarray) -> tuple[np.ndarray, ...]:
+    l0, l1, l2 = ls[:, 3], ls[:, 4], ls[:, 5]
+    s2 = np.maximum(l2, 1e-12)
+    return np.abs(ls[:, 2]), (l2 - l1) / s2, (l1 - l0) / s2, l0 / s2
+
+
+def floor_and_ceiling(z: np.ndarray, abs_nz: np.ndarray, bin_m: float = 0.05) -> tuple[float, float]:
+    """Floor and ceiling heights [m] of a z-up indoor cloud.
+
+    The lowest and highest 5 cm slabs that hold at least a quarter as many horizontal points
+    (|n_z| > 0.95) as the fullest slab. Desks and shelves are horizontal too but smaller than the
+    floor and ceiling seen from inside. Falls back to the 1st/99th height percentiles.
+    """
+    zf = z[np.isfinite(z)]
+    if zf.size == 0:
+        return 0.0, 1.0
+    horiz = z[(abs_nz > 0.95) & np.isfinite(z)]
+    if horiz.size < 100:
+        lo, hi = np.percentile(zf, [1, 99])
+        return float(lo), float(max(hi, lo + 0.5))
+    lo, hi = horiz.min(), horiz.max()
+    nb = max(1, int(np.ceil((hi - lo) / bin_m)) + 1)
+    hist, edges = np.histogram(horiz, bins=nb, range=(lo, lo + nb * bin_m))
+    strong = np.flatnonzero(hist >= 0.25 * hist.max())
+    # refine each to the median of the horizontal points of its slab and the neighbours
+    def centre(b):
+        sel = horiz[(horiz >= edges[max(b - 1, 0)]) & (horiz < edges[min(b + 2, nb)])]
+        return float(np.median(sel))
+    z_floor, z_ceil = centre(strong[0]), centre(strong[-1])
+    if z_ceil - z_floor < 1.0:  # one dominant level only (no ceiling scanned, or no floor)
+        lo_p, hi_p = np.percentile(zf, [1, 99])
+        if z_floor - lo_p > hi_p - z_ceil:
+            z_floor = float(lo_p)
+        else:
+            z_ceil = float(hi_p)
+    return z_floor, max(z_ceil, z_floor + 0.5)
+
+
+def point_features(points, num_threads: int = 0) -> np.ndarray:
+    """Segmenter input features of every point.
+
+    Parameters
+    ----------
+    points : (N, 3) array_like [m], z up
+    num_threads : int, 0 = all cores
+
+    Returns
+    -------
+    (N, len(FEATURE_NAMES)) float32. Non-finite points get zeros.
+    """
+    p = as_cloud(points)
+    nt = int(num_threads)
+    ls_s = _ext.voxel_local_shape(p, SMALL_VOXEL, 1, nt)
+    ls_l = _ext.voxel_local_shape(p, LARGE_VOXEL, 1, nt)
+    nz_s, lin_s, pla_s, sca_s = _shape(ls_s)
+    nz_l, lin_l, pla_l, sca_l = _shape(ls_l)
+    xl = _shape(_ext.voxel_local_shape(p, XL_VOXEL, 1, nt))
+    z = p[:, 2]
+    z_floor, z_ceil = floor_and_ceiling(z, nz_s)
+    room_h = z_ceil - z_floor
+    # rays are "open" when they leave the scanned extent without meeting the band's occupancy
+    upright = (nz_s < 0.7).astype(np.uint8)
+    cc = _ext.column_context(p, upright, COLUMN_CELL, z_floor + 0.2, z_ceil - 0.2, 16, 0.25, 100.0, nt)
+    f = np.empty((len(p), len(FEATURE_NAMES)), np.float32)
+    f[:, 0], f[:, 1], f[:, 2], f[:, 3] = nz_s, lin_s, pla_s, sca_s
+    f[:, 4] = np.log1p(ls_s[:, 6])
+    f[:, 5], f[:, 6], f[:, 7], f[:, 8] = nz_l, lin_l, pla_l, sca_l
+    f[:, 9], f[:, 10], f[:, 11], f[:, 12] = xl
+    f[:, 13] = np.clip(z - z_floor, -2, 12)
+    f[:, 14] = np.clip(z_ceil - z, -2, 12)
+    f[:, 15] = np.clip((z - z_floor) / room_h, -1, 2)
+    f[:, 16] = cc[:, 0]
+    f[:, 17] = np.log1p(cc[:, 1])
+    f[:, 18] = np.clip(cc[:, 2] - z_floor, -2, 12)
+    f[:, 19] = np.clip(z_ceil - cc[:, 3], -2, 12)
+    f[:, 20] = np.clip(z - cc[:, 2], 0, 12)
+    f[:, 21] = np.clip(cc[:, 3] - z, 0, 12)
+    f[:, 22] = cc[:, 4]
+    f[~np.isfinite(f)] = 0.0
+    f[~np.isfinite(p).all(1)] = 0.0
+    return f
+
+
+def voxel_features(points, num_threads: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Features of the occupied 4 cm voxels of a cloud, and each point's voxel.
+
+    All the features are neighbourhood statistics at 15 cm and more, so the points of one 4 cm
+    voxel would get (nearly) the same ones: computing them once per voxel centroid and running
+    the network once per voxel is what makes segmentation run at millions of points per second.
+
+    Returns
+    -------
+    features : (M, len(FEATURE_NAMES)) float32 of the voxel centroids
+    point_voxel : (N,) int32 voxel of every point, -1 for non-finite points
+    """
+    p = as_cloud(points)
+    centroids, point_voxel, _ = _ext.voxel_assign(p, LABEL_VOXEL, int(num_threads))
+    return point_features(centroids, num_threads), point_voxel

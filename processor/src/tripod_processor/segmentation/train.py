@@ -1,0 +1,119 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""Training of the segmenter on labelled clouds, with the augmentations that carry it to real
+scans: range noise, density, tilt, yaw and position; simulated scenes add room sizes, shapes and
+clutter. Deterministic for a given seed (single-threaded sampling, seeded torch).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+
+import numpy as np
+
+from .features import voxel_features
+from .model import NUM_CLASSES, build_model
+
+
+@dataclass
+class TrainReport:
+    seconds: float
+    points: int
+    steps: int
+    final_loss: float
+    class_counts: list
+
+
+def augment(points: np.ndarray, labels: np.ndarray, rng: np.random.Generator,
+            max_tilt_deg: float = 2.0, max_noise_m: float = 0.01,
+            min_keep: float = 0.35) -> tuple[np.ndarray, np.ndarray]:
+    """A randomly perturbed copy of a labelled cloud: subsampled, jittered, tilted, turned, moved.
+
+    points : (N, 3) [m]; labels : (N,). Returns float32 points and the matching labels.
+    """
+    keep = rng.random(len(points)) < rng.uniform(min_keep, 1.0)
+    p = np.asarray(points, np.float64)[keep]
+    lab = np.asarray(labels)[keep]
+    p = p + rng.normal(0, rng.uniform(0, max_noise_m), p.shape)
+    yaw = rng.uniform(-np.pi, np.pi)
+    tilt = np.deg2rad(rng.uniform(0, max_tilt_deg))
+    axis = rng.normal(size=3)
+    axis[2] = 0
+    axis /= np.linalg.norm(axis)
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    R_tilt = np.eye(3) + np.sin(tilt) * K + (1 - np.cos(tilt)) * K @ K
+    c, s = np.cos(yaw), np.sin(yaw)
+    R = R_tilt @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    centre = np.nanmean(p, 0)
+    p = (p - centre) @ R.T + centre + rng.uniform(-20, 20, 3) * [1, 1, 0.1]
+    return p.astype(np.float32), lab
+
+
+def features_of(clouds: Iterable[tuple[np.ndarray, np.ndarray]], copies: int, seed: int,
+                progress: Callable | None = None,
+                keep_per_copy: int = 400_000) -> tuple[np.ndarray, np.ndarray]:
+    """Features and labels of ``copies`` augmented copies of every labelled cloud (the first copy
+    unperturbed). Features are computed on the whole copy (context needs the full density), then
+    at most ``keep_per_copy`` random points of it are kept for training."""
+    rng = np.random.default_rng(seed)
+    F, L = [], []
+    for points, labels in clouds:
+        for k in range(copies):
+            p, lab = (np.asarray(points, np.float32), np.asarray(labels)) if k == 0 else augment(
+                points, labels, rng)
+            f, point_voxel = voxel_features(p)
+            ok = np.flatnonzero((lab >= 0) & (lab < NUM_CLASSES) & (point_voxel >= 0))
+            if len(ok) > keep_per_copy:
+                ok = np.sort(rng.choice(ok, keep_per_copy, replace=False))
+            # each sampled point: its voxel's features, its own label (voxels count by points)
+            F.append(f[point_voxel[ok]])
+            L.append(lab[ok].astype(np.int64))
+            if progress:
+                progress()
+    return np.concatenate(F), np.concatenate(L)
+
+
+def train(features: np.ndarray, labels: np.ndarray, *, seed: int = 0, steps: int = 3000,
+          batch: int = 8192, lr: float = 3e-3, hidden=(128, 128), num_threads: int = 0,
+          progress: Callable | None = None):
+    """Train the per-point MLP; returns (model, TrainReport).
+
+    features : (N, F) float32 from :func:`features_of`; labels : (N,) int in [0, 4)
+    Classes are weighted by 1/sqrt(frequency) so that the small "other" class is not drowned.
+    """
+    import torch
+
+    t0 = time.perf_counter()
+    torch.manual_seed(seed)
+    if num_threads > 0:
+        torch.set_num_threads(num_threads)
+    rng = np.random.default_rng(seed)
+    model = build_model(features.shape[1], hidden)
+    X = torch.from_numpy(np.ascontiguousarray(features, np.float32))
+    Y = torch.from_numpy(np.asarray(labels, np.int64))
+    std = X.std(0)
+    model[0].mean.copy_(X.mean(0))
+    model[0].inv_std.copy_(1.0 / torch.clamp(std, min=1e-6))
+    counts = np.bincount(labels, minlength=NUM_CLASSES).astype(np.float64)
+    w = 1.0 / np.sqrt(np.maximum(counts, 1))
+    w = w / (w * counts).sum() * counts.sum()
+    loss_fn = torch.nn.CrossEntropyLoss(weight=torch.tensor(w, dtype=torch.float32))
+    opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=1e-4)
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=steps)
+    model.train()
+    loss_avg = None
+    for step in range(steps):
+        idx = torch.from_numpy(rng.integers(0, len(X), batch))
+        loss = loss_fn(model(X[idx]), Y[idx])
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        sched.step()
+        li = float(loss.detach())
+        loss_avg = li if loss_avg is None else 0.98 * loss_avg + 0.02 * li
+        if progress:
+            progress(step, loss_avg)
+    model.eval()
+    return model, TrainReport(time.perf_counter() - t0, len(X), steps, float(loss_avg or 0),
+                              counts.astype(int).tolist())
