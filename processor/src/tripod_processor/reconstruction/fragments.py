@@ -48,12 +48,13 @@ def build_fragment(lidar: LidarPackets, station: Station, orient: ImuOrientation
     parts, raw = [], 0
     for a in range(station.packet_start, station.packet_stop, chunk):
         b = min(station.packet_stop, a + chunk)
-        pts = decode_points(lidar, a, b, min_range=min_range, max_range=max_range)
+        pts = decode_points(lidar, a, b, min_range=min_range, max_range=max_range,
+                           num_threads=num_threads)
         if len(pts) == 0:
             continue
         raw += len(pts)
         xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=1)
-        placed = place_points(xyz, pts["time_ns"], orient, ext, station.mid_ns)
+        placed = place_points(xyz, pts["time_ns"], orient, ext, station.mid_ns, num_threads)
         parts.append(voxel_downsample(placed, voxel_m * 0.5, num_threads))
     if parts:
         down = voxel_downsample(np.concatenate(parts), voxel_m, num_threads)

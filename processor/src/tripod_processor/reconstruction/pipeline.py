@@ -18,7 +18,7 @@ from tqdm import tqdm
 from tripod_shared.config_io import dump_config
 
 from .. import cloud_io
-from ..preprocess import voxel_downsample
+from ..preprocess import mls_smooth, voxel_downsample
 from . import outputs
 from .calibration import estimate_time_offset
 from .config import ReconstructConfig
@@ -247,10 +247,7 @@ def _write_outputs(res: ReconstructResult, cfg: ReconstructConfig, orient: ImuOr
     allp = np.concatenate(parts) if parts else np.zeros((0, 3))
     merged = voxel_downsample(allp, oc.map_voxel_m, cfg.num_threads) if len(allp) else allp
     if oc.smooth_radius_m > 0 and len(merged) > 10:
-        from .. import _ext
-
-        merged = _ext.mls_smooth(np.ascontiguousarray(merged, dtype=np.float32),
-                                 float(oc.smooth_radius_m), int(cfg.num_threads))
+        merged = mls_smooth(merged, oc.smooth_radius_m, cfg.num_threads, oc.smooth_fit_voxel_m)
     res.map_points = len(merged)
     cloud = cloud_io.make_cloud(merged)
     cloud_io.write_ply(out / "map.ply", cloud)
