@@ -135,6 +135,28 @@ def test_stations_found_and_labelled(run):
     assert [s.label for s in st] == ["station-0", "station-1", "station-2"]
 
 
+def test_fragment_bounded_memory_path_keeps_the_cloud(run):
+    # a long station is filtered at half the voxel whenever its placed points pass max_points;
+    # the fragment must stay the same surface, about as dense
+    from scipy.spatial import cKDTree
+
+    from tripod_processor.reconstruction.fragments import build_fragment
+    from tripod_processor.reconstruction.placement import fit_clock_map
+
+    res, truth, _ = run
+    rec = res.recording
+    orient = ImuOrientation(rec.imu, fit_clock_map(rec.lidar), res.time_offset_ns)
+    st = res.fragments[0].station
+    whole = build_fragment(rec.lidar, st, orient, res.extrinsic, 0.02, 0.4, 100.0, 2)
+    bounded = build_fragment(rec.lidar, st, orient, res.extrinsic, 0.02, 0.4, 100.0, 2,
+                             chunk=100, max_points=whole.raw_points // 5)
+    assert bounded.raw_points == whole.raw_points
+    np.testing.assert_allclose(whole.points, res.fragments[0].points)
+    assert abs(len(bounded.points) - len(whole.points)) < 0.05 * len(whole.points)
+    d, _ = cKDTree(whole.points).query(bounded.points)
+    assert np.median(d) < 0.01
+
+
 def test_time_offset_estimate(tmp_path):
     """The IMU's latency is found from the data where the head's turn rate varies (at a
     constant rate a time offset only turns the whole fragment, and nothing can see it)."""
