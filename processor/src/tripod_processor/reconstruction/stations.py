@@ -93,7 +93,9 @@ def pivot_shift(ref: np.ndarray, query: np.ndarray, max_angle_deg: float = 0.3) 
     if len(ref) < 50 or len(query) < 50:
         return float("nan")
     u_q = query / r_q[:, None]
-    dist, idx = cKDTree(ref / r_ref[:, None]).query(u_q, k=1,
+    # exact nearest neighbours; an unbalanced tree builds ~2x faster and queries alike here
+    tree = cKDTree(ref / r_ref[:, None], balanced_tree=False, compact_nodes=False)
+    dist, idx = tree.query(u_q, k=1,
                                                     distance_upper_bound=np.radians(max_angle_deg))
     hit = np.isfinite(dist)
     if hit.sum() < 50:
