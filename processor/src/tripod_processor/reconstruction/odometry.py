@@ -58,11 +58,27 @@ def _cap_information(info: np.ndarray, cfg: OdometryConfig) -> np.ndarray:
 
 
 class CloudCache:
-    """Fragments prepared for registration (tree, covariances) once per voxel size."""
+    """Fragments prepared for registration (tree, covariances) once per voxel size.
 
-    def __init__(self, point_sigma: float, num_threads: int = 0):
+    Every voxel size at least twice ``base_voxel`` is filtered from the fragment's
+    ``base_voxel`` cloud (itself filtered once from the full fragment), not from the full
+    fragment again: one pass over the dense cloud per fragment."""
+
+    def __init__(self, point_sigma: float, num_threads: int = 0, base_voxel: float = 0.06):
         self.point_sigma, self.num_threads = point_sigma, num_threads
+        self.base_voxel = base_voxel
         self._c: dict = {}
+
+    def down(self, key, points: np.ndarray, voxel: float) -> np.ndarray:
+        """The fragment voxel-filtered at ``voxel`` (its own frame), float32 (N, 3)."""
+        k = ("down", key, voxel)
+        if k not in self._c:
+            if voxel == self.base_voxel or voxel < 2 * self.base_voxel:
+                src = points
+            else:
+                src = self.down(key, points, self.base_voxel)
+            self._c[k] = voxel_downsample(src, voxel, self.num_threads)
+        return self._c[k]
 
     def oriented(self, key, points: np.ndarray, voxel: float):
         """The cloud at ``voxel`` prepared with 12-neighbour normals facing the fragment's
@@ -71,23 +87,20 @@ class CloudCache:
 
         k = ("oriented", key, voxel)
         if k not in self._c:
-            self._c[k] = reg.prepare(points, voxel_size=voxel, num_neighbors=12,
+            self._c[k] = reg.prepare(self.down(key, points, voxel), num_neighbors=12,
                                      point_sigma=self.point_sigma, num_threads=self.num_threads)
         return self._c[k]
 
     def coarse(self, key, points: np.ndarray, voxel: float) -> np.ndarray:
         """The cloud voxel-filtered at ``voxel`` (its own frame): the top-down seeds' input."""
-        k = ("coarse", key, voxel)
-        if k not in self._c:
-            self._c[k] = voxel_downsample(points, voxel, self.num_threads).astype(np.float64)
-        return self._c[k]
+        return self.down(key, points, voxel).astype(np.float64)
 
     def get(self, key, points: np.ndarray, voxel: float):
         from .. import registration as reg
 
         k = (key, voxel)
         if k not in self._c:
-            self._c[k] = reg.prepare(points, voxel_size=voxel, num_neighbors=20,
+            self._c[k] = reg.prepare(self.down(key, points, voxel), num_neighbors=20,
                                      point_sigma=self.point_sigma, num_threads=self.num_threads)
         return self._c[k]
 
