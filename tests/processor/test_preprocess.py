@@ -123,17 +123,22 @@ def test_statistical_outlier_removal_drops_far_points():
     assert overlap > 0.97
 
 
-def test_mls_smooths_a_noisy_plane_and_keeps_a_sphere():
+@pytest.mark.parametrize("fit_voxel", [0.0, 0.04])
+def test_mls_smooths_a_noisy_plane_and_keeps_a_sphere(fit_voxel):
+    # fit_voxel 0: a surface per point; 0.04: surfaces at voxel centroids, points projected
+    # onto their nearest one's
     rng = np.random.default_rng(5)
     xy = rng.uniform(-1, 1, size=(20000, 2))
     noisy = np.c_[xy, rng.normal(0, 0.005, len(xy))].astype(np.float32)
-    out = preprocess.mls_smooth(noisy, 0.08, num_threads=2)
+    out = preprocess.mls_smooth(noisy, 0.08, num_threads=2, fit_voxel=fit_voxel)
     assert out.shape == noisy.shape
     inner = np.abs(xy).max(axis=1) < 0.9
     assert out[inner, 2].std() < 0.3 * noisy[inner, 2].std()
+    # points keep their place along the surface (projection, not snapping to the centroids)
+    assert np.abs(out[inner, :2] - noisy[inner, :2]).max() < 0.01
     d = rng.normal(size=(20000, 3))
     sphere = (d / np.linalg.norm(d, axis=1, keepdims=True) * (1 + rng.normal(0, 0.003, (20000, 1))))
-    sm = preprocess.mls_smooth(sphere.astype(np.float32), 0.1)
+    sm = preprocess.mls_smooth(sphere.astype(np.float32), 0.1, fit_voxel=fit_voxel)
     r = np.linalg.norm(sm, axis=1)
     assert abs(np.median(r) - 1.0) < 0.002 and r.std() < 0.5 * np.linalg.norm(sphere, axis=1).std()
 

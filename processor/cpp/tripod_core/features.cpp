@@ -142,64 +142,126 @@ std::vector<int64_t> statistical_outlier_removal(const PointsXYZ& points, int k_
     return kept;
 }
 
-PointsXYZ mls_smooth(const PointsXYZ& points, double radius, int num_threads) {
+namespace {
+/// A local MLS surface: origin `o` on the weighted plane, in-plane axes `u`, `v`, normal `n`,
+/// height h(x, y) = c0 + c1 x + c2 y + c3 x^2 + c4 xy + c5 y^2 along `n`.
+struct MlsSurface {
+    Eigen::Vector3d o, u, v, n;
+    Eigen::Matrix<double, 6, 1> c = Eigen::Matrix<double, 6, 1>::Zero();
+    bool ok = false;
+
+    /// The point `p` projected onto the surface.
+    Eigen::Vector3d project(const Eigen::Vector3d& p) const {
+        const Eigen::Vector3d d = p - o;
+        const double x = u.dot(d), y = v.dot(d);
+        const double h = c[0] + c[1] * x + c[2] * y + c[3] * x * x + c[4] * x * y + c[5] * y * y;
+        return o + x * u + y * v + h * n;
+    }
+};
+
+/// Fit the MLS surface around `p` to the points of `tree` within `radius` (Gaussian weights,
+/// sigma = radius / 2), its origin the projection of `p` on the weighted plane. Not ok with
+/// fewer than 6 neighbours or a singular fit.
+MlsSurface fit_mls(const PointsXYZ& points, const KdTree<3>& tree, const Eigen::Vector3d& p,
+                   double radius, std::vector<int>& idx, std::vector<float>& dist,
+                   std::vector<double>& w) {
+    MlsSurface s;
+    const float q[3] = {static_cast<float>(p[0]), static_cast<float>(p[1]),
+                        static_cast<float>(p[2])};
+    tree.radius(q, static_cast<float>(radius), idx, dist);
+    const int m = static_cast<int>(idx.size());
+    if (m < 6) return s;
+    const double inv2s2 = 1.0 / (2.0 * (radius / 2) * (radius / 2));
+    // 1. weighted plane (PCA) through the neighbourhood
+    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    double wsum = 0;
+    w.resize(m);
+    for (int j = 0; j < m; ++j) {
+        w[j] = std::exp(-dist[j] * inv2s2);
+        mean += w[j] * points.row(idx[j]).transpose().cast<double>();
+        wsum += w[j];
+    }
+    mean /= wsum;
+    Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+    for (int j = 0; j < m; ++j) {
+        const Eigen::Vector3d d = points.row(idx[j]).transpose().cast<double>() - mean;
+        cov += w[j] * d * d.transpose();
+    }
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
+    es.computeDirect(cov);
+    s.n = es.eigenvectors().col(0);
+    s.u = es.eigenvectors().col(2);
+    s.v = es.eigenvectors().col(1);
+    // 2. weighted least-squares height in the plane's frame centred on p's projection
+    s.o = p - s.n.dot(p - mean) * s.n;
+    Eigen::Matrix<double, 6, 6> A = Eigen::Matrix<double, 6, 6>::Zero();
+    Eigen::Matrix<double, 6, 1> b = Eigen::Matrix<double, 6, 1>::Zero();
+    for (int j = 0; j < m; ++j) {
+        const Eigen::Vector3d d = points.row(idx[j]).transpose().cast<double>() - s.o;
+        const double x = s.u.dot(d), y = s.v.dot(d), h = s.n.dot(d);
+        Eigen::Matrix<double, 6, 1> f;
+        f << 1, x, y, x * x, x * y, y * y;
+        A.selfadjointView<Eigen::Lower>().rankUpdate(f, w[j]);
+        b += w[j] * h * f;
+    }
+    Eigen::LDLT<Eigen::Matrix<double, 6, 6>> ldlt(A.selfadjointView<Eigen::Lower>());
+    if (ldlt.info() == Eigen::Success && ldlt.isPositive()) {
+        const Eigen::Matrix<double, 6, 1> c = ldlt.solve(b);
+        if (c.allFinite()) s.c = c;
+    }
+    s.ok = true;
+    return s;
+}
+}  // namespace
+
+PointsXYZ mls_smooth(const PointsXYZ& points, double radius, int num_threads,
+                     double fit_voxel) {
     if (!(radius > 0)) throw std::invalid_argument("radius must be > 0");
+    if (!(fit_voxel >= 0) || !std::isfinite(fit_voxel))
+        throw std::invalid_argument("fit_voxel must be a finite number >= 0");
     const int64_t n = points.rows();
     PointsXYZ out = points;
     if (n == 0) return out;
     const KdTree<3> tree(points.data(), n);
-    const double inv2s2 = 1.0 / (2.0 * (radius / 2) * (radius / 2));
+    if (fit_voxel == 0) {
+        // a surface per point, evaluated at the point's own projection
+#pragma omp parallel num_threads(threads(num_threads))
+        {
+            std::vector<int> idx;
+            std::vector<float> dist;
+            std::vector<double> w;
+#pragma omp for schedule(guided, 32)
+            for (int64_t i = 0; i < n; ++i) {
+                const Eigen::Vector3d p = points.row(i).transpose().cast<double>();
+                const MlsSurface s = fit_mls(points, tree, p, radius, idx, dist, w);
+                if (s.ok) out.row(i) = (s.o + s.c[0] * s.n).cast<float>().transpose();
+            }
+        }
+        return out;
+    }
+    // a surface per voxel centroid of `fit_voxel`; each point projected onto its nearest one's
+    const PointsXYZ anchors = voxel_downsample(points, fit_voxel, num_threads);
+    const int64_t na = anchors.rows();
+    std::vector<MlsSurface> surf(static_cast<size_t>(na));
 #pragma omp parallel num_threads(threads(num_threads))
     {
         std::vector<int> idx;
         std::vector<float> dist;
+        std::vector<double> w;
 #pragma omp for schedule(guided, 32)
-        for (int64_t i = 0; i < n; ++i) {
-            tree.radius(points.row(i).data(), static_cast<float>(radius), idx, dist);
-            const int m = static_cast<int>(idx.size());
-            if (m < 6) continue;
-            // 1. weighted plane (PCA) through the neighbourhood
-            const Eigen::Vector3d p = points.row(i).transpose().cast<double>();
-            Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-            double wsum = 0;
-            std::vector<double> w(m);
-            for (int j = 0; j < m; ++j) {
-                w[j] = std::exp(-dist[j] * inv2s2);
-                mean += w[j] * points.row(idx[j]).transpose().cast<double>();
-                wsum += w[j];
-            }
-            mean /= wsum;
-            Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
-            for (int j = 0; j < m; ++j) {
-                const Eigen::Vector3d d = points.row(idx[j]).transpose().cast<double>() - mean;
-                cov += w[j] * d * d.transpose();
-            }
-            Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
-            es.computeDirect(cov);
-            const Eigen::Vector3d nrm = es.eigenvectors().col(0);
-            const Eigen::Vector3d u = es.eigenvectors().col(2), v = es.eigenvectors().col(1);
-            // 2. weighted least-squares height h(x, y) = c0 + c1 x + c2 y + c3 x^2 + c4 xy + c5 y^2
-            //    in the plane's frame centred on the query's projection
-            const Eigen::Vector3d o = p - nrm.dot(p - mean) * nrm;
-            Eigen::Matrix<double, 6, 6> A = Eigen::Matrix<double, 6, 6>::Zero();
-            Eigen::Matrix<double, 6, 1> b = Eigen::Matrix<double, 6, 1>::Zero();
-            for (int j = 0; j < m; ++j) {
-                const Eigen::Vector3d d = points.row(idx[j]).transpose().cast<double>() - o;
-                const double x = u.dot(d), y = v.dot(d), h = nrm.dot(d);
-                Eigen::Matrix<double, 6, 1> f;
-                f << 1, x, y, x * x, x * y, y * y;
-                A += w[j] * f * f.transpose();
-                b += w[j] * h * f;
-            }
-            Eigen::LDLT<Eigen::Matrix<double, 6, 6>> ldlt(A);
-            double c0 = 0;
-            if (ldlt.info() == Eigen::Success && ldlt.isPositive()) {
-                const Eigen::Matrix<double, 6, 1> c = ldlt.solve(b);
-                if (c.allFinite()) c0 = c[0];
-            }
-            const Eigen::Vector3d q = o + c0 * nrm;
-            out.row(i) = q.cast<float>().transpose();
-        }
+        for (int64_t a = 0; a < na; ++a)
+            surf[a] = fit_mls(points, tree, anchors.row(a).transpose().cast<double>(), radius,
+                              idx, dist, w);
+    }
+    const KdTree<3> anchor_tree(anchors.data(), na);
+#pragma omp parallel for num_threads(threads(num_threads)) schedule(static)
+    for (int64_t i = 0; i < n; ++i) {
+        int j = -1;
+        float d2 = 0;
+        if (anchor_tree.knn(points.row(i).data(), 1, &j, &d2) < 1 || j < 0) continue;
+        if (!surf[j].ok) continue;
+        out.row(i) = surf[j].project(points.row(i).transpose().cast<double>()).cast<float>()
+                         .transpose();
     }
     return out;
 }

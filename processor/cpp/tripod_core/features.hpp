@@ -61,7 +61,12 @@ std::vector<int64_t> statistical_outlier_removal(const PointsXYZ& points, int k_
 /// Moving-least-squares smoothing: each point is projected onto a weighted second-order
 /// polynomial surface fitted to its neighbours within `radius` (Gaussian weights, sigma =
 /// radius / 2). Points with fewer than 6 neighbours are left unchanged.
-PointsXYZ mls_smooth(const PointsXYZ& points, double radius, int num_threads);
+/// @param fit_voxel 0: one surface per point, fitted around it (exact MLS). > 0 [m]: one
+///                  surface per voxel centroid of this size, each point projected onto the
+///                  surface of its nearest centroid (the same neighbourhoods, far fewer fits;
+///                  use a fraction of `radius`).
+PointsXYZ mls_smooth(const PointsXYZ& points, double radius, int num_threads,
+                     double fit_voxel = 0.0);
 
 /// Normal-space sampling (Rusinkiewicz & Levoy 2001): bucket the normals on a sphere grid and
 /// draw uniformly across buckets, so thin constraining structures survive subsampling.

@@ -21,6 +21,7 @@ integer ns (the float32 seconds velodyne-decoder gives are ±30 ns in a 0.3 s ch
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -96,6 +97,16 @@ def calibration_table(calibration: vd.Calibration) -> tuple[np.ndarray, float, n
     return table, resolution, rings
 
 
+@functools.lru_cache(maxsize=None)
+def _default_table(model: vd.Model) -> tuple[np.ndarray, float, np.ndarray]:
+    """:func:`calibration_table` of velodyne-decoder's built-in table of ``model``, read once
+    (it goes through YAML: milliseconds a call)."""
+    table, resolution, rings = calibration_table(vd.Calibration.default_calibs[model])
+    table.setflags(write=False)
+    rings.setflags(write=False)
+    return table, resolution, rings
+
+
 @dataclass
 class NativeBatch:
     """Points of a chunk of packets, in packet, block, firing order.
@@ -145,8 +156,9 @@ class NativeVlp16Decoder:
                  max_range_m: float = 200.0, min_angle_deg: float = 0.0,
                  max_angle_deg: float = 360.0, num_threads: int = 1):
         if calibration is None:
-            calibration = vd.Calibration.default_calibs[model]
-        table, resolution, rings = calibration_table(calibration)
+            table, resolution, rings = _default_table(model)
+        else:
+            table, resolution, rings = calibration_table(calibration)
         self.num_threads = int(num_threads)
         self._return_type = RETURN_TYPE_UNKNOWN  # velodyne-decoder's state across packets
         self._dec = _ext._Vlp16Decoder(table, resolution, rings, float(min_range_m),

@@ -115,7 +115,8 @@ def statistical_outlier_removal(
                                             int(num_threads))
 
 
-def mls_smooth(points, radius: float, num_threads: int = 0) -> np.ndarray:
+def mls_smooth(points, radius: float, num_threads: int = 0, fit_voxel: float = 0.0
+               ) -> np.ndarray:
     """Moving-least-squares smoothing: project each point onto a local quadratic surface.
 
     Each point's neighbours within ``radius`` (Gaussian weights, sigma = radius / 2) define a
@@ -128,6 +129,11 @@ def mls_smooth(points, radius: float, num_threads: int = 0) -> np.ndarray:
     radius : float
         [m], > 0 (a few times the point spacing).
     num_threads : int
+    fit_voxel : float
+        0: one surface per point, fitted around it. > 0 [m]: one surface per voxel centroid of
+        this size (a fraction of ``radius``, e.g. half), and each point is projected onto the
+        surface of its nearest centroid: the same neighbourhoods with far fewer fits (a dense
+        map has several points per ``radius / 2`` voxel).
 
     Returns
     -------
@@ -136,7 +142,9 @@ def mls_smooth(points, radius: float, num_threads: int = 0) -> np.ndarray:
     pts = _finite_cloud(points)
     if not radius > 0:
         raise ValueError("radius must be > 0")
-    return _ext.mls_smooth(pts, float(radius), int(num_threads))
+    if not fit_voxel >= 0 or not np.isfinite(fit_voxel):
+        raise ValueError(f"fit_voxel must be a finite number >= 0, got {fit_voxel!r}")
+    return _ext.mls_smooth(pts, float(radius), int(num_threads), float(fit_voxel))
 
 
 def normal_space_sampling(normals, num_samples: int, bins_per_axis: int = 4,

@@ -65,15 +65,16 @@ TRIPOD_BINDING(preprocess) {
         "points"_a, "k_neighbors"_a, "std_ratio"_a, "num_threads"_a, "Indices of the kept rows.");
     m.def(
         "mls_smooth",
-        [](CloudIn points, double radius, int num_threads) {
+        [](CloudIn points, double radius, int num_threads, double fit_voxel) {
             tripod::PointsXYZ in = to_eigen(points), out;
             {
                 nb::gil_scoped_release release;
-                out = tripod::mls_smooth(in, radius, num_threads);
+                out = tripod::mls_smooth(in, radius, num_threads, fit_voxel);
             }
             return to_numpy(std::move(out));
         },
-        "points"_a, "radius"_a, "num_threads"_a, "MLS-smoothed points (N,3).");
+        "points"_a, "radius"_a, "num_threads"_a, "fit_voxel"_a = 0.0,
+        "MLS-smoothed points (N,3).");
     m.def(
         "normal_space_sampling",
         [](const tripod::MatrixX3d& normals, int64_t num_samples, int bins, uint64_t seed) {

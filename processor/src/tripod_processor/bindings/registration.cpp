@@ -11,6 +11,7 @@
 
 #include "common.hpp"
 #include "tripod_core/global_registration.hpp"
+#include "tripod_core/oriented_icp.hpp"
 #include "tripod_core/registration.hpp"
 
 namespace nb = nanobind;
@@ -109,6 +110,36 @@ TRIPOD_BINDING(registration) {
         "max_iterations"_a, "rotation_eps"_a, "translation_eps"_a, "point_sigma"_a, "loss"_a,
         "loss_scale"_a, "R_prior"_a.none(), "rotation_prior_sigma"_a, "lock_z"_a, "num_threads"_a,
         "Local registration of prepared clouds; returns a dict (see registration.register).");
+
+    m.def(
+        "oriented_point_to_plane",
+        [](const tripod::PreparedCloud& source, const tripod::PreparedCloud& target,
+           const Eigen::Matrix4d& T_init, double max_distance, int iterations,
+           double point_sigma, double min_normal_dot, int64_t max_source, int num_threads) {
+            tripod::OrientedIcpOptions opt;
+            opt.max_distance = max_distance;
+            opt.iterations = iterations;
+            opt.point_sigma = point_sigma;
+            opt.min_normal_dot = min_normal_dot;
+            opt.max_source = max_source;
+            opt.num_threads = num_threads;
+            tripod::OrientedIcpResult r;
+            {
+                nb::gil_scoped_release release;
+                r = tripod::oriented_point_to_plane(source, target, T_init, opt);
+            }
+            nb::dict d;
+            d["T_target_source"] = r.T_target_source;
+            d["H"] = r.H;
+            d["fitness"] = r.fitness;
+            d["rmse"] = r.rmse;
+            d["iterations"] = r.iterations;
+            d["linearized"] = r.linearized;
+            return d;
+        },
+        "source"_a, "target"_a, "T_init"_a, "max_distance"_a, "iterations"_a, "point_sigma"_a,
+        "min_normal_dot"_a, "max_source"_a, "num_threads"_a,
+        "Point-to-plane ICP over oriented normals (see reconstruction.odometry.oriented_refine).");
 
     m.def(
         "register_global",

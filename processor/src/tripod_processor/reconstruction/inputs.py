@@ -21,8 +21,6 @@ from tripod_shared import velodyne as vl
 from tripod_shared.recording import RecordingReader, is_mcap
 from tripod_shared.timebase import HOUR_NS, NS_PER_US
 
-import velodyne_decoder as vd
-
 
 class RecordingError(ValueError):
     """The input cannot be reconstructed (one-line message for the CLI)."""
@@ -329,38 +327,40 @@ POINT_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", 
 
 
 def decode_points(lidar: LidarPackets, start: int, stop: int, *, min_range: float = 0.0,
-                  max_range: float = 200.0, chunk: int = 1500) -> np.ndarray:
+                  max_range: float = 200.0, chunk: int = 1000, num_threads: int = 0
+                  ) -> np.ndarray:
     """Decode packets ``[start, stop)`` into points in the lidar frame with per-point lidar time.
 
-    Decoding is velodyne-decoder's; one call per chunk of packets (never per point). A product
-    byte 0x21 from early VLP-16 firmware is taken as a VLP-16 (packet period checked on read).
+    Decoding is the C++ core's batch VLP-16 decoder (:mod:`tripod_processor.native_decoder`,
+    point for point equal to velodyne-decoder's): one call per chunk of packets, the GIL
+    released, OpenMP over packets. The product byte is not looked at (an early VLP-16 says
+    0x21). Times are exact integer ns: the packet's lidar time plus the firing offset.
+
+    Parameters
+    ----------
+    chunk : int
+        Packets per call; a call's time offsets are int32 ns from its first packet, so a chunk
+        must span less than 2.1 s (1000 VLP-16 packets are 1.33 s).
 
     Returns
     -------
     structured ndarray (N,) of POINT_DTYPE: x, y, z [m] (float32, lidar frame), intensity,
     ring, return_type, time_ns (int64, lidar time, UNIX ns).
     """
+    from ..native_decoder import NativeVlp16Decoder
+
+    dec = NativeVlp16Decoder(min_range_m=float(max(min_range, 0.0)), max_range_m=float(max_range),
+                             num_threads=num_threads)
     out = []
-    cfg = vd.Config(model=vd.Model.VLP16, timestamp_first_packet=True,
-                    min_range=float(max(min_range, 0.0)), max_range=float(max_range))
     for s in range(start, stop, chunk):
         e = min(stop, s + chunk)
-        pay = lidar.payload[s:e]
-        if (pay[:, vl.PRODUCT_ID_OFFSET] == vl.PRODUCT_HDL32E).any():
-            pay = pay.copy()
-            pay[:, vl.PRODUCT_ID_OFFSET] = vl.PRODUCT_VLP16
-        pv = vd.PacketVector()
-        for k in range(len(pay)):
-            pv.append(vd.VelodynePacket(float(lidar.host_ns[s + k]) * 1e-9, pay[k].tobytes()))
-        dec = vd.ScanDecoder(cfg)
-        _, pts = dec.decode(pv, as_pcl_structs=True)
+        pts = dec.decode(lidar.payload[s:e], lidar.lidar_ns[s:e]).points
         if len(pts) == 0:
             continue
         c = np.empty(len(pts), dtype=POINT_DTYPE)
         for f in ("x", "y", "z", "intensity", "ring", "return_type"):
             c[f] = pts[f]
-        c["time_ns"] = lidar.lidar_ns[s] + np.round(pts["time"].astype(np.float64) * 1e9).astype(
-            np.int64)
+        c["time_ns"] = lidar.lidar_ns[s] + pts["time_offset_ns"].astype(np.int64)
         out.append(c)
     if not out:
         return np.empty(0, dtype=POINT_DTYPE)

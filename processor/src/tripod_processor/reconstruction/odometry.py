@@ -58,29 +58,49 @@ def _cap_information(info: np.ndarray, cfg: OdometryConfig) -> np.ndarray:
 
 
 class CloudCache:
-    """Fragments prepared for registration (tree, covariances) once per voxel size."""
+    """Fragments prepared for registration (tree, covariances) once per voxel size.
 
-    def __init__(self, point_sigma: float, num_threads: int = 0):
+    Every voxel size at least twice ``base_voxel`` is filtered from the fragment's
+    ``base_voxel`` cloud (itself filtered once from the full fragment), not from the full
+    fragment again: one pass over the dense cloud per fragment."""
+
+    def __init__(self, point_sigma: float, num_threads: int = 0, base_voxel: float = 0.06):
         self.point_sigma, self.num_threads = point_sigma, num_threads
+        self.base_voxel = base_voxel
         self._c: dict = {}
 
+    def down(self, key, points: np.ndarray, voxel: float) -> np.ndarray:
+        """The fragment voxel-filtered at ``voxel`` (its own frame), float32 (N, 3)."""
+        k = ("down", key, voxel)
+        if k not in self._c:
+            if voxel == self.base_voxel or voxel < 2 * self.base_voxel:
+                src = points
+            else:
+                src = self.down(key, points, self.base_voxel)
+            self._c[k] = voxel_downsample(src, voxel, self.num_threads)
+        return self._c[k]
+
     def oriented(self, key, points: np.ndarray, voxel: float):
-        """(points (N,3) float64, normals facing the fragment's sensor, k-d tree) at ``voxel``."""
-        from scipy.spatial import cKDTree
+        """The cloud at ``voxel`` prepared with 12-neighbour normals facing the fragment's
+        sensor (its origin), for :func:`oriented_refine`."""
+        from .. import registration as reg
 
         k = ("oriented", key, voxel)
         if k not in self._c:
-            p = voxel_downsample(points, voxel, self.num_threads).astype(np.float64)
-            n, ok = _oriented_normals(p, self.num_threads)
-            self._c[k] = (p[ok], n[ok], cKDTree(p[ok]))
+            self._c[k] = reg.prepare(self.down(key, points, voxel), num_neighbors=12,
+                                     point_sigma=self.point_sigma, num_threads=self.num_threads)
         return self._c[k]
+
+    def coarse(self, key, points: np.ndarray, voxel: float) -> np.ndarray:
+        """The cloud voxel-filtered at ``voxel`` (its own frame): the top-down seeds' input."""
+        return self.down(key, points, voxel).astype(np.float64)
 
     def get(self, key, points: np.ndarray, voxel: float):
         from .. import registration as reg
 
         k = (key, voxel)
         if k not in self._c:
-            self._c[k] = reg.prepare(points, voxel_size=voxel, num_neighbors=20,
+            self._c[k] = reg.prepare(self.down(key, points, voxel), num_neighbors=20,
                                      point_sigma=self.point_sigma, num_threads=self.num_threads)
         return self._c[k]
 
@@ -120,16 +140,6 @@ def icp_refine(source: np.ndarray, target: np.ndarray, T_init: np.ndarray,
 
 
 # ---- final refinement: point-to-plane with oriented normals --------------------------------------
-def _oriented_normals(points: np.ndarray, num_threads: int) -> tuple[np.ndarray, np.ndarray]:
-    """Unit normals facing the fragment's own sensor (its origin), and their validity."""
-    from .. import _ext
-    from ..preprocess import as_cloud
-
-    n, _cov, _curv, valid = _ext.estimate_normals(as_cloud(points), 12, 0.0,
-                                                  np.zeros(3), int(num_threads))
-    return np.asarray(n, dtype=np.float64), np.asarray(valid, dtype=bool)
-
-
 def oriented_refine(source: np.ndarray, target: np.ndarray, T_init: np.ndarray,
                     cfg: OdometryConfig, num_threads: int = 0, voxel: float = 0.06,
                     max_dist: float = 0.15, iterations: int = 10, max_source: int = 40_000,
@@ -140,50 +150,27 @@ def oriented_refine(source: np.ndarray, target: np.ndarray, T_init: np.ndarray,
     A wall seen from both rooms of a door is two faces a wall's thickness apart; without the
     normals' orientation, registration pairs the faces across the wall and splits the
     difference. Normals here face each fragment's sensor (the fragment origin), and a pair
-    whose normals disagree (dot < 0.5) is no correspondence.
+    whose normals disagree (dot < 0.5) is no correspondence. Huber weights at 2 sigma; at most
+    ``max_source`` source points (an even stride), the target stays dense. Runs in the native
+    core (``_ext.oriented_point_to_plane``, OpenMP over points).
 
     Returns (T_target_source, information (6, 6) in the pose graph's convention, fitness,
     inlier RMSE [m]).
     """
-    cache = cache or CloudCache(cfg.point_sigma_m, num_threads)
-    src, n_s, _ = cache.oriented(keys[0], source, voxel)
-    tgt, n_t, tree = cache.oriented(keys[1], target, voxel)
-    if len(src) > max_source:  # the target stays dense; a sample of the source is enough
-        sel = np.random.default_rng(0).choice(len(src), max_source, replace=False)
-        src, n_s = src[sel], n_s[sel]
-    T = np.asarray(T_init, dtype=np.float64).copy()
-    sigma = cfg.point_sigma_m
-    H = np.zeros((6, 6))
-    fit, rmse = 0.0, np.inf
-    for _ in range(iterations):
-        p = src @ T[:3, :3].T + T[:3, 3]
-        ns = n_s @ T[:3, :3].T
-        d, j = tree.query(p, k=1, distance_upper_bound=max_dist, workers=-1)
-        m = np.isfinite(d)
-        m[m] &= np.einsum("ij,ij->i", ns[m], n_t[j[m]]) > 0.5
-        if m.sum() < 100:
-            break
-        q, n, pp = tgt[j[m]], n_t[j[m]], p[m]
-        r = np.einsum("ij,ij->i", n, pp - q)
-        # Huber weights at 2 sigma
-        w = np.minimum(1.0, 2 * sigma / np.maximum(np.abs(r), 1e-9))
-        J = np.hstack([n, np.cross(pp, n)])  # d r / d(δt, δω) for T <- exp(δ) T (target frame)
-        H = (J * w[:, None]).T @ J
-        g = (J * w[:, None]).T @ r
-        try:
-            delta = -np.linalg.solve(H + 1e-9 * np.eye(6), g)
-        except np.linalg.LinAlgError:
-            break
-        from scipy.spatial.transform import Rotation
+    from .. import _ext
 
-        D = np.eye(4)
-        D[:3, :3] = Rotation.from_rotvec(delta[3:]).as_matrix()
-        D[:3, 3] = delta[:3]
-        T = D @ T
-        fit = float(m.mean())
-        rmse = float(np.sqrt(np.mean(r**2)))
-        if np.linalg.norm(delta[:3]) < 1e-5 and np.linalg.norm(delta[3:]) < 1e-6:
-            break
+    cache = cache or CloudCache(cfg.point_sigma_m, num_threads)
+    src = cache.oriented(keys[0], source, voxel)
+    tgt = cache.oriented(keys[1], target, voxel)
+    sigma = cfg.point_sigma_m
+    r = _ext.oriented_point_to_plane(src._native, tgt._native,
+                                     np.ascontiguousarray(T_init, dtype=np.float64),
+                                     float(max_dist), int(iterations), float(sigma), 0.5,
+                                     int(max_source), int(num_threads))
+    T = np.asarray(r["T_target_source"], dtype=np.float64)
+    if not r["linearized"]:
+        return T, np.zeros((6, 6)), 0.0, np.inf
+    H, fit, rmse = np.asarray(r["H"]), float(r["fitness"]), float(r["rmse"])
     # information of (δt target frame, δω target frame) → (e_t target, e_r source): ω_t = R ω_s
     M = np.eye(6)
     M[3:, 3:] = T[:3, :3]
@@ -253,11 +240,11 @@ def register_fragments(source: np.ndarray, target: np.ndarray, R_world_source: n
     candidates: list[tuple[str, np.ndarray]] = []
     if T_guess is not None:
         candidates.append(("guess", np.asarray(T_guess, dtype=np.float64)))
+    # the seeds' clouds: voxel-filtered once per fragment in its own frame, then levelled
     coarse = cfg.voxels_m[0] * 0.5
-    tw = voxel_downsample(np.asarray(target) @ R_world_target.T, coarse, num_threads)
-    sw = voxel_downsample(np.asarray(source) @ R_world_source.T, coarse, num_threads)
-    for k, d in enumerate(translation_seeds(tw.astype(np.float64), sw.astype(np.float64),
-                                            cfg.seed_cell_m)):
+    tw = cache.coarse(keys[1], target, coarse) @ R_world_target.T
+    sw = cache.coarse(keys[0], source, coarse) @ R_world_source.T
+    for k, d in enumerate(translation_seeds(tw, sw, cfg.seed_cell_m)):
         T = np.eye(4)
         T[:3, :3] = R_ts
         T[:3, 3] = R_world_target.T @ d

@@ -18,7 +18,7 @@ from tqdm import tqdm
 from tripod_shared.config_io import dump_config
 
 from .. import cloud_io
-from ..preprocess import voxel_downsample
+from ..preprocess import mls_smooth, voxel_downsample
 from . import outputs
 from .calibration import estimate_time_offset
 from .config import ReconstructConfig
@@ -237,20 +237,17 @@ def _write_outputs(res: ReconstructResult, cfg: ReconstructConfig, orient: ImuOr
     out, oc = res.outdir, cfg.output
     slam = res.slam
     main = [k for k in range(len(res.fragments)) if slam.component[k] == 0]
-    # merged map in the map frame (z up)
-    parts, labels = [], []
+    # merged map in the map frame (z up); float32 (µm at 100 m), as the voxel filter takes it
+    parts = []
     for k in main:
         T = slam.T_optimized[k]
-        p = res.fragments[k].points.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+        p = res.fragments[k].points @ T[:3, :3].T.astype(np.float32)
+        p += T[:3, 3].astype(np.float32)
         parts.append(p)
-        labels.append(np.full(len(p), k, dtype=np.uint16))
-    allp = np.concatenate(parts) if parts else np.zeros((0, 3))
+    allp = np.concatenate(parts) if parts else np.zeros((0, 3), np.float32)
     merged = voxel_downsample(allp, oc.map_voxel_m, cfg.num_threads) if len(allp) else allp
     if oc.smooth_radius_m > 0 and len(merged) > 10:
-        from .. import _ext
-
-        merged = _ext.mls_smooth(np.ascontiguousarray(merged, dtype=np.float32),
-                                 float(oc.smooth_radius_m), int(cfg.num_threads))
+        merged = mls_smooth(merged, oc.smooth_radius_m, cfg.num_threads, oc.smooth_fit_voxel_m)
     res.map_points = len(merged)
     cloud = cloud_io.make_cloud(merged)
     cloud_io.write_ply(out / "map.ply", cloud)

@@ -174,8 +174,13 @@ class ImuOrientation:
 
     @property
     def t_ns(self) -> np.ndarray:
-        """Sample times on the lidar time line [ns]."""
-        return self._base_t + self.time_offset_ns
+        """Sample times on the lidar time line [ns] (read-only; computed once per offset)."""
+        cached = getattr(self, "_t_cache", None)
+        if cached is None or cached[0] != self.time_offset_ns:
+            t = self._base_t + self.time_offset_ns
+            t.setflags(write=False)
+            cached = self._t_cache = (self.time_offset_ns, t)
+        return cached[1]
 
     def with_offset(self, time_offset_ns: int) -> "ImuOrientation":
         o = ImuOrientation.__new__(ImuOrientation)

@@ -156,10 +156,10 @@ def write_report(res, cfg: ReconstructConfig) -> Path:
     # RANSAC gets far cheaper
     rng = np.random.default_rng(0)
 
-    def sample(p, n=80_000):
+    def sample(p, n=15_000):
         return p if len(p) <= n else p[rng.choice(len(p), n, replace=False)]
 
-    errors = [plane_fit_errors(sample(f.points), f.up_in_lidar, min_inliers=300, seed=k)
+    errors = [plane_fit_errors(sample(f.points), f.up_in_lidar, min_inliers=60, seed=k)
               for k, f in enumerate(res.fragments)]
     stats = plot_plane_violins(out / "report_planes.png", errors)
     s = summary(res)

@@ -20,7 +20,7 @@ from scipy.spatial import cKDTree
 
 from .config import StationConfig
 from .inputs import LidarPackets, decode_points
-from .placement import Extrinsic, ImuOrientation
+from .placement import Extrinsic, ImuOrientation, place_points, pose_world_lidar
 
 
 @dataclass
@@ -57,13 +57,21 @@ def _window_cloud(lidar: LidarPackets, a: int, b: int, orient: ImuOrientation, e
                   n_max: int, rng: np.random.Generator) -> np.ndarray:
     """Points of packets [a, b) in the head-pivot frame, at most n_max (random subset)."""
     pts = decode_points(lidar, a, b, min_range=0.5)
-    if len(pts) > n_max:
-        pts = pts[rng.choice(len(pts), n_max, replace=False)]
     if len(pts) == 0:
         return np.zeros((0, 3))
-    xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=1).astype(np.float64)
-    R_wi = orient.rotation_at(pts["time_ns"])
-    return np.einsum("nij,nj->ni", R_wi, xyz @ ext.R_imu_lidar.T + ext.lever_arm_m)
+    order = None
+    if len(pts) > n_max:
+        sel = rng.choice(len(pts), n_max, replace=False)  # random order: any prefix is a sample
+        keep = np.sort(sel)  # placed in firing order (the native placement's fast path) ...
+        order = np.searchsorted(keep, sel)  # ... and given back in the sample's order
+        pts = pts[keep]
+    xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=1)
+    # R_wi(t) (R_il x + l) = T_wl(a) · (the point placed in the lidar frame at a)
+    anchor = int(pts["time_ns"][len(pts) // 2])
+    placed = place_points(xyz, pts["time_ns"], orient, ext, anchor, num_threads=1)
+    T_a = pose_world_lidar(orient, ext, np.array([anchor]))[0]
+    p = placed.astype(np.float64) @ T_a[:3, :3].T + T_a[:3, 3]
+    return p if order is None else p[order]
 
 
 def pivot_shift(ref: np.ndarray, query: np.ndarray, max_angle_deg: float = 0.3) -> float:
@@ -85,7 +93,9 @@ def pivot_shift(ref: np.ndarray, query: np.ndarray, max_angle_deg: float = 0.3) 
     if len(ref) < 50 or len(query) < 50:
         return float("nan")
     u_q = query / r_q[:, None]
-    dist, idx = cKDTree(ref / r_ref[:, None]).query(u_q, k=1,
+    # exact nearest neighbours; an unbalanced tree builds ~2x faster and queries alike here
+    tree = cKDTree(ref / r_ref[:, None], balanced_tree=False, compact_nodes=False)
+    dist, idx = tree.query(u_q, k=1,
                                                     distance_upper_bound=np.radians(max_angle_deg))
     hit = np.isfinite(dist)
     if hit.sum() < 50:
