@@ -180,29 +180,10 @@ class PayloadFileSource(PacketSource):
     _BATCH = 512  # packets per read
 
     def __iter__(self) -> Iterator[tuple[int, bytes]]:
-        self.report = SourceReport()
-        size = vl.DATA_PACKET_SIZE
-        hour_ns = 3_600_000_000_000
-        base_ns = 0
-        last_toh_ns = None
-        with open(self.path, "rb") as fh:
-            while True:
-                block = fh.read(size * self._BATCH)
-                n = len(block) // size
-                for k in range(n):
-                    payload = block[k * size : (k + 1) * size]
-                    toh_ns = vl.data_timestamp_us(payload) * 1000
-                    if last_toh_ns is not None and toh_ns < last_toh_ns - hour_ns // 2:
-                        base_ns += hour_ns  # top of the hour passed
-                    last_toh_ns = toh_ns
-                    yield base_ns + toh_ns, payload
-                if len(block) % size:
-                    self.report.truncated = True
-                    self.report.detail = (
-                        f"{len(block) % size} trailing bytes do not make a whole packet")
-                if len(block) < size * self._BATCH:
-                    return
-
+        # one reading and hour-unwrapping path: the batch reader below
+        for batch in self.batches(self._BATCH):
+            for t_ns, row in zip(batch.host_ns.tolist(), batch.data):
+                yield t_ns, row.tobytes()
 
     def batches(self, max_data: int = 1024) -> Iterator[PacketBatch]:
         """The file read ``max_data`` packets at a time, straight into arrays."""
