@@ -485,11 +485,7 @@ RegistrationResult register_local(const PreparedCloud& src, const PreparedCloud&
                         lambda *= 10;
                     }
                 }
-                const double drot =
-                    Eigen::AngleAxisd(T_new.linear() * T.linear().transpose()).angle();
-                const double dtr = (T_new.translation() - T.translation()).norm();
-                T = T_new;
-                if (drot < opt.rotation_eps && dtr < opt.translation_eps) {
+                if (detail::step_and_check(T, T_new, opt)) {
                     stage_converged = true;
                     break;
                 }

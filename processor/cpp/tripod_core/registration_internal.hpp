@@ -46,6 +46,16 @@ void finish_result(const PreparedCloud& src, const PreparedCloud& tgt, Method re
 void register_ceres(const PreparedCloud& src, const PreparedCloud& tgt, Eigen::Isometry3d& T,
                     const RegistrationOptions& opt, RegistrationResult& res, int num_threads);
 
+/// Accept the step T -> T_new (T := T_new) and tell whether it was below both convergence
+/// thresholds (rotation [rad], translation [m]).
+inline bool step_and_check(Eigen::Isometry3d& T, const Eigen::Isometry3d& T_new,
+                           const RegistrationOptions& opt) {
+    const double drot = Eigen::AngleAxisd(T_new.linear() * T.linear().transpose()).angle();
+    const double dtr = (T_new.translation() - T.translation()).norm();
+    T = T_new;
+    return drot < opt.rotation_eps && dtr < opt.translation_eps;
+}
+
 /// Eigen 3x3 skew-symmetric matrix [v]x.
 inline Eigen::Matrix3d skew(const Eigen::Vector3d& v) {
     Eigen::Matrix3d m;

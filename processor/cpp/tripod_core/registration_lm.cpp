@@ -137,10 +137,7 @@ void register_ceres(const PreparedCloud& src, const PreparedCloud& tgt, Eigen::I
             Eigen::Isometry3d T_new = Eigen::Isometry3d::Identity();
             T_new.linear() = q.normalized().toRotationMatrix();
             T_new.translation() = t;
-            const double drot = Eigen::AngleAxisd(T_new.linear() * T.linear().transpose()).angle();
-            const double dtr = (T_new.translation() - T.translation()).norm();
-            T = T_new;
-            if (drot < opt.rotation_eps && dtr < opt.translation_eps) {
+            if (step_and_check(T, T_new, opt)) {
                 stage_converged = true;
                 break;
             }
