@@ -18,7 +18,7 @@ DEPS_STAMP := $(VENV)/.stamp-deps
 INSTALL_STAMP := $(VENV)/.stamp-install
 PYPROJECTS := shared/pyproject.toml daemon/pyproject.toml processor/pyproject.toml
 
-.PHONY: all setup test demo bench clean distclean
+.PHONY: all setup test demo bench stubs clean distclean
 
 all: setup
 
@@ -38,7 +38,8 @@ $(DEPS_STAMP): $(SYSTEM_STAMP) requirements-dev.txt
 $(INSTALL_STAMP): $(DEPS_STAMP) $(PYPROJECTS)
 	@echo "tripod: installing shared, daemon and processor (building the C++ extension)"
 	$(PIP) install -e shared -e daemon $(QUIET)
-	$(PIP) install --no-build-isolation -e processor $(QUIET)
+	$(PIP) install --no-build-isolation -e processor \
+		--config-settings=cmake.define.TRIPOD_BUILD_TESTS=ON $(QUIET)
 	@touch $@
 
 setup: $(INSTALL_STAMP)
@@ -52,6 +53,10 @@ demo: setup
 bench: setup
 	$(PIP) install -e "processor[bench]" --no-build-isolation
 	@for b in bench/*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
+
+# Refresh the committed type stubs of the C++ extension (tests/processor/test_stubs.py checks them).
+stubs: setup
+	$(PY) -m nanobind.stubgen -q -P -m tripod_processor._ext -o processor/src/tripod_processor/_ext.pyi
 
 clean:
 	rm -rf processor/build $(DEMO_DIR) .pytest_cache

@@ -6,6 +6,7 @@ set -euo pipefail
 PKGS=(
   build-essential cmake ninja-build pkg-config
   libeigen3-dev libpcl-dev libceres-dev   # processor's C++ core
+  libgtest-dev                            # its C++ unit tests
   libsystemd-dev                          # systemd-python (daemon)
   libusb-1.0-0 libgomp1                   # Open3D's runtime needs
   systemd                                 # systemd-analyze verify of the unit

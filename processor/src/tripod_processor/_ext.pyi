@@ -1,0 +1,144 @@
+"""tripod native core (private: use the tripod_processor Python API)"""
+
+from collections.abc import Sequence
+from typing import Annotated
+
+import numpy
+from numpy.typing import NDArray
+
+
+OCTREE_CONTEXT_BITS: int = 22
+
+OCTREE_MAX_DEPTH: int = 21
+
+def voxelize_morton(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], origin: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C', device='cpu', writable=False)], voxel_size: float, depth: int, num_threads: int = 0) -> Annotated[NDArray[numpy.uint64], dict(shape=(None,))]:
+    """
+    Sorted unique Morton codes (uint64) of floor((points - origin) / voxel_size), clamped to [0, 2^depth). points: (N,3) float32 [m]; origin: (3,) float64 [m].
+    """
+
+def morton_to_points(codes: Annotated[NDArray[numpy.uint64], dict(shape=(None,), order='C', device='cpu', writable=False)], origin: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C', device='cpu', writable=False)], voxel_size: float, num_threads: int = 0) -> Annotated[NDArray[numpy.float32], dict(shape=(None, 3))]:
+    """Voxel centres (M,3) float32 [m] of Morton codes."""
+
+def octree_contexts(codes: Annotated[NDArray[numpy.uint64], dict(shape=(None,), order='C', device='cpu', writable=False)], depth: int) -> tuple:
+    """
+    (contexts uint32, bits uint8) of every coded occupancy bit, in coding order.
+    """
+
+def octree_encode(codes: Annotated[NDArray[numpy.uint64], dict(shape=(None,), order='C', device='cpu', writable=False)], depth: int, p0_table: Annotated[NDArray[numpy.uint16], dict(shape=(None,), order='C', device='cpu', writable=False)], adapt_shift: int, adapt_prior: int = 0) -> bytes:
+    """
+    Range-code the octree of sorted unique Morton codes; returns the stream (bytes).
+    """
+
+def octree_decode(data: bytes, depth: int, n_voxels: int, p0_table: Annotated[NDArray[numpy.uint16], dict(shape=(None,), order='C', device='cpu', writable=False)], adapt_shift: int, adapt_prior: int = 0) -> Annotated[NDArray[numpy.uint64], dict(shape=(None,))]:
+    """
+    Decode an octree stream to sorted Morton codes (uint64); RuntimeError if corrupt.
+    """
+
+def _scan_pcap_records(buf: Annotated[NDArray[numpy.uint8], dict(shape=(None,), order='C', device='cpu', writable=False)], big_endian: bool, nanosecond: bool, linktype: int, data_size: int, max_record_bytes: int) -> tuple:
+    """
+    Scan whole classic-pcap records at the start of buf (uint8). Returns (consumed bytes, records, oversize record bytes or 0, data (n, data_size) uint8 payloads of plain Ethernet/IPv4/UDP records, data_t_ns (n,) int64, data_port (n,) uint16, data_record (n,) int64 record index, other (k, 4) int64 [t_ns, payload offset, length, port] of other plain payloads, slow (m, 4) int64 [t_ns, frame offset, length, record index] of records to parse in Python).
+    """
+
+class _Vlp16Decoder:
+    """
+    Batch VLP-16 / Puck Hi-Res decoder equal to velodyne-decoder 3.1 (private: use tripod_processor.decode)
+    """
+
+    def __init__(self, corrections: Annotated[NDArray[numpy.float64], dict(shape=(16, 12), order='C', device='cpu', writable=False)], distance_resolution_m: float, rings: Annotated[NDArray[numpy.uint8], dict(shape=(16), order='C', device='cpu', writable=False)], min_range_m: float, max_range_m: float, min_angle_deg: float = 0.0, max_angle_deg: float = 360.0) -> None:
+        """
+        corrections: (16, 12) float64, per laser in firing order: rot_correction [rad], vert_correction [rad], dist_correction [m], two_pt_correction_available (0/1), dist_correction_x [m], dist_correction_y [m], vert_offset_correction [m], horiz_offset_correction [m], max_intensity, min_intensity, focal_distance, focal_slope. rings: (16,) uint8 rank of each laser by elevation.
+        """
+
+    def decode(self, packets: Annotated[NDArray[numpy.uint8], dict(shape=(None, 1206), order='C', device='cpu', writable=False)], stamps_ns: Annotated[NDArray[numpy.int64], dict(shape=(None,), order='C', device='cpu', writable=False)], seg_first_block: object | None = None, seg_ref_ns: object | None = None, with_time_s: bool = False, num_threads: int = 0, return_type_before: int = 63) -> tuple:
+        """
+        Decode (N, 1206) uint8 packets stamped (N,) int64 [ns]. Returns (points (M, 20) uint8 = POINT_DTYPE records, time_s (M,) float32 velodyne-decoder time since packet 0 [s] or empty, block_first_point (N*12+1,) int64, status (N,) uint8: 0 ok, 1 bad block header (the blocks before it kept), time_offset_clipped, return_type_after (pass it as return_type_before of the next chunk)).
+        """
+
+def place_points(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], t_ns: Annotated[NDArray[numpy.int64], dict(shape=(None,), order='C', writable=False)], imu_t_ns: Annotated[NDArray[numpy.int64], dict(shape=(None,), order='C', writable=False)], imu_q_wxyz: Annotated[NDArray[numpy.float64], dict(shape=(None, 4), order='C', writable=False)], R_imu_lidar: Annotated[NDArray[numpy.float64], dict(shape=(3, 3), order='C', writable=False)], lever_arm: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C', writable=False)], anchor_ns: int, num_threads: int = 0) -> Annotated[NDArray[numpy.float32], dict(shape=(None, 3))]:
+    """
+    De-skew points into the lidar frame at anchor_ns (private: see tripod_processor.reconstruction.placement.place_points).
+    """
+
+def optimize_pose_graph(T_world_node: Annotated[NDArray[numpy.float64], dict(shape=(None, 4, 4), order='C', device='cpu', writable=False)], edge_nodes: Annotated[NDArray[numpy.int64], dict(shape=(None, 2), order='C', device='cpu', writable=False)], T_from_to: Annotated[NDArray[numpy.float64], dict(shape=(None, 4, 4), order='C', device='cpu', writable=False)], information: Annotated[NDArray[numpy.float64], dict(shape=(None, 6, 6), order='C', device='cpu', writable=False)], is_loop: Annotated[NDArray[numpy.bool_], dict(shape=(None,), order='C', device='cpu', writable=False)], gravity_nodes: Annotated[NDArray[numpy.int64], dict(shape=(None,), order='C', device='cpu', writable=False)], gravity_up: Annotated[NDArray[numpy.float64], dict(shape=(None, 3), order='C', device='cpu', writable=False)], gravity_sigma: Annotated[NDArray[numpy.float64], dict(shape=(None,), order='C', device='cpu', writable=False)], loss: str, loss_scale: float, robust_odometry: bool, max_iterations: int, num_threads: int, fixed_node: int, outlier_chi2: float, max_rejection_rounds: int, reject_odometry: bool) -> dict:
+    """
+    Pose-graph optimisation in Ceres (private: use tripod_processor.pose_graph).
+    """
+
+def voxel_downsample(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], voxel_size: float, num_threads: int = 0, align_min_bound: bool = False) -> Annotated[NDArray[numpy.float32], dict(shape=(None, 3))]:
+    """
+    Voxel-grid downsampling with centroids. points: (N,3) float32 [m]; returns (M,3).
+    """
+
+def estimate_normals(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], k_neighbors: int, radius: float, viewpoint: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C')], num_threads: int) -> tuple:
+    """
+    PCA normals: (normals (N,3), covariances (N,9), curvature (N,), valid (N,)).
+    """
+
+def statistical_outlier_removal(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], k_neighbors: int, std_ratio: float, num_threads: int) -> Annotated[NDArray[numpy.int64], dict(shape=(None,), order='C')]:
+    """Indices of the kept rows."""
+
+def mls_smooth(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], radius: float, num_threads: int, fit_voxel: float = 0.0) -> Annotated[NDArray[numpy.float32], dict(shape=(None, 3))]:
+    """MLS-smoothed points (N,3)."""
+
+def normal_space_sampling(normals: Annotated[NDArray[numpy.float64], dict(shape=(None, 3), order='C')], num_samples: int, bins_per_axis: int, seed: int) -> Annotated[NDArray[numpy.int64], dict(shape=(None,), order='C')]:
+    """Sorted sample indices."""
+
+def compute_fpfh(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], normals: Annotated[NDArray[numpy.float64], dict(shape=(None, 3), order='C')], radius: float, max_neighbors: int, num_threads: int) -> Annotated[NDArray[numpy.float32], dict(shape=(None, 33), order='C')]:
+    """FPFH descriptors (N,33) float32."""
+
+class _PreparedCloud:
+    @property
+    def points(self) -> Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C')]: ...
+
+    @property
+    def normals(self) -> Annotated[NDArray[numpy.float64], dict(shape=(None, 3), order='C')]: ...
+
+    @property
+    def normal_valid(self) -> Annotated[NDArray[numpy.bool_], dict(shape=(None,), order='C')]: ...
+
+    @property
+    def covariances(self) -> Annotated[NDArray[numpy.float64], dict(shape=(None, 9), order='C')]: ...
+
+    @property
+    def num_dropped(self) -> int: ...
+
+    def __len__(self) -> int: ...
+
+def prepare_cloud(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], k_neighbors: int, radius: float, viewpoint: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C')], point_sigma: float, num_threads: int) -> _PreparedCloud:
+    """
+    Finite points + k-d tree + normals + GICP covariances (see registration.prepare).
+    """
+
+def register_local(source: _PreparedCloud, target: _PreparedCloud, T_init: Annotated[NDArray[numpy.float64], dict(shape=(4, 4), order='F')], method: str, max_correspondence_distances: Sequence[float], max_iterations: int, rotation_eps: float, translation_eps: float, point_sigma: float, loss: str, loss_scale: float, R_prior: Annotated[NDArray[numpy.float64], dict(shape=(3, 3), order='F')] | None, rotation_prior_sigma: float, lock_z: bool, num_threads: int) -> dict:
+    """
+    Local registration of prepared clouds; returns a dict (see registration.register).
+    """
+
+def oriented_point_to_plane(source: _PreparedCloud, target: _PreparedCloud, T_init: Annotated[NDArray[numpy.float64], dict(shape=(4, 4), order='F')], max_distance: float, iterations: int, point_sigma: float, min_normal_dot: float, max_source: int, num_threads: int) -> dict:
+    """
+    Point-to-plane ICP over oriented normals (see reconstruction.odometry.oriented_refine).
+    """
+
+def register_global(source: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], target: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], normal_radius: float, feature_radius: float, max_neighbors: int, inlier_distance: float, edge_length_ratio: float, mutual_filter: bool, max_iterations: int, confidence: float, up_source: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C')], up_target: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C')], viewpoint_source: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C')], viewpoint_target: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C')], R_prior: Annotated[NDArray[numpy.float64], dict(shape=(3, 3), order='F')] | None, rotation_tolerance: float, seed: int, num_threads: int) -> dict:
+    """
+    FPFH + RANSAC global registration; returns a dict (see registration.register_global).
+    """
+
+def voxel_local_shape(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], voxel_size: float, radius_voxels: int = 1, num_threads: int = 0) -> Annotated[NDArray[numpy.float32], dict(shape=(None, None))]:
+    """
+    Per-point normal, covariance eigenvalues and neighbour count from voxel moments.
+    points: (N,3) float32 [m]; returns (N,7) float32: nx ny nz l0 l1 l2 count.
+    """
+
+def voxel_assign(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], voxel_size: float, num_threads: int = 0) -> tuple:
+    """
+    Group points by voxel. points: (N,3) float32 [m]; returns (centroids (M,3) float32,
+    point_voxel (N,) int32 (-1 for non-finite points), counts (M,) int32).
+    """
+
+def column_context(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], upright: Annotated[NDArray[numpy.uint8], dict(shape=(None,), order='C', device='cpu', writable=False)], cell_size: float, z_low: float, z_high: float, num_directions: int = 16, skip: float = 0.25, max_range: float = 8.0, num_threads: int = 0) -> Annotated[NDArray[numpy.float32], dict(shape=(None, None))]:
+    """
+    Horizontal context per point of a z-up scan. points: (N,3) float32 [m]; upright: (N,)
+    uint8 flags of the points that count for column heights; returns (N,5) float32: open
+    fraction, mean free distance [m], column z-min [m], column z-max [m], log1p(count).
+    """
