@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <array>
+#include <climits>
 #include <cmath>
 #include <stdexcept>
 #include <string>
@@ -100,7 +101,8 @@ inline int64_t code_int(Io& io, IntModel& m, int64_t v) {
 inline int bit_length(uint64_t v) { return v ? 64 - __builtin_clzll(v) : 0; }
 
 // ---- the point model: contexts and predictors, shared by encoder and decoder ------------------
-constexpr int kElContexts = 33;   // previous elevation step clamped to [-16, 16]
+constexpr int kElContexts = 4;    // bit length of the previous elevation residual, at most 3
+constexpr int64_t kUnknown = INT64_MIN;
 constexpr int kAzBuckets = 16;    // bit length of the previous azimuth step
 constexpr int kRangeBuckets = 8;     // bit length of the previous range residual
 constexpr int kActivityBuckets = 8;  // bit length of the local range gradient |a-c| + |b-c|
@@ -117,10 +119,13 @@ public:
     PointModel(const SphericalGrid& grid)
         : az_count_(grid.az_count),
           table_(!grid.el_table.empty()),
-          n_el_(static_cast<int64_t>(grid.el_table.size())),
+          // with a table: its size; else the largest |index| of an elevation in [-pi/2, pi/2]
+          n_el_(table_ ? static_cast<int64_t>(grid.el_table.size())
+                       : std::llround(kTwoPi / 4 / grid.el_step) + 1),
           row_shift_(grid.row_shift),
           last_(table_ ? grid.el_table.size() : kHashedSlots, -1),
           before_(last_.size(), -1),
+          successor_(last_.size(), kUnknown),
           el_(kElContexts),
           az_(2 * kAzBuckets),
           range_(kActivityBuckets * kRangeBuckets) {}
@@ -129,16 +134,25 @@ public:
     template <class Io>
     QuantisedPoint code(Io& io, const QuantisedPoint& q) {
         QuantisedPoint out;
-        // elevation: step from the previous index, in the context of the previous step
-        const int64_t el_step = code_int(
-            io, el_[std::clamp<int64_t>(prev_el_step_, -16, 16) + 16], q.e - prev_.e);
-        out.e = prev_.e + el_step;
-        if (table_ && (out.e < 0 || out.e >= n_el_)) corrupt("elevation index out of range");
+        // elevation: residual against the successor of the previous point's row the last time
+        // that row was seen (a scan repeats its row order, lasers' firing order included), or
+        // against the previous step repeated
+        const size_t prev_row = row_of(prev_.e);
+        const int64_t el_pred =
+            successor_[prev_row] != kUnknown ? successor_[prev_row] : prev_.e + prev_el_step_;
+        const int64_t el_residual = code_int(
+            io, el_[std::min(bit_length(std::abs(prev_el_residual_)), kElContexts - 1)],
+            q.e - el_pred);
+        out.e = el_pred + el_residual;
+        if (table_ ? (out.e < 0 || out.e >= n_el_) : (out.e < -n_el_ || out.e > n_el_))
+            corrupt("elevation index out of range");
+        const int64_t el_step = out.e - prev_.e;
+        successor_[prev_row] = out.e;
         // azimuth: wrapped step from the previous azimuth
         int64_t da = q.a - prev_.a;
         if (da > az_count_ / 2) da -= az_count_;
         if (da < -(az_count_ - 1) / 2) da += az_count_;
-        const int az_ctx = (el_step == prev_el_step_ ? 0 : kAzBuckets) +
+        const int az_ctx = (el_residual == 0 ? 0 : kAzBuckets) +
                            std::min(bit_length(std::abs(prev_az_step_)), kAzBuckets - 1);
         const int64_t az_step = code_int(io, az_[az_ctx], da);
         if (az_step > az_count_ || az_step < -az_count_) corrupt("azimuth step out of range");
@@ -149,7 +163,7 @@ public:
         // elevation indices: a = the previous point, b = the last range of this row (the
         // previous sweep or revolution), c = the range that row e_{i-1} had before the previous
         // point overwrote it (b's neighbour in the previous sweep).
-        const size_t row = row_of(out.e), prev_row = row_of(prev_.e);
+        const size_t row = row_of(out.e);
         const int64_t a = prev_.k;
         const int64_t b = last_[row] >= 0 ? last_[row] : a;
         const int64_t c = before_[prev_row] >= 0 ? before_[prev_row] : a;
@@ -168,6 +182,7 @@ public:
         // state for the next point
         prev_ = out;
         prev_el_step_ = el_step;
+        prev_el_residual_ = el_residual;
         prev_az_step_ = az_step;
         prev_residual_ = residual;
         return out;
@@ -184,9 +199,10 @@ private:
 
     int row_shift_;
     std::vector<int64_t> last_, before_;  // last and previous range index per row (-1: none)
+    std::vector<int64_t> successor_;      // elevation index that last followed each row
     std::vector<IntModel> el_, az_, range_;
     QuantisedPoint prev_{0, 0, 0};
-    int64_t prev_el_step_ = 0, prev_az_step_ = 0, prev_residual_ = 0;
+    int64_t prev_el_step_ = 0, prev_el_residual_ = 0, prev_az_step_ = 0, prev_residual_ = 0;
 };
 
 // ---- quantisation and reconstruction ----------------------------------------------------------

@@ -14,9 +14,11 @@
 //              e = round(el / el_step) without a table.
 // The integers are then coded losslessly with prediction from earlier points and a binary range
 // coder whose probabilities adapt online (contexts below), so encoder and decoder agree exactly:
-//   e: the step e_i - e_{i-1}, context = the previous step (a regular scan repeats its steps);
-//   a: the step a_i - a_{i-1} (wrapped), context = whether e followed its previous step and the
-//      size of the previous azimuth step;
+//   e: the residual against the index that followed e_{i-1} the last time that row was seen (a
+//      scan repeats its row order: a tilting scanner's sweep, a lidar's laser firing order);
+//      context = the size of the previous residual;
+//   a: the step a_i - a_{i-1} (wrapped), context = whether e was predicted exactly and the size
+//      of the previous azimuth step;
 //   k: the residual against the median edge detector of LOCO-I (JPEG-LS) over the scan seen as
 //      an image whose rows are elevation indices (the lasers of a spinning lidar, the steps of a
 //      tilting scanner): from the previous point, the last range in this row (the previous
