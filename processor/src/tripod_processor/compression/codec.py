@@ -176,10 +176,11 @@ def encode(points: np.ndarray, voxel_size: float, *, mode: str = "auto", origin=
         octree = _encode_octree(p, inten, voxel_size, adapt_shift, adapt_prior, weights,
                                 num_threads)
     except CodecError:  # a grid too fine for the octree: the predictive mode may still do
-        if mode == "octree" or len(p) == 0:
+        pred = None if mode == "octree" or len(p) == 0 else _encode_predictive(
+            p, inten, voxel_size, origin, num_threads)
+        if pred is None:
             raise
-        return encode(p, voxel_size, mode="predictive", origin=origin, intensity=inten,
-                      num_threads=num_threads)
+        return pred
     if mode == "octree" or len(p) == 0:
         return octree
     octree_bits = 8.0 * octree[1].n_bytes

@@ -55,15 +55,7 @@ class ScanGrid:
     el_table: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (T,) float64 [rad]
     row_shift: int = 0
     range_lattice: float = 0.0  # [m], 0 = none detected (information only)
-
-    def uniform(self) -> tuple[float, float] | None:
-        """(start, step) [rad] when the table is exactly :func:`uniform_table` of them."""
-        t = self.el_table
-        if len(t) < 3:
-            return None
-        start, delta = float(t[0]), float((t[-1] - t[0]) / (len(t) - 1))
-        return (start, delta) if np.array_equal(uniform_table(start, delta, len(t)), t) \
-            else None
+    el_uniform: tuple[float, float] | None = None  # (start, step) [rad] of a uniform table
 
     def header(self) -> dict:
         """Header fields; a uniform elevation table is stored as el_uniform = (start, step)."""
@@ -71,23 +63,22 @@ class ScanGrid:
                "az_count": int(self.az_count), "el_step": float(self.el_step),
                "el_table_len": int(len(self.el_table)), "row_shift": int(self.row_shift),
                "range_lattice": float(self.range_lattice)}
-        if self.uniform() is not None:
-            out["el_uniform"] = list(self.uniform())
+        if self.el_uniform is not None:
+            out["el_uniform"] = [float(v) for v in self.el_uniform]
         return out
 
     def table_section(self) -> bytes:
         """The elevation table section: empty for none or a uniform one, else float64 LE."""
-        if self.uniform() is not None:
+        if self.el_uniform is not None:
             return b""
         return np.ascontiguousarray(self.el_table, "<f8").tobytes()
 
     @classmethod
     def from_header(cls, header: dict, section: bytes) -> "ScanGrid":
-        n = int(header["el_table_len"])
+        n, uniform = int(header["el_table_len"]), None
         if "el_uniform" in header:
             start, delta = (float(v) for v in header["el_uniform"])
-            table = uniform_table(start, delta, n)
-            expected = 0
+            table, uniform, expected = uniform_table(start, delta, n), (start, delta), 0
         else:
             table = np.frombuffer(section, "<f8").astype(np.float64)
             expected = 8 * n
@@ -96,16 +87,17 @@ class ScanGrid:
         return cls(np.asarray(header["origin"], np.float64).reshape(3),
                    float(header["range_step"]), int(header["az_count"]),
                    float(header["el_step"]), table, int(header["row_shift"]),
-                   float(header.get("range_lattice", 0.0)))
+                   float(header.get("range_lattice", 0.0)), uniform)
 
 
-def elevation_table(elevation: np.ndarray, tol_rad: float,
-                    max_entries: int = MAX_EL_TABLE) -> tuple[np.ndarray, float] | None:
-    """(sorted table of distinct elevations [rad], worst deviation [rad]) or None.
+def elevation_table(elevation: np.ndarray, tol_rad: float, max_entries: int = MAX_EL_TABLE
+                    ) -> tuple[np.ndarray, float, tuple[float, float] | None] | None:
+    """(sorted table of distinct elevations [rad], worst deviation [rad], (start, step) [rad]
+    when the table is uniform, else None), or None when there is no such table.
 
     Elevations within ``tol_rad`` of each other form one entry (its mid-range value); the table
     is accepted when it has at most ``max_entries`` (and at most N/8) entries, none wider than
-    2 ``tol_rad``.
+    2 ``tol_rad``. A table within ``tol_rad / 2`` of a uniform lattice becomes that lattice.
     """
     n = len(elevation)
     if n == 0:
@@ -122,16 +114,18 @@ def elevation_table(elevation: np.ndarray, tol_rad: float,
     lo, hi = s[np.r_[0, cuts]], s[np.r_[cuts, n] - 1]
     if (hi - lo).max() > 2 * tol_rad:
         return None
-    table = 0.5 * (lo + hi)
+    table, lattice = 0.5 * (lo + hi), None
     if len(table) >= 3:  # a uniform lattice is stored as (start, step) instead of every entry
-        i = np.arange(len(table))
-        delta, start = np.polyfit(i, table, 1)
-        uniform = uniform_table(float(start), float(delta), len(table))
-        if np.abs(uniform - table).max() <= 0.1 * tol_rad:
-            table = uniform
-    idx = np.clip(np.searchsorted(table, s), 1, len(table) - 1)
-    dev = np.minimum(np.abs(s - table[idx - 1]), np.abs(s - table[idx]))
-    return table, float(dev.max())
+        delta, start = (float(v) for v in np.polyfit(np.arange(len(table)), table, 1))
+        uniform = uniform_table(start, delta, len(table))
+        if np.abs(uniform - table).max() <= 0.5 * tol_rad:
+            table, lattice = uniform, (start, delta)
+    if len(table) == 1:
+        dev = np.abs(s - table[0])
+    else:
+        idx = np.clip(np.searchsorted(table, s), 1, len(table) - 1)
+        dev = np.minimum(np.abs(s - table[idx - 1]), np.abs(s - table[idx]))
+    return table, float(dev.max()), lattice
 
 
 def uniform_table(start: float, delta: float, count: int) -> np.ndarray:
@@ -166,8 +160,9 @@ def range_lattice(rng: np.ndarray, tol_m: float = 2e-5) -> tuple[float, float] |
 
 
 def plan_grid(spherical: np.ndarray, max_error: float, origin: np.ndarray,
-              split: tuple[float, float] = (_RANGE_SPLIT, _ANGLE_SPLIT)) -> ScanGrid:
-    """The spherical grid that keeps every point within ``max_error`` [m] (see module doc).
+              split: tuple[float, float] = (_RANGE_SPLIT, _ANGLE_SPLIT)) -> ScanGrid | None:
+    """The spherical grid that keeps every point within ``max_error`` [m] (see module doc), or
+    None when the bound is below the resolution of float32 coordinates.
 
     Parameters
     ----------
@@ -176,7 +171,9 @@ def plan_grid(spherical: np.ndarray, max_error: float, origin: np.ndarray,
     rng, el = spherical[:, 0], spherical[:, 2]
     r_max = max(float(rng.max(initial=0.0)), 1e-9)
     # float32 output: the decoded coordinates carry their own rounding
-    e = max_error - 4 * np.spacing(np.float32(r_max + float(np.abs(origin).max())))
+    e = max_error - 4 * float(np.spacing(np.float32(r_max + float(np.abs(origin).max()))))
+    if e <= 0:
+        return None
     e_range, e_angle = split[0] * e, split[1] * e
     lattice = range_lattice(rng)
     if lattice is not None:
@@ -190,8 +187,9 @@ def plan_grid(spherical: np.ndarray, max_error: float, origin: np.ndarray,
     angle = e_angle / r_max  # [rad] allowed angular error at the farthest point
     table = elevation_table(el, tol_rad=min(2e-5, 0.05 * angle))
     h_max = max(float((rng * np.cos(el)).max(initial=0.0)), 1e-9)  # farthest horizontal range
+    el_uniform = None
     if table is not None:
-        el_table, el_dev = table
+        el_table, el_dev, el_uniform = table
         az_err = max(angle - el_dev, 0.5 * angle) * r_max / h_max
         el_step, row_shift = 0.0, 0
     else:
@@ -203,7 +201,7 @@ def plan_grid(spherical: np.ndarray, max_error: float, origin: np.ndarray,
     az_count = min(math.ceil(2 * math.pi / (2 * az_err)), 1 << 40)
     return ScanGrid(np.asarray(origin, np.float64), float(range_step), int(max(az_count, 2)),
                     float(el_step), np.ascontiguousarray(el_table, np.float64), row_shift,
-                    float(lattice_step))
+                    float(lattice_step), el_uniform)
 
 
 def encode_points(points: np.ndarray, max_error: float, origin=None, num_threads: int = 0
@@ -216,6 +214,8 @@ def encode_points(points: np.ndarray, max_error: float, origin=None, num_threads
     sph = _ext.spherical_coordinates(points, o, num_threads)
     for split in ((_RANGE_SPLIT, _ANGLE_SPLIT), _SAFE_SPLIT):
         grid = plan_grid(sph, max_error, o, split)
+        if grid is None:
+            return None
         stream, worst, checksum = _ext.predictive_encode(
             points, grid.origin, grid.range_step, grid.az_count, grid.el_step, grid.el_table,
             grid.row_shift, num_threads)
