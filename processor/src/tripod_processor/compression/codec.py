@@ -4,8 +4,8 @@
 * ``octree`` (codec ``octree-ctx22``): the learned-context octree below; any cloud.
 * ``predictive`` (codec ``predictive-sph1``, :mod:`.predictive`): an ordered sensor scan coded
   point by point in spherical coordinates about the sensor; keeps every point, in order.
-* ``auto`` (the default): both, keeping the smaller file; a prefix of the cloud is tried in the
-  predictive mode first, and a cloud without scan structure skips the full predictive pass.
+* ``auto`` (the default): both, at once on two threads, keeping the smaller file (so a cloud
+  without scan structure gets exactly the octree file).
 Both modes keep every point within the same maximum error, ``voxel_size * sqrt(3) / 2``.
 
 Pipeline of the octree mode: 1. choose the voxel grid (origin = bounding-box corner, voxel size
@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import lzma
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,9 +32,6 @@ from .model import DEFAULT_WEIGHTS, load_table
 
 CODEC_NAME = "octree-ctx22"
 MODES = ("auto", "octree", "predictive")
-# auto mode: skip the full predictive pass when a prefix of the cloud (1/16, at least 20 k points)
-# codes at more than this many times the octree's rate (the prefix pays the models' warm-up)
-_PROBE_RATIO = 1.5
 # Per-context adaptation on top of the learned prior: rate 1/(n + 8) after n updates, at least
 # 1/128 (the learned probability counts as 8 observations; chosen on held-out clouds).
 DEFAULT_ADAPT_SHIFT = 7
@@ -172,25 +170,21 @@ def encode(points: np.ndarray, voxel_size: float, *, mode: str = "auto", origin=
         if out is None:
             raise CodecError("the predictive mode cannot keep this error bound here")
         return out
-    try:
-        octree = _encode_octree(p, inten, voxel_size, adapt_shift, adapt_prior, weights,
-                                num_threads)
-    except CodecError:  # a grid too fine for the octree: the predictive mode may still do
-        pred = None if mode == "octree" or len(p) == 0 else _encode_predictive(
-            p, inten, voxel_size, origin, num_threads)
-        if pred is None:
-            raise
-        return pred
     if mode == "octree" or len(p) == 0:
-        return octree
-    octree_bits = 8.0 * octree[1].n_bytes
-    probe_n = min(len(p), max(len(p) // 16, 20000))
-    if probe_n < len(p):
-        probe = predictive.encode_points(np.ascontiguousarray(p[:probe_n]),
-                                         voxel_size * math.sqrt(3.0) / 2.0, origin, num_threads)
-        if probe is None or 8.0 * len(probe[0]) / probe_n > _PROBE_RATIO * octree_bits / len(p):
-            return octree
-    pred = _encode_predictive(p, inten, voxel_size, origin, num_threads)
+        return _encode_octree(p, inten, voxel_size, adapt_shift, adapt_prior, weights,
+                              num_threads)
+    # auto: both modes at once (each releases the GIL; two cores give both for the wall time
+    # of the slower, the octree), keeping the smaller file
+    with ThreadPoolExecutor(1) as pool:
+        octree_job = pool.submit(_encode_octree, p, inten, voxel_size, adapt_shift, adapt_prior,
+                                 weights, num_threads)
+        pred = _encode_predictive(p, inten, voxel_size, origin, num_threads)
+        try:
+            octree = octree_job.result()
+        except CodecError:  # a grid too fine for the octree: the predictive file may still do
+            if pred is None:
+                raise
+            return pred
     if pred is None or pred[1].n_bytes >= octree[1].n_bytes:
         return octree
     return pred
