@@ -46,14 +46,26 @@ inline void update(AdaptiveBit& m, int bit) {
 
 // One template drives both directions, so encoder and decoder take the same path by
 // construction: bit(model, b) codes b (encoder) or returns the decoded bit (decoder; b ignored).
+// Cost of a bit of probability p / 4096 [bits], for the encoder's per-part accounting.
+struct CostTable {
+    float bits[4097];
+    CostTable() {
+        for (int i = 0; i <= 4096; ++i) bits[i] = -std::log2(std::max(i, 1) / 4096.0f);
+    }
+};
+const CostTable kCost;
+
 struct EncoderIo {
     RangeEncoder rc;
+    double* cost = nullptr;  // where the bits of the current part are counted
     explicit EncoderIo(std::vector<uint8_t>& out) : rc(out) {}
     inline int bit(AdaptiveBit& m, int b) {
         rc.encode(m.p0, b);
+        *cost += kCost.bits[(b ? 65536 - m.p0 : m.p0) >> 4];
         update(m, b);
         return b;
     }
+    inline void part(double* c) { cost = c; }
 };
 
 struct DecoderIo {
@@ -64,6 +76,7 @@ struct DecoderIo {
         update(m, b);
         return b;
     }
+    inline void part(double*) {}
 };
 
 // ---- signed integers: zero flag, sign, Exp-Golomb magnitude with adaptive bins ---------------
@@ -128,12 +141,15 @@ public:
           successor_(last_.size(), kUnknown),
           el_(kElContexts),
           az_(2 * kAzBuckets),
-          range_(kActivityBuckets * kRangeBuckets) {}
+          range_(2 * kActivityBuckets * kRangeBuckets) {}
 
     /// Code one point (encoder: `q` is the point; decoder: `q` is ignored, the point returned).
+    double cost_bits[3] = {0, 0, 0};  // encoder: elevation, azimuth, range
+
     template <class Io>
     QuantisedPoint code(Io& io, const QuantisedPoint& q) {
         QuantisedPoint out;
+        io.part(&cost_bits[0]);
         // elevation: residual against the successor of the previous point's row the last time
         // that row was seen (a scan repeats its row order, lasers' firing order included), or
         // against the previous step repeated
@@ -149,6 +165,7 @@ public:
         const int64_t el_step = out.e - prev_.e;
         successor_[prev_row] = out.e;
         // azimuth: wrapped step from the previous azimuth
+        io.part(&cost_bits[1]);
         int64_t da = q.a - prev_.a;
         if (da > az_count_ / 2) da -= az_count_;
         if (da < -(az_count_ - 1) / 2) da += az_count_;
@@ -163,6 +180,7 @@ public:
         // elevation indices: a = the previous point, b = the last range of this row (the
         // previous sweep or revolution), c = the range that row e_{i-1} had before the previous
         // point overwrote it (b's neighbour in the previous sweep).
+        io.part(&cost_bits[2]);
         const size_t row = row_of(out.e);
         const int64_t a = prev_.k;
         const int64_t b = last_[row] >= 0 ? last_[row] : a;
@@ -172,7 +190,10 @@ public:
         const int activity = std::min(bit_length(static_cast<uint64_t>(std::abs(a - c) +
                                                                        std::abs(b - c))),
                                       kActivityBuckets - 1);
-        const int ctx = activity * kRangeBuckets +
+        // the previous point repeated its value of the previous sweep: a static scene (or a
+        // re-scanned column) is likely to repeat here too
+        const int repeat = a == c && before_[prev_row] >= 0;
+        const int ctx = (repeat * kActivityBuckets + activity) * kRangeBuckets +
                         std::min(bit_length(std::abs(prev_residual_)), kRangeBuckets - 1);
         const int64_t residual = code_int(io, range_[ctx], q.k - pred);
         out.k = pred + residual;
@@ -320,6 +341,8 @@ std::vector<uint8_t> predictive_encode(const PointsXYZ& points, const SphericalG
     PointModel model(grid);
     for (const QuantisedPoint& p : q) model.code(io, p);
     io.rc.finish();
+    if (stats)
+        for (int i = 0; i < 3; ++i) stats->part_bits[i] = model.cost_bits[i];
     return out;
 }
 

@@ -52,6 +52,7 @@ std::vector<double> cartesian_to_spherical(const PointsXYZ& points, const double
 struct PredictiveStats {
     double max_error_m = 0.0;  ///< largest distance of a decoded point from its input point
     uint32_t checksum = 0;     ///< FNV-1a of the quantised points (store it for the decoder)
+    double part_bits[3] = {0, 0, 0};  ///< estimated bits spent on elevation, azimuth, range
 };
 
 /// Quantise `points` to `grid` and code them in order.

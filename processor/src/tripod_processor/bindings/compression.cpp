@@ -169,12 +169,15 @@ TRIPOD_BINDING(compression) {
                 out = tripod::predictive_encode(in, grid, &stats, num_threads);
             }
             return nb::make_tuple(nb::bytes(reinterpret_cast<const char*>(out.data()), out.size()),
-                                  stats.max_error_m, stats.checksum);
+                                  stats.max_error_m, stats.checksum,
+                                  nb::make_tuple(stats.part_bits[0], stats.part_bits[1],
+                                                 stats.part_bits[2]));
         },
         nb::arg("points"), nb::arg("origin"), nb::arg("range_step"), nb::arg("az_count"),
         nb::arg("el_step"), nb::arg("el_table"), nb::arg("row_shift"), nb::arg("num_threads") = 0,
         "Code points (N,3) float32 [m] in order on a spherical grid about origin; returns "
-        "(stream bytes, max point error [m], checksum of the quantised points).");
+        "(stream bytes, max point error [m], checksum of the quantised points, estimated bits "
+        "spent on (elevation, azimuth, range)).");
 
     m.def(
         "predictive_decode",

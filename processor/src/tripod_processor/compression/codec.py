@@ -197,13 +197,17 @@ def _encode_predictive(p: np.ndarray, inten: np.ndarray | None, voxel_size: floa
               "voxel_size": float(voxel_size), "max_error_bound": float(max_error)}
     if len(p) == 0:
         grid = predictive.ScanGrid(np.zeros(3), 1.0, 2, 1.0)
-        stream, checksum, worst = b"", 0, 0.0
+        stream, checksum, worst, part_bits = b"", 0, 0.0, (0.0, 0.0, 0.0)
     else:
         coded = predictive.encode_points(p, max_error, origin, num_threads)
         if coded is None:
             return None
-        stream, grid, checksum, worst = coded
-    header.update(grid.header(), checksum=int(checksum), max_error=float(worst))
+        stream, grid, checksum, worst, part_bits = coded
+    # bits per point by part: where the rate goes (information for reports)
+    split = {k: round(b / max(len(p), 1), 4) for k, b in zip(("elevation", "azimuth", "range"),
+                                                                 part_bits)}
+    header.update(grid.header(), checksum=int(checksum), max_error=float(worst),
+                  bits_per_point_by_part=split)
     sections = [stream, grid.table_section()]
     if inten is not None:
         section, header["intensity"] = _encode_intensity(inten)

@@ -205,9 +205,10 @@ def plan_grid(spherical: np.ndarray, max_error: float, origin: np.ndarray,
 
 
 def encode_points(points: np.ndarray, max_error: float, origin=None, num_threads: int = 0
-                  ) -> tuple[bytes, ScanGrid, int, float] | None:
-    """Code finite ``points`` (N, 3) float32 [m] in order; (stream, grid, checksum, max error [m])
-    or None when no grid keeps the bound (never expected; the octree then takes the cloud)."""
+                  ) -> tuple[bytes, ScanGrid, int, float, tuple[float, float, float]] | None:
+    """Code finite ``points`` (N, 3) float32 [m] in order; (stream, grid, checksum, max error [m],
+    estimated bits on (elevation, azimuth, range)), or None when no grid keeps the bound
+    (coordinates too coarse for it; the octree then takes the cloud)."""
     from .. import _ext
 
     o = np.zeros(3) if origin is None else np.asarray(origin, np.float64).reshape(3)
@@ -216,11 +217,11 @@ def encode_points(points: np.ndarray, max_error: float, origin=None, num_threads
         grid = plan_grid(sph, max_error, o, split)
         if grid is None:
             return None
-        stream, worst, checksum = _ext.predictive_encode(
+        stream, worst, checksum, part_bits = _ext.predictive_encode(
             points, grid.origin, grid.range_step, grid.az_count, grid.el_step, grid.el_table,
             grid.row_shift, num_threads)
         if worst <= max_error:
-            return stream, grid, int(checksum), float(worst)
+            return stream, grid, int(checksum), float(worst), part_bits
     return None
 
 
