@@ -158,3 +158,30 @@ def test_damaged_stream_with_fresh_checksums_is_rejected(small_file):
                 {k: v for k, v in header.items() if k != "el_uniform"}):
         with pytest.raises((ContainerError, CodecError), match="corrupt"):
             decompress(container.pack(bad, sections))
+
+
+def test_cli_modes_and_pcd_viewpoint(tmp_path, scan, capsys):
+    from tripod_processor.cli import main
+    from tripod_processor.cloud_io import make_cloud, pcd_viewpoint, read_cloud, write_cloud, xyz
+
+    shift = np.array([2.0, -1.5, 0.75])
+    src = tmp_path / "scan.pcd"
+    write_cloud(src, make_cloud((scan + shift).astype(np.float32)))
+    raw = src.read_bytes().replace(b"VIEWPOINT 0 0 0 1 0 0 0", b"VIEWPOINT 2 -1.5 0.75 1 0 0 0")
+    src.write_bytes(raw)
+    assert pcd_viewpoint(src).tolist() == shift.tolist()
+    tpc, out = tmp_path / "scan.tpc", tmp_path / "out.ply"
+    assert main(["compress", str(src), "-o", str(tpc), "--error", "2mm"]) == 0
+    info = read_info(tpc.read_bytes())
+    assert info["codec"] == predictive.CODEC_NAME and info["origin"] == shift.tolist()
+    assert main(["decompress", str(tpc), "-o", str(out)]) == 0
+    back = xyz(read_cloud(out))
+    assert back.shape == scan.shape
+    assert np.linalg.norm(back - (scan + shift), axis=1).max() <= 0.002 * (1 + 1e-5)
+    assert main(["compress", str(src), "-o", str(tpc), "--error", "2mm", "--mode", "octree"]) == 0
+    assert read_info(tpc.read_bytes())["codec"] == "octree-ctx22"
+    capsys.readouterr()
+    assert main(["compress", str(src), "-o", str(tpc), "--mode", "zip"]) == 2
+    assert main(["compress", str(src), "-o", str(tpc), "--origin", "1,x,2"]) == 2
+    err = capsys.readouterr().err
+    assert "--mode must be one of" in err and "--origin must be x,y,z" in err
