@@ -4,9 +4,9 @@
 Draco (DracoPy, the processor's ``bench`` extra) runs at quantisation q bits (the bounding box's
 largest side split into 2^q - 1 steps); the tripod codec runs on voxel grids of the same steps,
 one octave beyond each end, so its curve brackets Draco's, in its default ``auto`` mode (learned
-octree or predictive scan coding, whichever file is smaller at that step; ``mode`` records it). The *ratio* compares rates at equal
-D1 PSNR: the tripod bits per point interpolated (log-rate, linear in PSNR) at each Draco point,
-divided by Draco's. Rates are bits per input point; speeds are input points per second, wall
+octree or predictive scan coding, whichever file is smaller at that step; ``mode`` records
+it). The *ratio* compares rates at equal D1 PSNR: the tripod bits per point interpolated
+(log-rate, linear in PSNR) at each Draco point, divided by Draco's. Rates are bits per input point; speeds are input points per second, wall
 clock, with the threads the machine has; the ``*_cpu`` rates divide by the CPU time the process
 used instead (all threads summed), a load-independent and conservative figure for a shared
 machine.
