@@ -42,21 +42,30 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--plot", type=Path, default=REPO / "docs" / "compression_rd.png")
     ap.add_argument("--sim", type=Path, nargs="*", default=[], help="simulated fragments")
     ap.add_argument("--repeat", type=int, default=2, help="timing repeats (best of)")
+    ap.add_argument("--tables-from", type=Path, default=None, metavar="JSON",
+                    help="print the tables of a saved run (the plot's .json) instead of running")
     ap.add_argument("--sensor-frame", action="store_true",
                     help="also bench the simulated fragments in the lidar frame (investigation)")
     args = ap.parse_args(argv)
 
-    from rich.console import Console
-    from rich.table import Table
-
-    from tripod_processor.cli.compress_cmd import print_rd_tables
     from tripod_processor.cloud_io import read_cloud, xyz
-    from tripod_processor.compression.rd import (draco_available, plot_rd, ratio_at_equal_psnr,
-                                                 run_rd)
+    from tripod_processor.compression.rd import draco_available, plot_rd, run_rd
     from tripod_processor.compression.simdata import simulated_fragments
     from tripod_processor.compression.train import HELD_OUT_SEEDS
     from tripod_processor.sim.config import SimConfig
 
+    if args.tables_from is not None:
+        from tripod_processor.compression.rd import RDPoint
+
+        saved = json.loads(args.tables_from.read_text())
+        curves = {k: [RDPoint(**r) for r in v] for k, v in saved.items()}
+        # runs before n_points was recorded: every point decoded by Draco or the predictive mode
+        sizes = {k: max(max(r.n_points for r in v), max(r.n_decoded for r in v))
+                 for k, v in curves.items()}
+        sigma = SimConfig().lidar.range_noise_m
+        print_summary(curves, sizes, {k: sigma for k in curves if k.startswith("sim ")},
+                      load=None)
+        return 0
     if not draco_available():
         print("bench/compression.py needs DracoPy: pip install -e 'processor[bench]'")
         return 1
@@ -87,8 +96,25 @@ def main(argv: list[str] | None = None) -> int:
     for name, pts in clouds.items():
         print(f"running {name}: {len(pts)} points", file=sys.stderr)
         curves[name] = run_rd(pts, range(8, 13), True, repeat=args.repeat)
-    print_rd_tables(curves)
+    print_summary(curves, {k: len(v) for k, v in clouds.items()}, noise_m,
+                  load=os.getloadavg()[0])
+    args.plot.parent.mkdir(parents=True, exist_ok=True)
+    plot_rd(curves, args.plot)
+    args.plot.with_suffix(".json").write_text(json.dumps(
+        {k: [r.as_dict() for r in v] for k, v in curves.items()}, indent=1))
+    print(f"plot: {args.plot}")
+    return 0
 
+
+def print_summary(curves: dict, sizes: dict, noise_m: dict, load: float | None) -> None:
+    """The per-cloud RD tables, the summary of the goals and the noise floors."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from tripod_processor.cli.compress_cmd import print_rd_tables
+    from tripod_processor.compression.rd import ratio_at_equal_psnr
+
+    print_rd_tables(curves)
     summary = Table(title=f"summary ({os.cpu_count()} CPUs visible): tripod bpp / Draco bpp at "
                           "equal D1 PSNR; slowest tripod speed over q8..q12 in input M points/s, "
                           "wall clock and per CPU second")
@@ -101,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
         modes = "".join("P" if r.mode == "predictive" else "O"
                         for r in sorted((r for r in rows if r.codec == "tripod"),
                                         key=lambda r: r.q_bits))
-        summary.add_row(name, str(len(clouds[name])),
+        summary.add_row(name, str(sizes[name]),
                         *[f"{ratio[q]:.2f}" if q in ratio else "-" for q in range(8, 13)], modes,
                         f"{min(r.encode_mpts_s for r in ours):.2f}",
                         f"{min(r.decode_mpts_s for r in ours):.2f}",
@@ -111,14 +137,9 @@ def main(argv: list[str] | None = None) -> int:
     for name, sigma in noise_m.items():
         Console(width=max(Console().width, 150)).print(noise_floor_table(name, curves[name],
                                                                          sigma))
-    print(f"load average during the run: {os.getloadavg()[0]:.1f} (shared machine: wall-clock "
-          "rates drop with load; CPU-second rates do not)")
-    args.plot.parent.mkdir(parents=True, exist_ok=True)
-    plot_rd(curves, args.plot)
-    args.plot.with_suffix(".json").write_text(json.dumps(
-        {k: [r.as_dict() for r in v] for k, v in curves.items()}, indent=1))
-    print(f"plot: {args.plot}")
-    return 0
+    if load is not None:
+        print(f"load average during the run: {load:.1f} (shared machine: wall-clock "
+              "rates drop with load; CPU-second rates do not)")
 
 
 def noise_floor_table(name: str, rows, sigma_m: float):
@@ -133,15 +154,16 @@ def noise_floor_table(name: str, rows, sigma_m: float):
     table = Table(title=f"{name}: range noise sigma = {1e3 * sigma_m:.0f} mm; bits per point at "
                         "Draco's D1 PSNR (floors: noise cost per point where step << sigma)")
     for col in ("q", "step mm", "Draco RMSE mm", "Draco bpp", "goal 0.5x", "tripod bpp",
-                "floor log2(s*sqrt(2pi e)/step)", "floor log2(s/RMSE)", "goal reachable?"):
+                "floor log2(s*sqrt(2pi e)/step)", "floor log2(s/RMSE)",
+                "goal - floors: bits left for angles, which points"):
         table.add_column(col, justify="right")
     for r in sorted((r for r in rows if r.codec == "draco"), key=lambda r: r.q_bits):
         ecsq = math.log2(sigma_m * math.sqrt(2 * math.pi * math.e) / r.step_m)
         shannon = math.log2(sigma_m / (1e-3 * r.rmse_mm))
         ours = f"{ratio[r.q_bits] * r.bpp:.2f}" if r.q_bits in ratio else "-"
         fine = r.step_m < sigma_m / 4  # the floor applies only where step << sigma
-        verdict = ("no (floor > goal)" if fine and shannon > 0.5 * r.bpp else
-                   "yes" if fine else "n/a (step ~ sigma)")
+        left = (0.5 * r.bpp - ecsq, 0.5 * r.bpp - shannon)
+        verdict = (f"{left[0]:+.2f} / {left[1]:+.2f}" if fine else "n/a (step ~ sigma)")
         table.add_row(str(r.q_bits), f"{1e3 * r.step_m:.2f}", f"{r.rmse_mm:.2f}", f"{r.bpp:.2f}",
                       f"{0.5 * r.bpp:.2f}", ours, f"{ecsq:.2f}" if fine else f"({ecsq:.2f})",
                       f"{shannon:.2f}" if fine else f"({shannon:.2f})", verdict)

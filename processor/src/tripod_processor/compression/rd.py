@@ -42,6 +42,7 @@ class RDPoint:
     encode_mpts_cpu_s: float = float("nan")  # input points per CPU second [M/s]
     decode_mpts_cpu_s: float = float("nan")
     mode: str = ""  # tripod: "octree" or "predictive" (what auto chose); draco: ""
+    n_points: int = 0  # finite input points
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -101,7 +102,7 @@ def run_rd(points: np.ndarray, q_bits=range(8, 13), with_draco: bool = True,
         m = d1(p, dec)
         rows.append(RDPoint(codec, q, step, 8.0 * len(data) / n, 1e3 * m.rmse_m, m.psnr_diag_db,
                             m.psnr_mpeg10_db, n / te / 1e6, n / td / 1e6, len(dec),
-                            n / ce / 1e6, n / cd / 1e6, chosen))
+                            n / ce / 1e6, n / cd / 1e6, chosen, n))
         if progress is not None:
             progress(codec, q)
     return rows
