@@ -240,6 +240,28 @@ _PCD_TYPES = {("F", 4): "f4", ("F", 8): "f8", ("U", 1): "u1", ("U", 2): "u2", ("
               ("U", 8): "u8", ("I", 1): "i1", ("I", 2): "i2", ("I", 4): "i4", ("I", 8): "i8"}
 
 
+def pcd_viewpoint(path: str | os.PathLike) -> np.ndarray | None:
+    """The sensor position [m] of a PCD file's ``VIEWPOINT`` line ((3,) float64), or None for
+    a PLY file, a PCD file without one, or an unreadable header."""
+    try:
+        with open(path, "rb") as fh:
+            if fh.read(3) == b"ply":
+                return None
+            fh.seek(0)
+            for _ in range(64):
+                line = fh.readline(4096).decode("ascii", errors="replace").split()
+                if not line:
+                    continue
+                key = line[0].upper()
+                if key == "VIEWPOINT" and len(line) >= 4:
+                    return np.array([float(v) for v in line[1:4]])
+                if key == "DATA":
+                    return None
+    except (OSError, ValueError):
+        return None
+    return None
+
+
 def read_pcd(path: str | os.PathLike) -> np.ndarray:
     """Read a PCD v0.5–0.7 file (DATA ascii, binary or binary_compressed)."""
     with open(path, "rb") as fh:

@@ -5,6 +5,7 @@
 
 #include "common.hpp"
 #include "tripod_core/octree_codec.hpp"
+#include "tripod_core/predictive_codec.hpp"
 
 namespace nb = nanobind;
 using namespace tripod_bind;
@@ -24,6 +25,20 @@ nb::ndarray<nb::numpy, T, nb::ndim<1>> vector_to_numpy(std::vector<T>&& v) {
 
 std::vector<uint64_t> to_codes(const CodesIn& a) {
     return std::vector<uint64_t>(a.data(), a.data() + a.shape(0));
+}
+
+using TableF64In = nb::ndarray<const double, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
+
+tripod::SphericalGrid make_grid(OriginIn origin, double range_step, int64_t az_count,
+                                double el_step, TableF64In el_table, int row_shift) {
+    tripod::SphericalGrid g;
+    for (int i = 0; i < 3; ++i) g.origin[i] = origin(i);
+    g.range_step = range_step;
+    g.az_count = az_count;
+    g.el_step = el_step;
+    g.el_table.assign(el_table.data(), el_table.data() + el_table.shape(0));
+    g.row_shift = row_shift;
+    return g;
 }
 
 const uint16_t* check_table(const TableIn& t) {
@@ -119,4 +134,71 @@ TRIPOD_BINDING(compression) {
         nb::arg("data"), nb::arg("depth"), nb::arg("n_voxels"), nb::arg("p0_table"),
         nb::arg("adapt_shift"), nb::arg("adapt_prior") = 0,
         "Decode an octree stream to sorted Morton codes (uint64); RuntimeError if corrupt.");
+
+    m.def(
+        "spherical_coordinates",
+        [](CloudIn points, OriginIn origin, int num_threads) {
+            tripod::PointsXYZ in = to_eigen(points);
+            const double o[3] = {origin(0), origin(1), origin(2)};
+            std::vector<double> sph;
+            {
+                nb::gil_scoped_release release;
+                sph = tripod::cartesian_to_spherical(in, o, num_threads);
+            }
+            const size_t n = sph.size() / 3;
+            auto* heap = new std::vector<double>(std::move(sph));
+            nb::capsule owner(heap, [](void* p) noexcept {
+                delete static_cast<std::vector<double>*>(p);
+            });
+            return nb::ndarray<nb::numpy, double, nb::shape<-1, 3>>(heap->data(), {n, 3}, owner);
+        },
+        nb::arg("points"), nb::arg("origin"), nb::arg("num_threads") = 0,
+        "(N,3) float64 (range [m], azimuth [rad], elevation [rad]) of points about origin.");
+
+    m.def(
+        "predictive_encode",
+        [](CloudIn points, OriginIn origin, double range_step, int64_t az_count, double el_step,
+           TableF64In el_table, int row_shift, int num_threads) {
+            tripod::PointsXYZ in = to_eigen(points);
+            const tripod::SphericalGrid grid =
+                make_grid(origin, range_step, az_count, el_step, el_table, row_shift);
+            tripod::PredictiveStats stats;
+            std::vector<uint8_t> out;
+            {
+                nb::gil_scoped_release release;
+                out = tripod::predictive_encode(in, grid, &stats, num_threads);
+            }
+            return nb::make_tuple(nb::bytes(reinterpret_cast<const char*>(out.data()), out.size()),
+                                  stats.max_error_m, stats.checksum,
+                                  nb::make_tuple(stats.part_bits[0], stats.part_bits[1],
+                                                 stats.part_bits[2]));
+        },
+        nb::arg("points"), nb::arg("origin"), nb::arg("range_step"), nb::arg("az_count"),
+        nb::arg("el_step"), nb::arg("el_table"), nb::arg("row_shift"), nb::arg("num_threads") = 0,
+        "Code points (N,3) float32 [m] in order on a spherical grid about origin; returns "
+        "(stream bytes, max point error [m], checksum of the quantised points, estimated bits "
+        "spent on (elevation, azimuth, range)).");
+
+    m.def(
+        "predictive_decode",
+        [](nb::bytes data, uint64_t n_points, OriginIn origin, double range_step,
+           int64_t az_count, double el_step, TableF64In el_table, int row_shift,
+           uint32_t checksum, int num_threads) {
+            const tripod::SphericalGrid grid =
+                make_grid(origin, range_step, az_count, el_step, el_table, row_shift);
+            std::vector<uint8_t> in(static_cast<const uint8_t*>(data.data()),
+                                    static_cast<const uint8_t*>(data.data()) + data.size());
+            tripod::PointsXYZ out;
+            {
+                nb::gil_scoped_release release;
+                out = tripod::predictive_decode(in.data(), in.size(), n_points, grid, checksum,
+                                                num_threads);
+            }
+            return to_numpy(std::move(out));
+        },
+        nb::arg("data"), nb::arg("n_points"), nb::arg("origin"), nb::arg("range_step"),
+        nb::arg("az_count"), nb::arg("el_step"), nb::arg("el_table"), nb::arg("row_shift"),
+        nb::arg("checksum"),
+        nb::arg("num_threads") = 0,
+        "Decode n_points (N,3) float32 [m] of a predictive stream; RuntimeError if corrupt.");
 }

@@ -57,17 +57,36 @@ def compress_cmd(
     voxel: Optional[str] = typer.Option(None, "--voxel", help="Voxel edge instead, e.g. 5mm."),
     intensity: bool = typer.Option(True, "--intensity/--no-intensity",
                                    help="Keep the cloud's intensity field, if it has one "
-                                        "(mean per voxel)."),
+                                        "(octree: mean per voxel; predictive: per point)."),
+    mode: str = typer.Option("auto", "--mode",
+                             help="auto (both, the smaller file), octree (learned, any cloud) "
+                                  "or predictive (ordered sensor scans, keeps every point in "
+                                  "order)."),
+    origin: Optional[str] = typer.Option(None, "--origin",
+                                         help="Sensor position x,y,z [m] for the predictive "
+                                              "mode (default: the PCD VIEWPOINT, else 0,0,0)."),
 ) -> None:
-    """Compress a cloud's geometry (and intensity) to a .tpc file (learned octree coder)."""
+    """Compress a cloud's geometry (and intensity) to a .tpc file (learned octree, or
+    predictive coding of an ordered scan: the smaller of the two by default)."""
     import numpy as np
 
-    from ..cloud_io import xyz
-    from ..compression import CodecError, compress_with_info
+    from ..cloud_io import pcd_viewpoint, xyz
+    from ..compression import MODES, CodecError, compress_with_info
     from ..compression.model import load_table
 
     if sum(v is not None for v in (error, bpp, voxel)) > 1:
         fail("give only one of --error, --bpp, --voxel")
+    if mode not in MODES:
+        fail(f"--mode must be one of {', '.join(MODES)}, not {mode!r}")
+    if origin is not None:
+        try:
+            kw_origin = np.array([float(v) for v in origin.split(",")])
+            if kw_origin.shape != (3,) or not np.isfinite(kw_origin).all():
+                raise ValueError
+        except ValueError:
+            fail(f"--origin must be x,y,z in metres, not {origin!r}")
+    else:
+        kw_origin = pcd_viewpoint(cloud) if cloud.is_file() else None
     try:
         kw = {"bpp": bpp} if bpp is not None else (
             {"voxel_size": parse_length(voxel)} if voxel is not None
@@ -79,6 +98,7 @@ def compress_cmd(
     names = structured.dtype.names or ()
     if intensity and "intensity" in names:
         kw["intensity"] = structured["intensity"]
+    kw.update(mode=mode, origin=kw_origin)
     load_table()  # once per machine (disk cache), not part of the speed shown
     t = time.perf_counter()
     try:
@@ -88,8 +108,10 @@ def compress_cmd(
     dt = time.perf_counter() - t
     output.parent.mkdir(parents=True, exist_ok=True)
     output.write_bytes(data)
-    console.print(f"{cloud} -> {output}: {info.n_points} points -> {info.n_voxels} voxels of "
-                  f"{1e3 * info.voxel_size:.3g} mm, {len(data)} bytes, "
+    what = (f"{info.n_voxels} voxels of {1e3 * info.voxel_size:.3g} mm" if info.mode == "octree"
+            else f"{info.n_voxels} points in order (predictive, max error "
+                 f"{1e3 * info.voxel_size * 3**0.5 / 2:.3g} mm)")
+    console.print(f"{cloud} -> {output}: {info.n_points} points -> {what}, {len(data)} bytes, "
                   f"{info.bits_per_point:.3f} bits/point, {info.n_points / dt / 1e6:.2f} M points/s")
 
 
@@ -98,7 +120,8 @@ def decompress_cmd(
     tpc: Path = typer.Argument(..., help="Input .tpc file."),
     output: Path = typer.Option(..., "-o", "--output", help="Output cloud (.ply or .pcd)."),
 ) -> None:
-    """Decompress a .tpc file to a PLY/PCD cloud (one point per occupied voxel)."""
+    """Decompress a .tpc file to a PLY/PCD cloud (octree: one point per occupied voxel;
+    predictive: every point, in the original order)."""
     from ..cloud_io import make_cloud, write_cloud
     from ..compression import CodecError, ContainerError
     from ..compression.codec import decode_cloud
@@ -118,7 +141,8 @@ def decompress_cmd(
     output.parent.mkdir(parents=True, exist_ok=True)
     write_cloud(output, make_cloud(points, **{k: v.astype("float32")
                                               for k, v in attributes.items()}))
-    console.print(f"{tpc} -> {output}: {len(points)} points (voxel "
+    mode = "predictive" if "range_step" in header else "octree"
+    console.print(f"{tpc} -> {output}: {len(points)} points ({mode}, voxel "
                   f"{1e3 * header['voxel_size']:.3g} mm), {len(points) / max(dt, 1e-9) / 1e6:.2f} "
                   f"M points/s")
 
@@ -129,14 +153,21 @@ def rd_cmd(
     plot: Path = typer.Option(Path("rd.png"), "--plot", help="RD plot (PNG); a .json beside it."),
     q_min: int = typer.Option(8, help="Coarsest Draco quantisation [bits]."),
     q_max: int = typer.Option(12, help="Finest Draco quantisation [bits]."),
+    mode: str = typer.Option("auto", "--mode", help="tripod geometry mode: auto (the smaller "
+                                                    "file at each step), octree or predictive."),
 ) -> None:
-    """Rate-distortion of the tripod codec against Draco: bits/point, D1 PSNR, speed, plot."""
+    """Rate-distortion of the tripod codec against Draco: bits/point, D1 PSNR, speed, plot
+    (the 'mode' column says which geometry mode auto chose at each step)."""
     from tqdm import tqdm
 
+    from ..cloud_io import pcd_viewpoint
+    from ..compression import MODES
     from ..compression.rd import draco_available, plot_rd, run_rd
 
     if not 2 <= q_min <= q_max <= 20:
         fail("need 2 <= --q-min <= --q-max <= 20")
+    if mode not in MODES:
+        fail(f"--mode must be one of {', '.join(MODES)}, not {mode!r}")
     with_draco = draco_available()
     if not with_draco:
         console.print("DracoPy is not installed (pip install 'tripod-processor[bench]'): "
@@ -147,7 +178,8 @@ def rd_cmd(
         n_jobs = (q_max - q_min + 3) + (q_max - q_min + 1 if with_draco else 0)
         with tqdm(total=n_jobs, desc=path.name, leave=False) as bar:
             curves[path.name] = run_rd(points, range(q_min, q_max + 1), with_draco,
-                                       progress=lambda *_: bar.update())
+                                       progress=lambda *_: bar.update(), mode=mode,
+                                       origin=pcd_viewpoint(path))
     print_rd_tables(curves)
     plot.parent.mkdir(parents=True, exist_ok=True)
     plot_rd(curves, plot)
@@ -167,11 +199,11 @@ def print_rd_tables(curves: dict) -> None:
     for name, rows in curves.items():
         ratio = ratio_at_equal_psnr(rows)
         table = Table(title=f"{name}: rate-distortion (bpp per input point, D1 PSNR, speed M pts/s)")
-        for col in ("codec", "q", "step mm", "bpp", "RMSE mm", "PSNR diag", "PSNR mpeg10",
+        for col in ("codec", "mode", "q", "step mm", "bpp", "RMSE mm", "PSNR diag", "PSNR mpeg10",
                     "enc M/s", "dec M/s", "enc M/cpu-s", "dec M/cpu-s", "bpp ratio @ equal PSNR"):
             table.add_column(col, justify="right")
         for r in sorted(rows, key=lambda r: (r.q_bits, r.codec)):
-            table.add_row(r.codec, str(r.q_bits), f"{1e3 * r.step_m:.2f}", f"{r.bpp:.3f}",
+            table.add_row(r.codec, r.mode, str(r.q_bits), f"{1e3 * r.step_m:.2f}", f"{r.bpp:.3f}",
                           f"{r.rmse_mm:.2f}", f"{r.psnr_diag_db:.2f}", f"{r.psnr_mpeg10_db:.2f}",
                           f"{r.encode_mpts_s:.2f}", f"{r.decode_mpts_s:.2f}",
                           f"{r.encode_mpts_cpu_s:.2f}", f"{r.decode_mpts_cpu_s:.2f}",

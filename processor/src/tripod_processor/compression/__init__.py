@@ -1,6 +1,10 @@
 # SPDX-License-Identifier: BSD-3-Clause
 """Point cloud geometry compression with a learned context model (``tripod compress``).
 
+Two geometry modes share one container: the learned-context octree (any cloud), described here,
+and the predictive mode for ordered sensor scans (:mod:`.predictive`); ``mode="auto"`` (the
+default) tries both and keeps the smaller file.
+
 The codec quantises a cloud to a voxel grid, builds its octree, and range-codes every child
 occupancy bit with a probability from a small neural network (the *context model*) that looks at
 already-coded neighbours at the child and parent levels. The network is tabulated once, in exact
@@ -16,14 +20,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from .codec import (CODEC_NAME, CodecError, EncodeInfo, decode, decode_cloud, encode,
+from .codec import (CODEC_NAME, MODES, CodecError, EncodeInfo, decode, decode_cloud, encode,
                     encode_to_rate, voxel_size_for_error)
 from .container import ContainerError, read_header
 
 
 def compress(points: np.ndarray, *, error: float | None = None, voxel_size: float | None = None,
-             bpp: float | None = None, intensity: np.ndarray | None = None,
-             num_threads: int = 0) -> bytes:
+             bpp: float | None = None, intensity: np.ndarray | None = None, mode: str = "auto",
+             origin=None, num_threads: int = 0) -> bytes:
     """Compress a cloud to ``.tpc`` bytes.
 
     Parameters
@@ -33,16 +37,20 @@ def compress(points: np.ndarray, *, error: float | None = None, voxel_size: floa
     voxel_size : voxel edge [m] (instead of ``error``)
     bpp : target bits per input point: the finest grid that fits (instead of ``error``)
     intensity : optional (N,) per-point intensity, kept as the rounded mean of each voxel
+        (octree) or per point (predictive)
+    mode : "auto" (both modes, the smaller file), "octree" or "predictive"
+    origin : (3,) sensor position [m] for the predictive mode (default (0, 0, 0))
 
     Exactly one of ``error``, ``voxel_size``, ``bpp`` must be given.
     """
     return compress_with_info(points, error=error, voxel_size=voxel_size, bpp=bpp,
-                              intensity=intensity, num_threads=num_threads)[0]
+                              intensity=intensity, mode=mode, origin=origin,
+                              num_threads=num_threads)[0]
 
 
 def compress_with_info(points: np.ndarray, *, error: float | None = None,
                        voxel_size: float | None = None, bpp: float | None = None,
-                       intensity: np.ndarray | None = None,
+                       intensity: np.ndarray | None = None, mode: str = "auto", origin=None,
                        num_threads: int = 0) -> tuple[bytes, EncodeInfo]:
     """:func:`compress`, also returning the :class:`EncodeInfo` (grid, counts, rate)."""
     given = [v is not None for v in (error, voxel_size, bpp)]
@@ -54,16 +62,19 @@ def compress_with_info(points: np.ndarray, *, error: float | None = None,
     if bpp is not None:
         if not bpp > 0:
             raise CodecError(f"bits per point must be > 0, got {bpp}")
-        return encode_to_rate(pts, bpp, intensity=intensity, num_threads=num_threads)
+        return encode_to_rate(pts, bpp, intensity=intensity, mode=mode, origin=origin,
+                              num_threads=num_threads)
     if error is not None:
         if not error > 0:
             raise CodecError(f"error must be > 0, got {error}")
         voxel_size = voxel_size_for_error(error)
-    return encode(pts, float(voxel_size), intensity=intensity, num_threads=num_threads)
+    return encode(pts, float(voxel_size), intensity=intensity, mode=mode, origin=origin,
+                  num_threads=num_threads)
 
 
 def decompress(data: bytes, num_threads: int = 0) -> np.ndarray:
-    """Decode ``.tpc`` bytes to (M, 3) float32 points [m] (voxel centres)."""
+    """Decode ``.tpc`` bytes to (M, 3) float32 points [m] (octree: voxel centres; predictive:
+    every input point, in input order)."""
     return decode(data, num_threads=num_threads)[0]
 
 
@@ -72,5 +83,5 @@ def read_info(data: bytes) -> dict:
     return read_header(data)[0]
 
 
-__all__ = ["CODEC_NAME", "CodecError", "ContainerError", "EncodeInfo", "compress",
+__all__ = ["CODEC_NAME", "MODES", "CodecError", "ContainerError", "EncodeInfo", "compress",
            "compress_with_info", "decode_cloud", "decompress", "read_info"]

@@ -1,7 +1,14 @@
 # SPDX-License-Identifier: BSD-3-Clause
-"""Geometry codec: points <-> ``.tpc`` bytes (octree + learned-context range coding).
+"""Geometry codec: points <-> ``.tpc`` bytes, in one of two modes.
 
-Pipeline of :func:`encode`: 1. choose the voxel grid (origin = bounding-box corner, voxel size
+* ``octree`` (codec ``octree-ctx22``): the learned-context octree below; any cloud.
+* ``predictive`` (codec ``predictive-sph1``, :mod:`.predictive`): an ordered sensor scan coded
+  point by point in spherical coordinates about the sensor; keeps every point, in order.
+* ``auto`` (the default): both, at once on two threads, keeping the smaller file (so a cloud
+  without scan structure gets exactly the octree file).
+Both modes keep every point within the same maximum error, ``voxel_size * sqrt(3) / 2``.
+
+Pipeline of the octree mode: 1. choose the voxel grid (origin = bounding-box corner, voxel size
 from the error bound or the rate target); 2. quantise to sorted unique Morton codes (C++);
 3. range-code the octree with the learned probability table (C++); 4. wrap in the container.
 :func:`decode` checks the container and the model id, decodes the octree and returns the voxel
@@ -14,14 +21,17 @@ from __future__ import annotations
 
 import lzma
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 
+from . import predictive
 from .container import ContainerError, pack, unpack
 from .model import DEFAULT_WEIGHTS, load_table
 
 CODEC_NAME = "octree-ctx22"
+MODES = ("auto", "octree", "predictive")
 # Per-context adaptation on top of the learned prior: rate 1/(n + 8) after n updates, at least
 # 1/128 (the learned probability counts as 8 observations; chosen on held-out clouds).
 DEFAULT_ADAPT_SHIFT = 7
@@ -36,11 +46,12 @@ class CodecError(ValueError):
 class EncodeInfo:
     """What :func:`encode` did: the grid and the sizes (for reports)."""
 
-    voxel_size: float  # [m]
-    depth: int
+    voxel_size: float  # [m] (predictive mode: the grid step of the same maximum error)
+    depth: int  # octree depth (0 in the predictive mode)
     n_points: int  # finite input points
-    n_voxels: int  # decoded points
+    n_voxels: int  # decoded points (octree: occupied voxels; predictive: n_points)
     n_bytes: int  # whole file
+    mode: str = "octree"  # "octree" or "predictive"
 
     @property
     def bits_per_point(self) -> float:
@@ -125,34 +136,97 @@ def _decode_intensity(section: bytes, info: dict, n_voxels: int) -> np.ndarray:
     return np.frombuffer(raw, dtype)
 
 
-def encode(points: np.ndarray, voxel_size: float, *, intensity: np.ndarray | None = None,
-           adapt_shift: int = DEFAULT_ADAPT_SHIFT, adapt_prior: int = DEFAULT_ADAPT_PRIOR,
-           weights=DEFAULT_WEIGHTS, num_threads: int = 0) -> tuple[bytes, EncodeInfo]:
-    """Encode a cloud on a grid of ``voxel_size``.
+def encode(points: np.ndarray, voxel_size: float, *, mode: str = "auto", origin=None,
+           intensity: np.ndarray | None = None, adapt_shift: int = DEFAULT_ADAPT_SHIFT,
+           adapt_prior: int = DEFAULT_ADAPT_PRIOR, weights=DEFAULT_WEIGHTS,
+           num_threads: int = 0) -> tuple[bytes, EncodeInfo]:
+    """Encode a cloud so that every point moves by at most ``voxel_size * sqrt(3) / 2``.
 
     Parameters
     ----------
     points : (N, 3) float array [m]; non-finite rows are dropped.
-    voxel_size : voxel edge [m]; every point moves by at most voxel_size * sqrt(3) / 2.
-    intensity : optional (N,) per-point values >= 0 (stored as the rounded mean per voxel)
-    adapt_shift, adapt_prior : 0 for the static learned table; else each context adapts towards
-        the coded bits at rate 1/(n + adapt_prior) after n updates (at least 1/2^adapt_shift),
-        or at the fixed rate 1/2^adapt_shift when adapt_prior is 0.
+    voxel_size : voxel edge [m] of the octree grid; every point moves by at most
+        voxel_size * sqrt(3) / 2 (the predictive mode keeps the same bound).
+    mode : "auto" (both, the smaller file), "octree" or "predictive"
+    origin : (3,) sensor position [m] for the predictive mode (default: (0, 0, 0), the frame of
+        a sensor-frame scan; a PCD VIEWPOINT is the usual source)
+    intensity : optional (N,) per-point values >= 0 (octree: rounded mean per voxel;
+        predictive: rounded, per point)
+    adapt_shift, adapt_prior : octree only: 0 for the static learned table; else each context
+        adapts towards the coded bits at rate 1/(n + adapt_prior) after n updates (at least
+        1/2^adapt_shift), or at the fixed rate 1/2^adapt_shift when adapt_prior is 0.
 
     Returns
     -------
     (file bytes, EncodeInfo)
     """
+    if mode not in MODES:
+        raise CodecError(f"unknown mode {mode!r} (use one of {', '.join(MODES)})")
+    if not (voxel_size > 0 and math.isfinite(voxel_size)):
+        raise CodecError(f"voxel size must be a positive number, got {voxel_size}")
+    p, inten = _finite(points, intensity)
+    if mode == "predictive":
+        out = _encode_predictive(p, inten, voxel_size, origin, num_threads)
+        if out is None:
+            raise CodecError("the predictive mode cannot keep this error bound here")
+        return out
+    if mode == "octree" or len(p) == 0:
+        return _encode_octree(p, inten, voxel_size, adapt_shift, adapt_prior, weights,
+                              num_threads)
+    # auto: both modes at once (each releases the GIL; two cores give both for the wall time
+    # of the slower, the octree), keeping the smaller file
+    with ThreadPoolExecutor(1) as pool:
+        octree_job = pool.submit(_encode_octree, p, inten, voxel_size, adapt_shift, adapt_prior,
+                                 weights, num_threads)
+        pred = _encode_predictive(p, inten, voxel_size, origin, num_threads)
+        try:
+            octree = octree_job.result()
+        except CodecError:  # a grid too fine for the octree: the predictive file may still do
+            if pred is None:
+                raise
+            return pred
+    if pred is None or pred[1].n_bytes >= octree[1].n_bytes:
+        return octree
+    return pred
+
+
+def _encode_predictive(p: np.ndarray, inten: np.ndarray | None, voxel_size: float, origin,
+                       num_threads: int) -> tuple[bytes, EncodeInfo] | None:
+    max_error = voxel_size * math.sqrt(3.0) / 2.0
+    header = {"codec": predictive.CODEC_NAME, "n_points": int(len(p)), "n_voxels": int(len(p)),
+              "voxel_size": float(voxel_size), "max_error_bound": float(max_error)}
+    if len(p) == 0:
+        grid = predictive.ScanGrid(np.zeros(3), 1.0, 2, 1.0)
+        stream, checksum, worst, part_bits = b"", 0, 0.0, (0.0, 0.0, 0.0)
+    else:
+        coded = predictive.encode_points(p, max_error, origin, num_threads)
+        if coded is None:
+            return None
+        stream, grid, checksum, worst, part_bits = coded
+    # bits per point by part: where the rate goes (information for reports)
+    split = {k: round(b / max(len(p), 1), 4) for k, b in zip(("elevation", "azimuth", "range"),
+                                                                 part_bits)}
+    header.update(grid.header(), checksum=int(checksum), max_error=float(worst),
+                  bits_per_point_by_part=split)
+    sections = [stream, grid.table_section()]
+    if inten is not None:
+        section, header["intensity"] = _encode_intensity(inten)
+        sections.append(section)
+    data = pack(header, sections, version=2)
+    return data, EncodeInfo(voxel_size, 0, len(p), len(p), len(data), "predictive")
+
+
+def _encode_octree(p: np.ndarray, inten: np.ndarray | None, voxel_size: float, adapt_shift: int,
+                   adapt_prior: int, weights, num_threads: int) -> tuple[bytes, EncodeInfo]:
     from .. import _ext
 
-    p, inten = _finite(points, intensity)
     table = load_table(weights)
     header = {"codec": CODEC_NAME, "model_id": table.model_id, "adapt_shift": int(adapt_shift),
               "adapt_prior": int(adapt_prior), "n_points": int(len(p)),
               "voxel_size": float(voxel_size)}
     if len(p) == 0:
         header.update(origin=[0.0, 0.0, 0.0], depth=1, n_voxels=0)
-        data = pack(header, [b""])
+        data = pack(header, [b""], version=1)
         return data, EncodeInfo(voxel_size, 1, 0, 0, len(data))
     origin, depth = grid_for(p, voxel_size)
     codes = _ext.voxelize_morton(p, origin, voxel_size, depth, num_threads)
@@ -163,7 +237,7 @@ def encode(points: np.ndarray, voxel_size: float, *, intensity: np.ndarray | Non
         section, header["intensity"] = _encode_intensity(
             _voxel_means(p, inten, origin, voxel_size, depth, codes))
         sections.append(section)
-    data = pack(header, sections)
+    data = pack(header, sections, version=1)  # readable by every tripod since format 1
     return data, EncodeInfo(voxel_size, depth, len(p), len(codes), len(data))
 
 
@@ -184,9 +258,11 @@ def decode_cloud(data: bytes, *, weights=DEFAULT_WEIGHTS, num_threads: int = 0
     from .. import _ext
 
     header, sections = unpack(data)
+    if header.get("codec") == predictive.CODEC_NAME:
+        return _decode_predictive(header, sections, num_threads)
     if header.get("codec") != CODEC_NAME:
         raise CodecError(f"unsupported codec {header.get('codec')!r} (this tripod reads "
-                         f"{CODEC_NAME!r})")
+                         f"{CODEC_NAME!r} and {predictive.CODEC_NAME!r})")
     table = load_table(weights)
     if header.get("model_id") != table.model_id:
         raise CodecError(f"file was coded with context model {header.get('model_id')}, this "
@@ -212,6 +288,29 @@ def decode_cloud(data: bytes, *, weights=DEFAULT_WEIGHTS, num_threads: int = 0
     return _ext.morton_to_points(codes, origin, voxel_size, num_threads), attributes, header
 
 
+def _decode_predictive(header: dict, sections: list[bytes], num_threads: int
+                       ) -> tuple[np.ndarray, dict[str, np.ndarray], dict]:
+    try:
+        n_points, checksum = int(header["n_points"]), int(header["checksum"])
+        if len(sections) != 2 + ("intensity" in header):
+            raise ContainerError("corrupt .tpc file: unexpected sections")
+        grid = predictive.ScanGrid.from_header(header, sections[1])
+    except (KeyError, TypeError, ValueError) as exc:
+        if isinstance(exc, ContainerError):
+            raise
+        raise ContainerError(f"corrupt .tpc header: {exc}") from None
+    attributes = {}
+    if n_points == 0:
+        return np.zeros((0, 3), np.float32), attributes, header
+    try:
+        points = predictive.decode_points(sections[0], n_points, grid, checksum, num_threads)
+    except (RuntimeError, ValueError) as exc:
+        raise CodecError(str(exc).replace("\n", " ")) from None
+    if "intensity" in header:
+        attributes["intensity"] = _decode_intensity(sections[2], header["intensity"], n_points)
+    return points, attributes, header
+
+
 def encode_to_rate(points: np.ndarray, bits_per_point: float, **kw) -> tuple[bytes, EncodeInfo]:
     """Encode with the finest voxel size whose rate is <= ``bits_per_point`` (bisection)."""
     p, inten = _finite(points, kw.pop("intensity", None))
@@ -233,6 +332,6 @@ def encode_to_rate(points: np.ndarray, bits_per_point: float, **kw) -> tuple[byt
     return best
 
 
-__all__ = ["CODEC_NAME", "CodecError", "ContainerError", "EncodeInfo", "decode", "decode_cloud",
-           "encode",
+__all__ = ["CODEC_NAME", "MODES", "CodecError", "ContainerError", "EncodeInfo", "decode",
+           "decode_cloud", "encode",
            "encode_to_rate", "grid_for", "voxel_size_for_error"]

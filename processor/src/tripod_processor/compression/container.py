@@ -4,7 +4,9 @@
 Layout (little endian)::
 
     0      8 B   magic b"TRIPODPC"
-    8      u16   format version (FORMAT_VERSION)
+    8      u16   format version: the oldest reader version that can decode the file (1: the
+                 octree codec; 2: adds the predictive codec); readers take every version up to
+                 their FORMAT_VERSION, so octree files stay readable by version-1 readers
     10     u16   flags (0)
     12     u32   H: header length
     16     H B   header: UTF-8 JSON object (codec, model id, grid, counts, section sizes)
@@ -23,7 +25,7 @@ import struct
 import zlib
 
 MAGIC = b"TRIPODPC"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 _FIXED = struct.Struct("<8sHHI")
 
 
@@ -31,12 +33,15 @@ class ContainerError(ValueError):
     """Not a readable .tpc file: foreign, corrupt, truncated or from a newer version."""
 
 
-def pack(header: dict, sections: list[bytes]) -> bytes:
-    """Serialise a header dict and payload sections (their sizes are added to the header)."""
+def pack(header: dict, sections: list[bytes], version: int = FORMAT_VERSION) -> bytes:
+    """Serialise a header dict and payload sections (their sizes are added to the header);
+    ``version``: the format version the file needs (see the layout above)."""
+    if not 1 <= version <= FORMAT_VERSION:
+        raise ValueError(f"format version {version} is not in [1, {FORMAT_VERSION}]")
     header = dict(header, section_bytes=[len(s) for s in sections],
                   payload_bytes=sum(len(s) for s in sections))
     head = json.dumps(header, separators=(",", ":"), sort_keys=True).encode()
-    fixed = _FIXED.pack(MAGIC, FORMAT_VERSION, 0, len(head)) + head
+    fixed = _FIXED.pack(MAGIC, version, 0, len(head)) + head
     payload = b"".join(sections)
     return b"".join([fixed, struct.pack("<I", zlib.crc32(fixed)), payload,
                      struct.pack("<I", zlib.crc32(payload))])
@@ -51,6 +56,8 @@ def read_header(data: bytes) -> tuple[dict, int]:
     magic, version, _flags, hlen = _FIXED.unpack_from(data, 0)
     if magic != MAGIC:
         raise ContainerError("not a tripod .tpc file (no TRIPODPC magic)")
+    if version == 0:
+        raise ContainerError("corrupt .tpc file: format version 0")
     if version > FORMAT_VERSION:
         raise ContainerError(f".tpc format version {version} is newer than this tripod reads "
                              f"({FORMAT_VERSION}); upgrade tripod")

@@ -3,9 +3,10 @@
 
 Draco (DracoPy, the processor's ``bench`` extra) runs at quantisation q bits (the bounding box's
 largest side split into 2^q - 1 steps); the tripod codec runs on voxel grids of the same steps,
-one octave beyond each end, so its curve brackets Draco's. The *ratio* compares rates at equal
-D1 PSNR: the tripod bits per point interpolated (log-rate, linear in PSNR) at each Draco point,
-divided by Draco's. Rates are bits per input point; speeds are input points per second, wall
+one octave beyond each end, so its curve brackets Draco's, in its default ``auto`` mode (learned
+octree or predictive scan coding, whichever file is smaller at that step; ``mode`` records
+it). The *ratio* compares rates at equal D1 PSNR: the tripod bits per point interpolated
+(log-rate, linear in PSNR) at each Draco point, divided by Draco's. Rates are bits per input point; speeds are input points per second, wall
 clock, with the threads the machine has; the ``*_cpu`` rates divide by the CPU time the process
 used instead (all threads summed), a load-independent and conservative figure for a shared
 machine.
@@ -40,6 +41,8 @@ class RDPoint:
     n_decoded: int
     encode_mpts_cpu_s: float = float("nan")  # input points per CPU second [M/s]
     decode_mpts_cpu_s: float = float("nan")
+    mode: str = ""  # tripod: "octree" or "predictive" (what auto chose); draco: ""
+    n_points: int = 0  # finite input points
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -65,8 +68,11 @@ def _timed(fn, *args, repeat: int = 1, **kw):
 
 
 def run_rd(points: np.ndarray, q_bits=range(8, 13), with_draco: bool = True,
-           repeat: int = 1, progress=None) -> list[RDPoint]:
-    """Measure both codecs on ``points`` (N, 3) [m]; returns all operating points."""
+           repeat: int = 1, progress=None, mode: str = "auto", origin=None) -> list[RDPoint]:
+    """Measure both codecs on ``points`` (N, 3) [m]; returns all operating points.
+
+    ``mode`` / ``origin``: the tripod codec's geometry mode and sensor origin (see
+    :func:`.codec.encode`)."""
     p = np.ascontiguousarray(np.asarray(points, np.float32)[:, :3])
     p = p[np.isfinite(p).all(1)]
     n = len(p)
@@ -80,9 +86,12 @@ def run_rd(points: np.ndarray, q_bits=range(8, 13), with_draco: bool = True,
         jobs += [("draco", q) for q in q_list]
     for codec, q in jobs:
         step = ext / (2**q - 1)
+        chosen = ""
         if codec == "tripod":
-            (data, _info), te, ce = _timed(encode, p, step, repeat=repeat)
+            (data, info), te, ce = _timed(encode, p, step, mode=mode, origin=origin,
+                                          repeat=repeat)
             (dec, _hdr), td, cd = _timed(decode, data, repeat=repeat)
+            chosen = info.mode
         else:
             import DracoPy
 
@@ -93,7 +102,7 @@ def run_rd(points: np.ndarray, q_bits=range(8, 13), with_draco: bool = True,
         m = d1(p, dec)
         rows.append(RDPoint(codec, q, step, 8.0 * len(data) / n, 1e3 * m.rmse_m, m.psnr_diag_db,
                             m.psnr_mpeg10_db, n / te / 1e6, n / td / 1e6, len(dec),
-                            n / ce / 1e6, n / cd / 1e6))
+                            n / ce / 1e6, n / cd / 1e6, chosen, n))
         if progress is not None:
             progress(codec, q)
     return rows
@@ -133,7 +142,11 @@ def plot_rd(curves: dict[str, list[RDPoint]], path) -> None:
             rs = sorted((r for r in rows if r.codec == codec), key=lambda r: r.bpp)
             if rs:
                 ax.plot([r.bpp for r in rs], [r.psnr_diag_db for r in rs], style,
-                        label="tripod (learned octree)" if codec == "tripod" else "Draco q8-q12")
+                        label="tripod (auto)" if codec == "tripod" else "Draco q8-q12")
+        pred = [r for r in rows if r.codec == "tripod" and r.mode == "predictive"]
+        if pred:
+            ax.plot([r.bpp for r in pred], [r.psnr_diag_db for r in pred], "D", ms=9,
+                    mfc="none", mec="tab:red", label="  (auto chose predictive)")
         ax.set_xscale("log")
         ax.xaxis.set_minor_formatter(NullFormatter())
         ax.set_xlabel("bits per input point")

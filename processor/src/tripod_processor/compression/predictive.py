@@ -1,0 +1,239 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""Predictive geometry mode: ordered sensor scans coded point by point in spherical coordinates.
+
+Lidar scans stored in acquisition order (a VLP-16 revolution, a tilting scanner's columns, a
+fragment in firing order in the sensor frame) are far more regular about the sensor than on any
+voxel grid: consecutive points share or step their angles, and each range resembles the range in
+the same scan row one sweep earlier. This mode (MPEG G-PCC's *predictive geometry* with the
+angular mode, in spirit) exploits that:
+
+1. **Origin**: the given one (a PCD ``VIEWPOINT``, ``--origin``), else (0, 0, 0).
+2. **Lattices** (:func:`plan_grid`): the elevations are tested for a small set of distinct values
+   (the lasers of a spinning lidar, the steps of a tilting scanner); when found, each point codes
+   its index in that table and the elevation is reconstructed exactly. The ranges are tested for
+   a common step (a sensor's range resolution, e.g. 1 cm or 2 mm); when found, the range
+   quantiser uses a multiple of it, so that range is exact (lossless) whenever the requested
+   error allows. Otherwise angles and ranges get plain uniform steps.
+3. **Steps from the error bound**: range half-step <= 0.9 e and angular error <= 0.43 e at the
+   farthest point (in quadrature: sqrt(0.81 + 0.185) < 1); the encoder then measures the real
+   worst-case error of the reconstruction and retries with a conservative split (0.7 + 0.3,
+   a plain sum) if it exceeds e. It never returns a stream that breaks the bound.
+4. **Coding** (C++, ``predictive_codec.cpp``): the integers are predicted from earlier points
+   (elevation and azimuth steps; the range by LOCO-I's median edge detector over the scan seen
+   as an image) and the residuals range-coded with online-adaptive binary contexts.
+
+The points come back in their input order, all of them (duplicates included): unlike the octree
+mode nothing is merged. A cloud with no such structure codes badly in this mode; the codec's
+``auto`` mode then keeps the octree (see :func:`..codec.encode`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+CODEC_NAME = "predictive-sph1"
+MAX_EL_TABLE = 4096  # most distinct elevations taken as a lattice (a table costs 8 B each)
+_RANGE_SPLIT, _ANGLE_SPLIT = 0.9, 0.43  # error split in quadrature (first try)
+_SAFE_SPLIT = (0.7, 0.3)  # a plain sum: always within the bound (fall-back try)
+
+
+@dataclass
+class ScanGrid:
+    """The spherical quantisation grid of one file (everything the decoder needs but the stream).
+
+    ``az_count`` azimuth steps per turn; ``el_table`` (sorted [rad]) or ``el_step`` [rad];
+    ``row_shift``: without a table, the scan row of elevation index e is e >> row_shift.
+    """
+
+    origin: np.ndarray  # (3,) float64 [m]
+    range_step: float  # [m]
+    az_count: int
+    el_step: float  # [rad]
+    el_table: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (T,) float64 [rad]
+    row_shift: int = 0
+    range_lattice: float = 0.0  # [m], 0 = none detected (information only)
+    el_uniform: tuple[float, float] | None = None  # (start, step) [rad] of a uniform table
+
+    def header(self) -> dict:
+        """Header fields; a uniform elevation table is stored as el_uniform = (start, step)."""
+        out = {"origin": [float(v) for v in self.origin], "range_step": float(self.range_step),
+               "az_count": int(self.az_count), "el_step": float(self.el_step),
+               "el_table_len": int(len(self.el_table)), "row_shift": int(self.row_shift),
+               "range_lattice": float(self.range_lattice)}
+        if self.el_uniform is not None:
+            out["el_uniform"] = [float(v) for v in self.el_uniform]
+        return out
+
+    def table_section(self) -> bytes:
+        """The elevation table section: empty for none or a uniform one, else float64 LE."""
+        if self.el_uniform is not None:
+            return b""
+        return np.ascontiguousarray(self.el_table, "<f8").tobytes()
+
+    @classmethod
+    def from_header(cls, header: dict, section: bytes) -> "ScanGrid":
+        n, uniform = int(header["el_table_len"]), None
+        if "el_uniform" in header:
+            start, delta = (float(v) for v in header["el_uniform"])
+            table, uniform, expected = uniform_table(start, delta, n), (start, delta), 0
+        else:
+            table = np.frombuffer(section, "<f8").astype(np.float64)
+            expected = 8 * n
+        if len(section) != expected or not np.all(np.diff(table) > 0):
+            raise ValueError("bad elevation table")
+        return cls(np.asarray(header["origin"], np.float64).reshape(3),
+                   float(header["range_step"]), int(header["az_count"]),
+                   float(header["el_step"]), table, int(header["row_shift"]),
+                   float(header.get("range_lattice", 0.0)), uniform)
+
+
+def elevation_table(elevation: np.ndarray, tol_rad: float, max_entries: int = MAX_EL_TABLE
+                    ) -> tuple[np.ndarray, float, tuple[float, float] | None] | None:
+    """(sorted table of distinct elevations [rad], worst deviation [rad], (start, step) [rad]
+    when the table is uniform, else None), or None when there is no such table.
+
+    Elevations within ``tol_rad`` of each other form one entry (its mid-range value); the table
+    is accepted when it has at most ``max_entries`` (and at most N/8) entries, none wider than
+    2 ``tol_rad``. A table within ``tol_rad / 2`` of a uniform lattice becomes that lattice.
+    """
+    n = len(elevation)
+    if n == 0:
+        return None
+    limit = min(max_entries, max(n // 8, 1))
+    # cheap rejection on a subsample first: a continuous elevation has too many distinct values
+    sub = np.sort(elevation[:: max(1, n // 20000)])
+    if np.count_nonzero(np.diff(sub) > tol_rad) + 1 > limit:
+        return None
+    s = np.sort(elevation)
+    cuts = np.flatnonzero(np.diff(s) > tol_rad) + 1
+    if len(cuts) + 1 > limit:
+        return None
+    lo, hi = s[np.r_[0, cuts]], s[np.r_[cuts, n] - 1]
+    if (hi - lo).max() > 2 * tol_rad:
+        return None
+    table, lattice = 0.5 * (lo + hi), None
+    if len(table) >= 3:  # a uniform lattice is stored as (start, step) instead of every entry
+        delta, start = (float(v) for v in np.polyfit(np.arange(len(table)), table, 1))
+        uniform = uniform_table(start, delta, len(table))
+        if np.abs(uniform - table).max() <= 0.5 * tol_rad:
+            table, lattice = uniform, (start, delta)
+    if len(table) == 1:
+        dev = np.abs(s - table[0])
+    else:
+        idx = np.clip(np.searchsorted(table, s), 1, len(table) - 1)
+        dev = np.minimum(np.abs(s - table[idx - 1]), np.abs(s - table[idx]))
+    return table, float(dev.max()), lattice
+
+
+def uniform_table(start: float, delta: float, count: int) -> np.ndarray:
+    """The elevation table start + i delta, i < count [rad] (the same float64s everywhere)."""
+    return start + np.arange(count, dtype=np.float64) * delta
+
+
+def range_lattice(rng: np.ndarray, tol_m: float = 2e-5) -> tuple[float, float] | None:
+    """(step [m], worst deviation [m]) when every range is a multiple of one step, else None.
+
+    The step is the smallest gap between the distinct ranges of a subsample, refined by least
+    squares; it is accepted only if all ranges lie within ``tol_m`` (float32 storage) of a
+    multiple and it is at least 50 ``tol_m``.
+    """
+    pos = rng[rng > 0]
+    if len(pos) < 16:
+        return None
+    sub = np.unique(np.round(pos[:: max(1, len(pos) // 20000)] / tol_m))
+    gaps = np.diff(sub) * tol_m
+    gaps = gaps[gaps > 2 * tol_m]
+    if len(gaps) == 0:
+        return None
+    step = float(gaps.min())
+    if step < 50 * tol_m:
+        return None
+    k = np.round(pos / step)
+    step = float((k * pos).sum() / (k * k).sum())
+    dev = float(np.abs(pos - np.round(pos / step) * step).max())
+    if dev > tol_m + 2e-7 * float(pos.max()):
+        return None
+    return step, dev
+
+
+def plan_grid(spherical: np.ndarray, max_error: float, origin: np.ndarray,
+              split: tuple[float, float] = (_RANGE_SPLIT, _ANGLE_SPLIT)) -> ScanGrid | None:
+    """The spherical grid that keeps every point within ``max_error`` [m] (see module doc), or
+    None when the bound is below the resolution of float32 coordinates.
+
+    Parameters
+    ----------
+    spherical : (N, 3) float64 (range [m], azimuth [rad], elevation [rad]) about ``origin``
+    """
+    rng, el = spherical[:, 0], spherical[:, 2]
+    r_max = max(float(rng.max(initial=0.0)), 1e-9)
+    # float32 output: the decoded coordinates carry their own rounding
+    e = max_error - 4 * float(np.spacing(np.float32(r_max + float(np.abs(origin).max()))))
+    if e <= 0:
+        return None
+    e_range, e_angle = split[0] * e, split[1] * e
+    lattice = range_lattice(rng)
+    if lattice is not None:
+        step, dev = lattice
+        m = max(1, math.floor((2 * (e_range - dev)) / step)) if e_range > dev else 1
+        range_step = m * step
+        lattice_step = step
+    else:
+        range_step, lattice_step = 2 * e_range, 0.0
+    # angles: a table for a laser/step lattice of elevations, else a uniform step
+    angle = e_angle / r_max  # [rad] allowed angular error at the farthest point
+    table = elevation_table(el, tol_rad=min(2e-5, 0.05 * angle))
+    h_max = max(float((rng * np.cos(el)).max(initial=0.0)), 1e-9)  # farthest horizontal range
+    el_uniform = None
+    if table is not None:
+        el_table, el_dev, el_uniform = table
+        az_err = max(angle - el_dev, 0.5 * angle) * r_max / h_max
+        el_step, row_shift = 0.0, 0
+    else:
+        el_table = np.zeros(0)
+        az_err = angle / math.sqrt(2) * r_max / h_max
+        el_step = 2 * angle / math.sqrt(2)
+        # scan rows for the range predictor: elevation bins of about 0.25 deg
+        row_shift = max(0, int(math.floor(math.log2(max(math.radians(0.25) / el_step, 1.0)))))
+    az_count = min(math.ceil(2 * math.pi / (2 * az_err)), 1 << 40)
+    return ScanGrid(np.asarray(origin, np.float64), float(range_step), int(max(az_count, 2)),
+                    float(el_step), np.ascontiguousarray(el_table, np.float64), row_shift,
+                    float(lattice_step), el_uniform)
+
+
+def encode_points(points: np.ndarray, max_error: float, origin=None, num_threads: int = 0
+                  ) -> tuple[bytes, ScanGrid, int, float, tuple[float, float, float]] | None:
+    """Code finite ``points`` (N, 3) float32 [m] in order; (stream, grid, checksum, max error [m],
+    estimated bits on (elevation, azimuth, range)), or None when no grid keeps the bound
+    (coordinates too coarse for it; the octree then takes the cloud)."""
+    from .. import _ext
+
+    o = np.zeros(3) if origin is None else np.asarray(origin, np.float64).reshape(3)
+    sph = _ext.spherical_coordinates(points, o, num_threads)
+    for split in ((_RANGE_SPLIT, _ANGLE_SPLIT), _SAFE_SPLIT):
+        grid = plan_grid(sph, max_error, o, split)
+        if grid is None:
+            return None
+        stream, worst, checksum, part_bits = _ext.predictive_encode(
+            points, grid.origin, grid.range_step, grid.az_count, grid.el_step, grid.el_table,
+            grid.row_shift, num_threads)
+        if worst <= max_error:
+            return stream, grid, int(checksum), float(worst), part_bits
+    return None
+
+
+def decode_points(stream: bytes, n_points: int, grid: ScanGrid, checksum: int,
+                  num_threads: int = 0) -> np.ndarray:
+    """(N, 3) float32 [m] points of a stream of :func:`encode_points`, in coding order."""
+    from .. import _ext
+
+    return _ext.predictive_decode(stream, n_points, grid.origin, grid.range_step, grid.az_count,
+                                  grid.el_step, grid.el_table, grid.row_shift, checksum,
+                                  num_threads)
+
+
+__all__ = ["CODEC_NAME", "ScanGrid", "decode_points", "elevation_table", "encode_points",
+           "plan_grid", "range_lattice"]
