@@ -34,6 +34,21 @@ def octree_decode(data: bytes, depth: int, n_voxels: int, p0_table: Annotated[ND
     Decode an octree stream to sorted Morton codes (uint64); RuntimeError if corrupt.
     """
 
+def spherical_coordinates(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], origin: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C', device='cpu', writable=False)], num_threads: int = 0) -> Annotated[NDArray[numpy.float64], dict(shape=(None, 3))]:
+    """
+    (N,3) float64 (range [m], azimuth [rad], elevation [rad]) of points about origin.
+    """
+
+def predictive_encode(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], origin: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C', device='cpu', writable=False)], range_step: float, az_count: int, el_step: float, el_table: Annotated[NDArray[numpy.float64], dict(shape=(None,), order='C', device='cpu', writable=False)], row_shift: int, num_threads: int = 0) -> tuple:
+    """
+    Code points (N,3) float32 [m] in order on a spherical grid about origin; returns (stream bytes, max point error [m], checksum of the quantised points, estimated bits spent on (elevation, azimuth, range)).
+    """
+
+def predictive_decode(data: bytes, n_points: int, origin: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C', device='cpu', writable=False)], range_step: float, az_count: int, el_step: float, el_table: Annotated[NDArray[numpy.float64], dict(shape=(None,), order='C', device='cpu', writable=False)], row_shift: int, checksum: int, num_threads: int = 0) -> Annotated[NDArray[numpy.float32], dict(shape=(None, 3))]:
+    """
+    Decode n_points (N,3) float32 [m] of a predictive stream; RuntimeError if corrupt.
+    """
+
 def _scan_pcap_records(buf: Annotated[NDArray[numpy.uint8], dict(shape=(None,), order='C', device='cpu', writable=False)], big_endian: bool, nanosecond: bool, linktype: int, data_size: int, max_record_bytes: int) -> tuple:
     """
     Scan whole classic-pcap records at the start of buf (uint8). Returns (consumed bytes, records, oversize record bytes or 0, data (n, data_size) uint8 payloads of plain Ethernet/IPv4/UDP records, data_t_ns (n,) int64, data_port (n,) uint16, data_record (n,) int64 record index, other (k, 4) int64 [t_ns, payload offset, length, port] of other plain payloads, slow (m, 4) int64 [t_ns, frame offset, length, record index] of records to parse in Python).
