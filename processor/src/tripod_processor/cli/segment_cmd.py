@@ -226,10 +226,9 @@ def s3dis_eval_cmd(
 ) -> None:
     """Standard S3DIS evaluation: train on the other areas, test on the held-out one (Area 5,
     or each area in turn for 6-fold); per-class IoU from the confusion summed over rooms/folds."""
-    import numpy as np
     from rich.table import Table
 
-    from ..segmentation.features import voxel_features
+    from ..segmentation import Segmenter
     from ..segmentation.metrics import iou, overall_accuracy
     from ..segmentation.model import CLASS_NAMES
     from ..segmentation.s3dis import S3DISError, area5_split, evaluate, six_fold_splits
@@ -245,12 +244,8 @@ def s3dis_eval_cmd(
         return model
 
     def predict_fn(model, points):
-        import torch
-
-        f, point_voxel = voxel_features(points, threads)
-        with torch.inference_mode():
-            lab = model(torch.from_numpy(f)).argmax(1).numpy().astype(np.int32)
-        return np.where(point_voxel >= 0, lab[point_voxel], 3)
+        # the same two stages as `tripod segment`; non-finite points come out "other"
+        return Segmenter(num_threads=threads, model=model)(points)
 
     try:
         total, per = evaluate(root, splits, train_fn, predict_fn)
