@@ -209,7 +209,11 @@ def test_cli_segment_keeps_points_and_order(tmp_path, capsys):
     np.testing.assert_array_equal(c["intensity"], np.arange(len(p), dtype=np.float32))
     assert set(np.unique(c["label"])) <= {0, 1, 2, 3}
     assert "IoU" in capsys.readouterr().err
-    assert (tmp_path / "out.config.yaml").is_file()
+    assert "plane_consistency: true" in (tmp_path / "out.config.yaml").read_text()
+    # the second stage can be turned off; labels stay in the contract
+    assert main(["segment", str(src), "-o", str(tmp_path / "raw.ply"), "--no-plane-consistency"]) == 0
+    assert "plane_consistency: false" in (tmp_path / "raw.config.yaml").read_text()
+    assert set(np.unique(read_cloud(tmp_path / "raw.ply")["label"])) <= {0, 1, 2, 3}
 
 
 def test_cli_segment_bad_input_is_one_line(tmp_path, capsys):

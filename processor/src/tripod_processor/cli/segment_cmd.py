@@ -36,6 +36,8 @@ def segment_cmd(
     truth_field: str = typer.Option(None, "--truth-field",
                                     help=f"score against this integer field of the input ({CLASS_HELP})"),
     threads: int = typer.Option(0, "--threads", help="CPU threads, 0 = all"),
+    plane_consistency: bool = typer.Option(True, "--plane-consistency/--no-plane-consistency",
+                                           help="second stage: the points of one planar segment agree"),
 ) -> None:
     """Label every point ceiling / floor / wall / other (field `label`: 0 ceiling, 1 floor,
     2 wall, 3 other). The output keeps the input's points, order and fields."""
@@ -53,7 +55,7 @@ def segment_cmd(
     if truth_field and truth_field not in src.dtype.names:
         fail(f"{cloud}: no field {truth_field!r} to score against")
     try:
-        seg = Segmenter(weights, num_threads=threads)
+        seg = Segmenter(weights, num_threads=threads, plane_consistency=plane_consistency)
     except (FileNotFoundError, ValueError, KeyError, OSError) as exc:
         fail(f"segmenter weights: {exc}")
     t0 = time.perf_counter()
@@ -69,7 +71,8 @@ def segment_cmd(
     from tripod_shared.config_io import dump_config
 
     cfg = SceneConfig(segment=SegmentConfig(weights=str(weights) if weights else None,
-                                            num_threads=threads))
+                                            num_threads=threads,
+                                            plane_consistency=plane_consistency))
     dump_config(cfg, output.with_name(output.stem + ".config.yaml"))
     table = Table(title=f"tripod segment: {len(pts):,} points in {dt:.2f} s "
                         f"({len(pts) / max(dt, 1e-9) / 1e6:.2f} M points/s)")
