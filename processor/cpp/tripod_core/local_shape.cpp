@@ -217,7 +217,9 @@ FeaturesF column_context(const PointsXYZ& points, const uint8_t* upright, double
             int s = skip_steps;
             bool hit = false;
             for (; s < max_steps; ++s) {
-                const int64_t cx = int64_t(x0 + dx * s), cy = int64_t(y0 + dy * s);
+                // floor, not truncation: a ray just past the low edge has left the grid (a
+                // truncated -0.5 would still read cell 0 and make walls on that edge look closed)
+                const int64_t cx = int64_t(std::floor(x0 + dx * s)), cy = int64_t(std::floor(y0 + dy * s));
                 if (cx < 0 || cy < 0 || cx >= W || cy >= H) break;
                 if (occ[cy * W + cx]) { hit = true; break; }
             }

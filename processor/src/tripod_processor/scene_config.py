@@ -11,6 +11,8 @@ from tripod_shared.config_io import StrictModel
 class SegmentConfig(StrictModel):
     weights: str | None = Field(None, description="segmenter weights (.npz); None = shipped weights")
     num_threads: int = Field(0, ge=0, description="CPU threads, 0 = all")
+    plane_consistency: bool = Field(True, description="second stage: the points of one planar "
+                                                      "segment agree")
 
 
 class PlanesConfig(StrictModel):

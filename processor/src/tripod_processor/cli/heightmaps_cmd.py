@@ -53,7 +53,8 @@ def heightmaps_cmd(
         from ..segmentation import Segmenter
 
         try:
-            labels = Segmenter(cfg.segment.weights, cfg.segment.num_threads)(pts)
+            labels = Segmenter(cfg.segment.weights, cfg.segment.num_threads,
+                               plane_consistency=cfg.segment.plane_consistency)(pts)
         except (FileNotFoundError, ValueError) as exc:
             fail(f"segmenter weights: {exc}")
         how = "segmenter"

@@ -36,6 +36,8 @@ def segment_cmd(
     truth_field: str = typer.Option(None, "--truth-field",
                                     help=f"score against this integer field of the input ({CLASS_HELP})"),
     threads: int = typer.Option(0, "--threads", help="CPU threads, 0 = all"),
+    plane_consistency: bool = typer.Option(True, "--plane-consistency/--no-plane-consistency",
+                                           help="second stage: the points of one planar segment agree"),
 ) -> None:
     """Label every point ceiling / floor / wall / other (field `label`: 0 ceiling, 1 floor,
     2 wall, 3 other). The output keeps the input's points, order and fields."""
@@ -53,7 +55,7 @@ def segment_cmd(
     if truth_field and truth_field not in src.dtype.names:
         fail(f"{cloud}: no field {truth_field!r} to score against")
     try:
-        seg = Segmenter(weights, num_threads=threads)
+        seg = Segmenter(weights, num_threads=threads, plane_consistency=plane_consistency)
     except (FileNotFoundError, ValueError, KeyError, OSError) as exc:
         fail(f"segmenter weights: {exc}")
     t0 = time.perf_counter()
@@ -69,7 +71,8 @@ def segment_cmd(
     from tripod_shared.config_io import dump_config
 
     cfg = SceneConfig(segment=SegmentConfig(weights=str(weights) if weights else None,
-                                            num_threads=threads))
+                                            num_threads=threads,
+                                            plane_consistency=plane_consistency))
     dump_config(cfg, output.with_name(output.stem + ".config.yaml"))
     table = Table(title=f"tripod segment: {len(pts):,} points in {dt:.2f} s "
                         f"({len(pts) / max(dt, 1e-9) / 1e6:.2f} M points/s)")
@@ -226,10 +229,9 @@ def s3dis_eval_cmd(
 ) -> None:
     """Standard S3DIS evaluation: train on the other areas, test on the held-out one (Area 5,
     or each area in turn for 6-fold); per-class IoU from the confusion summed over rooms/folds."""
-    import numpy as np
     from rich.table import Table
 
-    from ..segmentation.features import voxel_features
+    from ..segmentation import Segmenter
     from ..segmentation.metrics import iou, overall_accuracy
     from ..segmentation.model import CLASS_NAMES
     from ..segmentation.s3dis import S3DISError, area5_split, evaluate, six_fold_splits
@@ -245,12 +247,8 @@ def s3dis_eval_cmd(
         return model
 
     def predict_fn(model, points):
-        import torch
-
-        f, point_voxel = voxel_features(points, threads)
-        with torch.inference_mode():
-            lab = model(torch.from_numpy(f)).argmax(1).numpy().astype(np.int32)
-        return np.where(point_voxel >= 0, lab[point_voxel], 3)
+        # the same two stages as `tripod segment`; non-finite points come out "other"
+        return Segmenter(num_threads=threads, model=model)(points)
 
     try:
         total, per = evaluate(root, splits, train_fn, predict_fn)

@@ -2,7 +2,8 @@
 """Scene understanding, part 1: label every point ceiling / floor / wall / other.
 
 ``segment(points)`` computes :mod:`.features` in the C++ core and runs the small per-point
-network of :mod:`.model` (PyTorch, CPU). :mod:`.train` trains it on labelled clouds (simulated
+network of :mod:`.model` (PyTorch, CPU); a second stage makes the points of one planar segment
+(:mod:`.segments`) agree. :mod:`.train` trains it on labelled clouds (simulated
 scenes, S3DIS via :mod:`.s3dis`); :mod:`.metrics` scores it.
 Labels: 0 ceiling, 1 floor, 2 wall, 3 other.
 """
@@ -13,6 +14,7 @@ import numpy as np
 
 from .features import point_features, voxel_features
 from .model import CLASS_NAMES, DEFAULT_WEIGHTS, NUM_CLASSES, load_model
+from .segments import segment_consistent
 
 __all__ = ["segment", "Segmenter", "CLASS_NAMES", "NUM_CLASSES", "DEFAULT_WEIGHTS",
            "point_features"]
@@ -26,12 +28,20 @@ class Segmenter:
     weights : path of a ``.npz`` weight file; None = the shipped weights
     num_threads : CPU threads for features and inference, 0 = all
     chunk : points per inference batch
+    plane_consistency : second stage, the points of one planar segment agree
+        (:func:`.segments.segment_consistent`)
+    model : a torch model from :func:`.train.train` to use instead of a weight file
     """
 
-    def __init__(self, weights=None, num_threads: int = 0, chunk: int = 1 << 18) -> None:
-        self.model, self.meta = load_model(weights)
+    def __init__(self, weights=None, num_threads: int = 0, chunk: int = 1 << 18,
+                 plane_consistency: bool = True, model=None) -> None:
+        if model is not None:  # a freshly trained network (evaluation protocols)
+            self.model, self.meta = model.eval(), {}
+        else:
+            self.model, self.meta = load_model(weights)
         self.num_threads = int(num_threads)
         self.chunk = int(chunk)
+        self.plane_consistency = bool(plane_consistency)
 
     def probabilities(self, points) -> np.ndarray:
         """(N, 4) float32 class probabilities of (N, 3) points [m], z up; the network runs once
@@ -40,13 +50,15 @@ class Segmenter:
 
         if self.num_threads > 0:
             torch.set_num_threads(self.num_threads)
-        f, point_voxel = voxel_features(points, self.num_threads)
+        f, point_voxel, segment = voxel_features(points, self.num_threads, return_segments=True)
         vox = np.empty((len(f) + 1, NUM_CLASSES), np.float32)
         vox[-1] = [0.25, 0.25, 0.25, 0.25 + 1e-6]  # index -1: non-finite points
         with torch.inference_mode():
             for s in range(0, len(f), self.chunk):
                 logits = self.model(torch.from_numpy(f[s:s + self.chunk]))
                 vox[s:min(s + self.chunk, len(f))] = torch.softmax(logits, 1).numpy()
+        if self.plane_consistency:
+            vox[:-1] = segment_consistent(vox[:-1], segment)
         return vox[point_voxel]
 
     def __call__(self, points) -> np.ndarray:

@@ -1,6 +1,7 @@
 # SPDX-License-Identifier: BSD-3-Clause
-"""Per-point input features of the segmenter: local shape at two scales, height in the room and
-horizontal context (is this surface the boundary of the scanned space?).
+"""Per-point input features of the segmenter: local shape at three scales, height in the room,
+horizontal context (is this surface the boundary of the scanned space?) and the planar segment
+the point lies on (:mod:`.segments`: how long and how tall is its plane?).
 
 Everything heavy runs in the C++ core (one crossing per cloud, O(N) after one sort), and on the
 centroids of 4 cm voxels (:func:`voxel_features`), so features come at millions of points per
@@ -14,6 +15,7 @@ import numpy as np
 
 from .. import _ext
 from ..preprocess import as_cloud
+from .segments import planar_segments
 
 FEATURE_NAMES = (
     "abs_nz_s", "linearity_s", "planarity_s", "scattering_s", "log_count_s",
@@ -22,6 +24,8 @@ FEATURE_NAMES = (
     "h_floor", "h_ceiling", "h_relative",
     "open_fraction", "free_distance",
     "column_bottom", "column_top", "above_column_bottom", "below_column_top", "log_column_count",
+    "segment_log_length", "segment_height_fraction", "segment_bottom", "segment_top",
+    "segment_log_area", "segment_abs_nz",
 )
 SMALL_VOXEL = 0.05  # [m], 3x3x3 voxels -> 15 cm neighbourhood
 LARGE_VOXEL = 0.15  # [m], 45 cm neighbourhood
@@ -68,7 +72,7 @@ def floor_and_ceiling(z: np.ndarray, abs_nz: np.ndarray, bin_m: float = 0.05) ->
     return z_floor, max(z_ceil, z_floor + 0.5)
 
 
-def point_features(points, num_threads: int = 0) -> np.ndarray:
+def point_features(points, num_threads: int = 0, return_segments: bool = False):
     """Segmenter input features of every point.
 
     Parameters
@@ -79,6 +83,8 @@ def point_features(points, num_threads: int = 0) -> np.ndarray:
     Returns
     -------
     (N, len(FEATURE_NAMES)) float32. Non-finite points get zeros.
+    With ``return_segments``, also the (N,) int64 planar segment of every point
+    (:func:`.segments.planar_segments`, -1 for non-finite points).
     """
     p = as_cloud(points)
     nt = int(num_threads)
@@ -108,12 +114,20 @@ def point_features(points, num_threads: int = 0) -> np.ndarray:
     f[:, 20] = np.clip(z - cc[:, 2], 0, 12)
     f[:, 21] = np.clip(cc[:, 3] - z, 0, 12)
     f[:, 22] = cc[:, 4]
+    # the planar segment of the point: a wall's runs for metres, floor to ceiling (segments.py)
+    seg, seg_nz, segment = planar_segments(p, nt)
+    f[:, 23] = np.log1p(seg[:, 0])
+    f[:, 24] = np.clip(seg[:, 1] / room_h, 0, 2)
+    f[:, 25] = np.clip(seg[:, 2] - z_floor, -2, 12)
+    f[:, 26] = np.clip(z_ceil - seg[:, 3], -2, 12)
+    f[:, 27] = np.log1p(seg[:, 4])
+    f[:, 28] = seg_nz
     f[~np.isfinite(f)] = 0.0
     f[~np.isfinite(p).all(1)] = 0.0
-    return f
+    return (f, segment) if return_segments else f
 
 
-def voxel_features(points, num_threads: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def voxel_features(points, num_threads: int = 0, return_segments: bool = False):
     """Features of the occupied 4 cm voxels of a cloud, and each point's voxel.
 
     All the features are neighbourhood statistics at 15 cm and more, so the points of one 4 cm
@@ -124,7 +138,11 @@ def voxel_features(points, num_threads: int = 0) -> tuple[np.ndarray, np.ndarray
     -------
     features : (M, len(FEATURE_NAMES)) float32 of the voxel centroids
     point_voxel : (N,) int32 voxel of every point, -1 for non-finite points
+    segment : (M,) int64 planar segment of every voxel, only with ``return_segments``
     """
     p = as_cloud(points)
     centroids, point_voxel, _ = _ext.voxel_assign(p, LABEL_VOXEL, int(num_threads))
+    if return_segments:
+        f, segment = point_features(centroids, num_threads, return_segments=True)
+        return f, point_voxel, segment
     return point_features(centroids, num_threads), point_voxel
