@@ -227,20 +227,30 @@ def angle_lattice(az: np.ndarray, tol_rad: float = 2e-6, max_count: int = 1 << 2
     2 pi / M (a sensor's encoder resolution: the VLP-16's 0.01 deg, M = 36000), else None."""
     if len(az) < 16:
         return None
-    sub = np.unique(np.round(az[:: max(1, len(az) // 20000)] / tol_rad))
-    gaps = np.diff(sub) * tol_rad
+    gaps = np.diff(np.sort(az[:: max(1, len(az) // 20000)]))
     gaps = gaps[gaps > 4 * tol_rad]
     if len(gaps) == 0:
         return None
-    for step in (float(gaps.min()), float(gaps.min()) / 2):
-        m = int(round(2 * math.pi / step))
-        if not 2 <= m <= max_count or abs(2 * math.pi / m - step) > 2 * tol_rad:
-            continue
-        u = az * (m / (2 * math.pi))
-        dev = float(np.abs(u - np.round(u)).max()) * 2 * math.pi / m
-        if dev <= tol_rad:
-            return m, dev
+    # the smallest step: each gap is good to only 2 tol_rad, so M = 2 pi / step is tested over
+    # its whole uncertainty, nearest first, on a small subsample, then on every point
+    step = float(np.median(gaps[gaps < 1.5 * gaps.min()]))
+    probe = az[:: max(1, len(az) // 2000)]
+    for step in (step, step / 2):
+        m0 = 2 * math.pi / step
+        spread = int(math.ceil(m0 * 4 * tol_rad / step)) + 1
+        for m in sorted(range(max(2, int(m0) - spread), int(m0) + spread + 2),
+                        key=lambda v: abs(v - m0)):
+            if m > max_count or _lattice_dev(probe, m) > tol_rad:
+                continue
+            dev = _lattice_dev(az, m)
+            if dev <= tol_rad:
+                return m, dev
     return None
+
+
+def _lattice_dev(az: np.ndarray, m: int) -> float:
+    u = az * (m / (2 * math.pi))
+    return float(np.abs(u - np.round(u)).max()) * 2 * math.pi / m
 
 
 def uniform_table(start: float, delta: float, count: int) -> np.ndarray:
