@@ -229,13 +229,14 @@ def angle_lattice(az: np.ndarray, tol_rad: float = 2e-6, max_count: int = 1 << 2
         return None
     gaps = np.diff(np.sort(az[:: max(1, len(az) // 20000)]))
     gaps = gaps[gaps > 4 * tol_rad]
-    if len(gaps) == 0:
+    # a lattice much finer than 20 tol_rad would fit any angles (20: chance 1/10 per point)
+    if len(gaps) == 0 or gaps.min() < 20 * tol_rad:
         return None
     # the smallest step: each gap is good to only 2 tol_rad, so M = 2 pi / step is tested over
     # its whole uncertainty, nearest first, on a small subsample, then on every point
     step = float(np.median(gaps[gaps < 1.5 * gaps.min()]))
     probe = az[:: max(1, len(az) // 2000)]
-    for step in (step, step / 2):
+    for step in (step, step / 2) if step >= 40 * tol_rad else (step,):
         m0 = 2 * math.pi / step
         spread = int(math.ceil(m0 * 4 * tol_rad / step)) + 1
         for m in sorted(range(max(2, int(m0) - spread), int(m0) + spread + 2),
