@@ -286,14 +286,22 @@ def range_lattice(rng: np.ndarray, tol_m: float = 2e-5) -> tuple[float, float] |
 
 
 def plan_grid(spherical: np.ndarray, max_error: float, origin: np.ndarray,
-              split: tuple[float, float] = (_RANGE_SPLIT, _ANGLE_SPLIT)) -> ScanGrid | None:
+              split: tuple[float, float] = (_RANGE_SPLIT, _ANGLE_SPLIT), az_exact: bool = False,
+              cache: dict | None = None) -> ScanGrid | None:
     """The spherical grid that keeps every point within ``max_error`` [m] (see module doc), or
     None when the bound is below the resolution of float32 coordinates.
 
     Parameters
     ----------
     spherical : (N, 3) float64 (range [m], azimuth [rad], elevation [rad]) about ``origin``
+    az_exact : with an azimuth lattice and an elevation table, keep the lattice exactly and give
+        the range the rest of the bound (else: the coarsest lattice subset within the angular
+        share of the bound). Which is smaller depends on the scan (a real VLP-16's interpolated
+        azimuths favour the subset at coarse steps, a simulated one the exact lattice), so
+        :func:`encode_points` tries both.
+    cache : a dict kept between calls on the same points (the detections are reused)
     """
+    cache = {} if cache is None else cache
     rng, az, el = spherical[:, 0], spherical[:, 1], spherical[:, 2]
     r_max = max(float(rng.max(initial=0.0)), 1e-9)
     # float32 output: the decoded coordinates carry their own rounding
@@ -308,19 +316,26 @@ def plan_grid(spherical: np.ndarray, max_error: float, origin: np.ndarray,
     # per-laser model (lasers with vertical offsets), else a uniform step
     angle = e_angle / r_max  # [rad] allowed angular error at the farthest point
     tol = min(2e-5, 0.05 * angle)
-    table = elevation_table(el, tol_rad=tol)
-    el_uniform, z_table, ranges = None, np.zeros(0), rng
-    if table is not None:
-        el_table, el_dev, el_uniform = table
-    elif (lasers := laser_table(h, rng * np.sin(el), tol)) is not None:
-        el_table, z_table, el_dev = lasers
-        idx, _ = nearest_laser(h, rng * np.sin(el), el_table, z_table)
-        ranges = np.hypot(h, rng * np.sin(el) - z_table[idx])  # from each laser's centre
-        r_max = max(r_max, float(ranges.max()))
-    else:
-        el_table, el_dev = np.zeros(0), 0.0
-    # 2. azimuths: a sensor's encoder lattice is kept exactly where the bound allows
-    az_lattice = angle_lattice(az)
+    if cache.get("tol") != tol:
+        cache.clear()
+        cache["tol"] = tol
+        table = elevation_table(el, tol_rad=tol)
+        el_uniform, z_table, ranges = None, np.zeros(0), rng
+        if table is not None:
+            el_table, el_dev, el_uniform = table
+        elif (lasers := laser_table(h, rng * np.sin(el), tol)) is not None:
+            el_table, z_table, el_dev = lasers
+            idx, _ = nearest_laser(h, rng * np.sin(el), el_table, z_table)
+            ranges = np.hypot(h, rng * np.sin(el) - z_table[idx])  # from each laser's centre
+        else:
+            el_table, el_dev = np.zeros(0), 0.0
+        cache["angles"] = el_table, el_dev, el_uniform, z_table, ranges
+        # 2. azimuths: a sensor's encoder lattice, kept exactly where the bound allows
+        cache["az_lattice"] = angle_lattice(az)
+        cache["range_lattice"] = range_lattice(ranges)
+    el_table, el_dev, el_uniform, z_table, ranges = cache["angles"]
+    r_max = max(r_max, float(ranges.max(initial=0.0)))
+    az_lattice = cache["az_lattice"]
     if len(el_table):
         az_err = max(angle - el_dev, 0.5 * angle) * r_max / h_max
         el_step, row_shift = 0.0, 0
@@ -333,8 +348,9 @@ def plan_grid(spherical: np.ndarray, max_error: float, origin: np.ndarray,
     if az_lattice is not None:
         m_count, az_dev = az_lattice
         # the coarsest lattice subset (every m-th step, m dividing M) within the error
-        m = max((d for d in _divisors(m_count)
-                 if d * math.pi / m_count + az_dev <= az_err), default=1)
+        m = 1 if az_exact and len(el_table) else max(
+            (d for d in _divisors(m_count) if d * math.pi / m_count + az_dev <= az_err),
+            default=1)
         az_count = m_count // m
         if m == 1 and len(el_table):
             # exact azimuth on an exact elevation table: the angles take only their (tiny)
@@ -342,7 +358,7 @@ def plan_grid(spherical: np.ndarray, max_error: float, origin: np.ndarray,
             used = el_dev * r_max + az_dev * h_max
             e_range = max(e - used, 0.0) * (1.0 if first_try else 0.95)
     # 3. ranges: a multiple of a detected lattice (e.g. 2 mm), exact where the bound allows
-    lattice = range_lattice(ranges)
+    lattice = cache["range_lattice"]
     if lattice is not None:
         step, dev = lattice
         m = max(1, math.floor((2 * (e_range - dev)) / step)) if e_range > dev else 1
@@ -371,15 +387,24 @@ def encode_points(points: np.ndarray, max_error: float, origin=None, num_threads
 
     o = np.zeros(3) if origin is None else np.asarray(origin, np.float64).reshape(3)
     sph = _ext.spherical_coordinates(points, o, num_threads)
+    cache: dict = {}
     for split in ((_RANGE_SPLIT, _ANGLE_SPLIT), _SAFE_SPLIT):
-        grid = plan_grid(sph, max_error, o, split)
-        if grid is None:
-            return None
-        stream, worst, checksum, part_bits = _ext.predictive_encode(
-            points, grid.origin, grid.range_step, grid.az_count, grid.el_step, grid.el_table,
-            grid.row_shift, grid.z_table, grid.az_predictor, num_threads)
-        if worst <= max_error:
-            return stream, grid, int(checksum), float(worst), part_bits
+        best = None
+        for az_exact in (False, True):
+            grid = plan_grid(sph, max_error, o, split, az_exact, cache)
+            if grid is None:
+                return None
+            if az_exact and (best is not None and best[1].az_count == grid.az_count):
+                break  # the same grid: the lattice was already exact (or there is none)
+            stream, worst, checksum, part_bits = _ext.predictive_encode(
+                points, grid.origin, grid.range_step, grid.az_count, grid.el_step,
+                grid.el_table, grid.row_shift, grid.z_table, grid.az_predictor, num_threads)
+            if worst <= max_error and (best is None or len(stream) < len(best[0])):
+                best = stream, grid, int(checksum), float(worst), part_bits
+            if grid.az_lattice == 0 or not len(grid.el_table):
+                break  # no lattice to keep exactly
+        if best is not None:
+            return best
     return None
 
 
