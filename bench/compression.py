@@ -5,7 +5,9 @@ Google Draco, side by side.
 Clouds: held-out simulated fragments (by default one station of ``tripod simulate`` in a room
 and in an office, with seeds the shipped model never saw; or ``--sim FILE...`` clouds) and the
 real scans
-../shared/data/registration/pcl/room_scan1/2.pcd. For each: Draco (DracoPy, compression level 10)
+../shared/data/registration/pcl/room_scan1/2.pcd, and real VLP-16 rotations decoded as ``tripod decode``
+writes them (sensor frame, firing order; one rotation and 10 concatenated, nominal angles and
+the manual's per-laser vertical offsets). For each: Draco (DracoPy, compression level 10)
 at quantisation 8..12 bits and the tripod codec on the same grid steps; rate = bits per input
 point, distortion = symmetric D1 PSNR. Prints one table per cloud and a summary of the goals:
 rate <= 0.5x Draco's at equal PSNR, encode >= 0.5 M points/s, decode >= 1 M points/s. The
@@ -33,6 +35,11 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 REAL = REPO.parent / "shared" / "data" / "registration" / "pcl"
+VELODYNE = REPO.parent / "shared" / "data" / "velodyne"
+# real VLP-16 captures decoded as `tripod decode` writes them (sensor frame, firing order):
+# (file, calibration); "manual" has the per-laser vertical offsets (the per-laser model's case)
+VLP16_CAPTURES = (("veloview-vlp16-20hz.pcap", "veloview"), ("mrpt-vlp16-gps.pcap", "manual"))
+N_ROTATIONS = 10
 HELD_OUT = (("room", 901), ("office", 902))  # tripod simulate scene, seed (not trained on)
 N_SIM = 1_000_000
 
@@ -46,6 +53,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="print the tables of a saved run (the plot's .json) instead of running")
     ap.add_argument("--sensor-frame", action="store_true",
                     help="also bench the simulated fragments in the lidar frame (investigation)")
+    ap.add_argument("--only", default=None, metavar="TEXT",
+                    help="bench only the clouds whose name contains TEXT (e.g. VLP-16)")
     args = ap.parse_args(argv)
 
     from tripod_processor.cloud_io import read_cloud, xyz
@@ -73,7 +82,8 @@ def main(argv: list[str] | None = None) -> int:
     noise_m: dict[str, float] = {}  # Gaussian range noise of the simulated clouds [m]
     for p in args.sim:
         clouds[f"sim:{p.name}"] = xyz(read_cloud(p), np.float32)
-    if not args.sim:
+    want = (lambda name: args.only is None or args.only in name)
+    if not args.sim and (want("sim") or args.sensor_frame):
         sigma = SimConfig().lidar.range_noise_m
         for scene, seed in HELD_OUT:
             assert seed in HELD_OUT_SEEDS
@@ -89,8 +99,21 @@ def main(argv: list[str] | None = None) -> int:
             if args.sensor_frame:
                 clouds[f"sim {scene} seed {seed} (lidar frame)"] = frags[1][keep]
                 noise_m[f"sim {scene} seed {seed} (lidar frame)"] = sigma
+            if args.sensor_frame:  # and a contiguous 10 rotations of it, in firing order
+                clouds[f"sim {scene} seed {seed} lidar frame, 10 rotations"] = frags[1][:290_000]
+                noise_m[f"sim {scene} seed {seed} lidar frame, 10 rotations"] = sigma
     for name in ("room_scan1", "room_scan2"):
-        clouds[f"{name} (real)"] = xyz(read_cloud(REAL / f"{name}.pcd"), np.float32)
+        if want(name):
+            clouds[f"{name} (real)"] = xyz(read_cloud(REAL / f"{name}.pcd"), np.float32)
+    for file, calibration in VLP16_CAPTURES:
+        rotations = vlp16_rotations(VELODYNE / file, calibration)
+        for label, pts in (("1 rotation", rotations[0]),
+                           (f"{len(rotations)} rotations", np.concatenate(rotations))):
+            name = f"VLP-16 {file.split('.')[0]} ({calibration}), {label}"
+            if want(name):
+                clouds[name] = pts
+    clouds = {k: v for k, v in clouds.items() if want(k)}
+    noise_m = {k: v for k, v in noise_m.items() if k in clouds}
 
     curves = {}
     for name, pts in clouds.items():
@@ -104,6 +127,21 @@ def main(argv: list[str] | None = None) -> int:
         {k: [r.as_dict() for r in v] for k, v in curves.items()}, indent=1))
     print(f"plot: {args.plot}")
     return 0
+
+
+def vlp16_rotations(path: Path, calibration: str) -> list[np.ndarray]:
+    """Up to N_ROTATIONS whole rotations (the first, partial one skipped) of a capture, as
+    ``tripod decode`` writes them: (N, 3) float32 [m], sensor frame, firing order."""
+    from tripod_processor.decode import DecodeConfig, decode_file
+
+    out = []
+    for frame in decode_file(path, DecodeConfig(calibration=calibration)):
+        if frame.index > 0:
+            p = frame.points
+            out.append(np.stack([p["x"], p["y"], p["z"]], 1).astype(np.float32))
+        if len(out) == N_ROTATIONS + 1:
+            break
+    return out[:-1] if len(out) > 2 else out  # the last one may be partial too
 
 
 def print_summary(curves: dict, sizes: dict, noise_m: dict, load: float | None) -> None:

@@ -136,8 +136,11 @@ public:
           n_el_(table_ ? static_cast<int64_t>(grid.el_table.size())
                        : std::llround(kTwoPi / 4 / grid.el_step) + 1),
           row_shift_(grid.row_shift),
+          az_predictor_(grid.az_predictor),
           last_(table_ ? grid.el_table.size() : kHashedSlots, -1),
           before_(last_.size(), -1),
+          az_last_(last_.size(), -1),
+          az_before_(last_.size(), -1),
           successor_(last_.size(), kUnknown),
           el_(kElContexts),
           az_(2 * kAzBuckets),
@@ -164,24 +167,41 @@ public:
             corrupt("elevation index out of range");
         const int64_t el_step = out.e - prev_.e;
         successor_[prev_row] = out.e;
-        // azimuth: wrapped step from the previous azimuth
+        // azimuth: residual against the previous azimuth (predictor A) or, with az_predictor 1,
+        // against a + (b - c) over the azimuth image (predictor B; a: the previous azimuth, b:
+        // this row's last one, c: the previous point's row's one before it: the step from one
+        // firing to the next), whichever has the lower decaying residual score so far; scores
+        // kept apart for points that stay in their row (dual returns, row-major scans) and
+        // points that change row
         io.part(&cost_bits[1]);
-        int64_t da = q.a - prev_.a;
-        if (da > az_count_ / 2) da -= az_count_;
-        if (da < -(az_count_ - 1) / 2) da += az_count_;
+        const size_t row = row_of(out.e);
+        const int same = row == prev_row;
+        const bool have_b = az_predictor_ == 1 && az_last_[row] >= 0 && az_before_[prev_row] >= 0;
+        const int64_t pred_b =
+            have_b ? wrap_index(prev_.a + wrap_step(az_last_[row] - az_before_[prev_row])) : 0;
+        const bool use_b = have_b && az_score_b_[same] < az_score_a_[same];
+        const int64_t az_pred = use_b ? pred_b : prev_.a;
         const int az_ctx = (el_residual == 0 ? 0 : kAzBuckets) +
                            std::min(bit_length(std::abs(prev_az_step_)), kAzBuckets - 1);
-        const int64_t az_step = code_int(io, az_[az_ctx], da);
-        if (az_step > az_count_ || az_step < -az_count_) corrupt("azimuth step out of range");
-        out.a = prev_.a + az_step;
-        if (out.a >= az_count_) out.a -= az_count_;
-        if (out.a < 0) out.a += az_count_;
+        const int64_t az_residual = code_int(io, az_[az_ctx], wrap_step(q.a - az_pred));
+        if (az_residual > az_count_ || az_residual < -az_count_)
+            corrupt("azimuth step out of range");
+        out.a = wrap_index(az_pred + az_residual);
+        if (az_predictor_ == 1) {  // both sides score both predictors on the decoded azimuth
+            const auto score = [](int64_t& s, int64_t r) {
+                s = s - (s >> 4) + std::min<int64_t>(std::abs(r), int64_t{1} << 32);
+            };
+            score(az_score_a_[same], wrap_step(out.a - prev_.a));
+            if (have_b) score(az_score_b_[same], wrap_step(out.a - pred_b));
+            az_before_[row] = az_last_[row];
+            az_last_[row] = out.a;
+        }
+        const int64_t az_step = az_residual;  // the context of the next point
         // range: median edge detector (LOCO-I) over the scan seen as an image whose rows are the
         // elevation indices: a = the previous point, b = the last range of this row (the
         // previous sweep or revolution), c = the range that row e_{i-1} had before the previous
         // point overwrote it (b's neighbour in the previous sweep).
         io.part(&cost_bits[2]);
-        const size_t row = row_of(out.e);
         const int64_t a = prev_.k;
         const int64_t b = last_[row] >= 0 ? last_[row] : a;
         const int64_t c = before_[prev_row] >= 0 ? before_[prev_row] : a;
@@ -218,8 +238,22 @@ private:
                       : static_cast<size_t>(e >> row_shift_) & (kHashedSlots - 1);
     }
 
+    inline int64_t wrap_step(int64_t d) const {  // into (-az_count/2, az_count/2]
+        d %= az_count_;
+        if (d > az_count_ / 2) d -= az_count_;
+        if (d < -(az_count_ - 1) / 2) d += az_count_;
+        return d;
+    }
+    inline int64_t wrap_index(int64_t a) const {  // into [0, az_count)
+        a %= az_count_;
+        return a < 0 ? a + az_count_ : a;
+    }
+
     int row_shift_;
+    int az_predictor_;
     std::vector<int64_t> last_, before_;  // last and previous range index per row (-1: none)
+    std::vector<int64_t> az_last_, az_before_;  // the same for the azimuth index
+    int64_t az_score_a_[2] = {0, 0}, az_score_b_[2] = {0, 0};  // by (row == previous row)
     std::vector<int64_t> successor_;      // elevation index that last followed each row
     std::vector<IntModel> el_, az_, range_;
     QuantisedPoint prev_{0, 0, 0};
@@ -233,6 +267,18 @@ struct Dequantiser {
             cos_el.push_back(std::cos(el));
             sin_el.push_back(std::sin(el));
         }
+    }
+    /// Index of the laser whose beam cone (half-plane line through (0, z_j) at elevation el_j)
+    /// lies nearest to the point at horizontal range h and height z about the origin.
+    inline int64_t nearest_laser(double h, double z) const {
+        int64_t best = 0;
+        double best_d = INFINITY;
+        const auto& zt = grid.z_table;
+        for (size_t j = 0; j < zt.size(); ++j) {
+            const double d = std::abs((z - zt[j]) * cos_el[j] - h * sin_el[j]);
+            if (d < best_d) best_d = d, best = static_cast<int64_t>(j);
+        }
+        return best;
     }
     inline void point(const QuantisedPoint& q, float* xyz) const {
         const double r = static_cast<double>(q.k) * grid.range_step;
@@ -248,7 +294,8 @@ struct Dequantiser {
         const double az = static_cast<double>(q.a) * az_step;
         xyz[0] = static_cast<float>(grid.origin[0] + r * ce * std::cos(az));
         xyz[1] = static_cast<float>(grid.origin[1] + r * ce * std::sin(az));
-        xyz[2] = static_cast<float>(grid.origin[2] + r * se);
+        const double z0 = grid.z_table.empty() ? 0.0 : grid.z_table[static_cast<size_t>(q.e)];
+        xyz[2] = static_cast<float>(grid.origin[2] + z0 + r * se);
     }
     const SphericalGrid& grid;
     double az_step;
@@ -276,6 +323,12 @@ void check_grid(const SphericalGrid& g) {
     if (g.row_shift < 0 || g.row_shift > 40) throw std::invalid_argument("row_shift in [0, 40]");
     if (!std::is_sorted(g.el_table.begin(), g.el_table.end()))
         throw std::invalid_argument("el_table must be sorted");
+    if (!g.z_table.empty() && g.z_table.size() != g.el_table.size())
+        throw std::invalid_argument("z_table must be empty or as long as el_table");
+    for (double z : g.z_table)
+        if (!std::isfinite(z)) throw std::invalid_argument("z_table must be finite");
+    if (g.az_predictor != 0 && g.az_predictor != 1)
+        throw std::invalid_argument("az_predictor must be 0 or 1");
 }
 
 }  // namespace
@@ -305,9 +358,21 @@ std::vector<uint8_t> predictive_encode(const PointsXYZ& points, const SphericalG
     std::vector<QuantisedPoint> q(static_cast<size_t>(n));
     const double az_step = kTwoPi / static_cast<double>(grid.az_count);
     const auto& table = grid.el_table;
+    const Dequantiser lasers(grid);
+    const bool per_laser = !grid.z_table.empty();
 #pragma omp parallel for num_threads(nt) schedule(static)
     for (Eigen::Index i = 0; i < n; ++i) {
         QuantisedPoint& p = q[static_cast<size_t>(i)];
+        if (per_laser) {  // laser, then the range from that laser's centre (0, 0, z_j)
+            const double h = sph[3 * i] * std::cos(sph[3 * i + 2]);
+            const double z = points(i, 2) - grid.origin[2];
+            p.e = lasers.nearest_laser(h, z);
+            p.k = std::llround(std::hypot(h, z - grid.z_table[static_cast<size_t>(p.e)]) /
+                               grid.range_step);
+            int64_t a = std::llround(sph[3 * i + 1] / az_step) % grid.az_count;
+            p.a = a < 0 ? a + grid.az_count : a;
+            continue;
+        }
         p.k = std::llround(sph[3 * i] / grid.range_step);
         int64_t a = std::llround(sph[3 * i + 1] / az_step) % grid.az_count;
         p.a = a < 0 ? a + grid.az_count : a;

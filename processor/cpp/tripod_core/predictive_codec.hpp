@@ -12,13 +12,21 @@
 //   elevation  e = index of the nearest entry of a table of elevations (a detected lattice: the
 //                  lasers of a spinning lidar, the steps of a tilting scanner), or
 //              e = round(el / el_step) without a table.
+// Per-laser model (G-PCC's angular mode): with a z_table, entry e is a laser whose beam leaves
+// the spin axis at height z_table[e] above the origin (a multi-beam lidar's per-laser vertical
+// offset) at elevation el_table[e]; a point is then assigned the laser whose beam cone it lies
+// nearest, its range is measured from that laser's own centre (0, 0, z_e), and it is
+// reconstructed as origin + (r cos el_e cos az, r cos el_e sin az, z_e + r sin el_e).
 // The integers are then coded losslessly with prediction from earlier points and a binary range
 // coder whose probabilities adapt online (contexts below), so encoder and decoder agree exactly:
 //   e: the residual against the index that followed e_{i-1} the last time that row was seen (a
 //      scan repeats its row order: a tilting scanner's sweep, a lidar's laser firing order);
 //      context = the size of the previous residual;
-//   a: the step a_i - a_{i-1} (wrapped), context = whether e was predicted exactly and the size
-//      of the previous azimuth step;
+//   a: with az_predictor 0, the step a_i - a_{i-1} (wrapped); with 1, the better (so far, by a
+//      decaying score both sides keep) of that and a_{i-1} + (the row's last azimuth - the one
+//      row e_{i-1} had before): a spinning lidar's firing repeats its per-laser azimuth offsets
+//      (firing-time interpolation) every firing; context = whether e was predicted exactly and
+//      the size of the previous azimuth residual;
 //   k: the residual against the median edge detector of LOCO-I (JPEG-LS) over the scan seen as
 //      an image whose rows are elevation indices (the lasers of a spinning lidar, the steps of a
 //      tilting scanner): from the previous point, the last range in this row (the previous
@@ -42,6 +50,8 @@ struct SphericalGrid {
     double el_step = 1e-4;               ///< [rad] (used when el_table is empty)
     std::vector<double> el_table;        ///< sorted elevations [rad], or empty
     int row_shift = 0;  ///< without a table: scan row of index e is e >> row_shift
+    std::vector<double> z_table;  ///< per-laser heights [m] (size of el_table), or empty
+    int az_predictor = 0;         ///< 0: previous azimuth; 1: adaptive with the row predictor
 };
 
 /// Range, azimuth and elevation of points about `origin`, as N x 3 doubles ([m], [rad], [rad]).

@@ -39,12 +39,12 @@ def spherical_coordinates(points: Annotated[NDArray[numpy.float32], dict(shape=(
     (N,3) float64 (range [m], azimuth [rad], elevation [rad]) of points about origin.
     """
 
-def predictive_encode(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], origin: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C', device='cpu', writable=False)], range_step: float, az_count: int, el_step: float, el_table: Annotated[NDArray[numpy.float64], dict(shape=(None,), order='C', device='cpu', writable=False)], row_shift: int, num_threads: int = 0) -> tuple:
+def predictive_encode(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], origin: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C', device='cpu', writable=False)], range_step: float, az_count: int, el_step: float, el_table: Annotated[NDArray[numpy.float64], dict(shape=(None,), order='C', device='cpu', writable=False)], row_shift: int, z_table: Annotated[NDArray[numpy.float64], dict(shape=(None,), order='C', device='cpu', writable=False)], az_predictor: int, num_threads: int = 0) -> tuple:
     """
     Code points (N,3) float32 [m] in order on a spherical grid about origin; returns (stream bytes, max point error [m], checksum of the quantised points, estimated bits spent on (elevation, azimuth, range)).
     """
 
-def predictive_decode(data: bytes, n_points: int, origin: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C', device='cpu', writable=False)], range_step: float, az_count: int, el_step: float, el_table: Annotated[NDArray[numpy.float64], dict(shape=(None,), order='C', device='cpu', writable=False)], row_shift: int, checksum: int, num_threads: int = 0) -> Annotated[NDArray[numpy.float32], dict(shape=(None, 3))]:
+def predictive_decode(data: bytes, n_points: int, origin: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C', device='cpu', writable=False)], range_step: float, az_count: int, el_step: float, el_table: Annotated[NDArray[numpy.float64], dict(shape=(None,), order='C', device='cpu', writable=False)], row_shift: int, z_table: Annotated[NDArray[numpy.float64], dict(shape=(None,), order='C', device='cpu', writable=False)], az_predictor: int, checksum: int, num_threads: int = 0) -> Annotated[NDArray[numpy.float32], dict(shape=(None, 3))]:
     """
     Decode n_points (N,3) float32 [m] of a predictive stream; RuntimeError if corrupt.
     """

@@ -30,7 +30,8 @@ std::vector<uint64_t> to_codes(const CodesIn& a) {
 using TableF64In = nb::ndarray<const double, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
 
 tripod::SphericalGrid make_grid(OriginIn origin, double range_step, int64_t az_count,
-                                double el_step, TableF64In el_table, int row_shift) {
+                                double el_step, TableF64In el_table, int row_shift,
+                                TableF64In z_table, int az_predictor) {
     tripod::SphericalGrid g;
     for (int i = 0; i < 3; ++i) g.origin[i] = origin(i);
     g.range_step = range_step;
@@ -38,6 +39,8 @@ tripod::SphericalGrid make_grid(OriginIn origin, double range_step, int64_t az_c
     g.el_step = el_step;
     g.el_table.assign(el_table.data(), el_table.data() + el_table.shape(0));
     g.row_shift = row_shift;
+    g.z_table.assign(z_table.data(), z_table.data() + z_table.shape(0));
+    g.az_predictor = az_predictor;
     return g;
 }
 
@@ -158,10 +161,12 @@ TRIPOD_BINDING(compression) {
     m.def(
         "predictive_encode",
         [](CloudIn points, OriginIn origin, double range_step, int64_t az_count, double el_step,
-           TableF64In el_table, int row_shift, int num_threads) {
+           TableF64In el_table, int row_shift, TableF64In z_table, int az_predictor,
+           int num_threads) {
             tripod::PointsXYZ in = to_eigen(points);
             const tripod::SphericalGrid grid =
-                make_grid(origin, range_step, az_count, el_step, el_table, row_shift);
+                make_grid(origin, range_step, az_count, el_step, el_table, row_shift, z_table,
+                          az_predictor);
             tripod::PredictiveStats stats;
             std::vector<uint8_t> out;
             {
@@ -174,7 +179,8 @@ TRIPOD_BINDING(compression) {
                                                  stats.part_bits[2]));
         },
         nb::arg("points"), nb::arg("origin"), nb::arg("range_step"), nb::arg("az_count"),
-        nb::arg("el_step"), nb::arg("el_table"), nb::arg("row_shift"), nb::arg("num_threads") = 0,
+        nb::arg("el_step"), nb::arg("el_table"), nb::arg("row_shift"), nb::arg("z_table"),
+        nb::arg("az_predictor"), nb::arg("num_threads") = 0,
         "Code points (N,3) float32 [m] in order on a spherical grid about origin; returns "
         "(stream bytes, max point error [m], checksum of the quantised points, estimated bits "
         "spent on (elevation, azimuth, range)).");
@@ -183,9 +189,10 @@ TRIPOD_BINDING(compression) {
         "predictive_decode",
         [](nb::bytes data, uint64_t n_points, OriginIn origin, double range_step,
            int64_t az_count, double el_step, TableF64In el_table, int row_shift,
-           uint32_t checksum, int num_threads) {
+           TableF64In z_table, int az_predictor, uint32_t checksum, int num_threads) {
             const tripod::SphericalGrid grid =
-                make_grid(origin, range_step, az_count, el_step, el_table, row_shift);
+                make_grid(origin, range_step, az_count, el_step, el_table, row_shift, z_table,
+                          az_predictor);
             std::vector<uint8_t> in(static_cast<const uint8_t*>(data.data()),
                                     static_cast<const uint8_t*>(data.data()) + data.size());
             tripod::PointsXYZ out;
@@ -198,7 +205,7 @@ TRIPOD_BINDING(compression) {
         },
         nb::arg("data"), nb::arg("n_points"), nb::arg("origin"), nb::arg("range_step"),
         nb::arg("az_count"), nb::arg("el_step"), nb::arg("el_table"), nb::arg("row_shift"),
-        nb::arg("checksum"),
+        nb::arg("z_table"), nb::arg("az_predictor"), nb::arg("checksum"),
         nb::arg("num_threads") = 0,
         "Decode n_points (N,3) float32 [m] of a predictive stream; RuntimeError if corrupt.");
 }

@@ -258,11 +258,11 @@ def decode_cloud(data: bytes, *, weights=DEFAULT_WEIGHTS, num_threads: int = 0
     from .. import _ext
 
     header, sections = unpack(data)
-    if header.get("codec") == predictive.CODEC_NAME:
+    if header.get("codec") in predictive.CODEC_NAMES:
         return _decode_predictive(header, sections, num_threads)
     if header.get("codec") != CODEC_NAME:
         raise CodecError(f"unsupported codec {header.get('codec')!r} (this tripod reads "
-                         f"{CODEC_NAME!r} and {predictive.CODEC_NAME!r})")
+                         f"{', '.join(repr(c) for c in (CODEC_NAME, *predictive.CODEC_NAMES))})")
     table = load_table(weights)
     if header.get("model_id") != table.model_id:
         raise CodecError(f"file was coded with context model {header.get('model_id')}, this "

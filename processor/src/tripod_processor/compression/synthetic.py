@@ -128,13 +128,16 @@ VLP16_FIRING_ORDER_DEG = (-15, 1, -13, 3, -11, 5, -9, 7, -7, 9, -5, 11, -3, 13, 
 
 def ordered_scan(seed: int, n_revolutions: float = 1.0, room=(6.0, 4.5, 2.8),
                  range_lattice_m: float | None = 0.002, range_noise_m: float = 0.01,
-                 dropout: float = 0.05) -> np.ndarray:
+                 dropout: float = 0.05, laser_z_m=None) -> np.ndarray:
     """A VLP-16 scan in the sensor frame, in firing order, of a box room (no open3d needed).
 
     The sensor sits at the origin, inside an axis-aligned box of size ``room`` [m] placed at a
     random offset; each firing (azimuth step 0.2 deg) shoots the 16 lasers in the VLP-16's
     order. Ranges get Gaussian noise, are rounded to ``range_lattice_m`` (the VLP-16 reports
     2 mm steps; None: not rounded), and a fraction ``dropout`` of returns is lost.
+    ``laser_z_m``: optional (16,) vertical offsets [m] of the lasers, in firing order (the
+    VLP-16 manual's calibration: each beam leaves the spin axis at its own height), so a
+    point is (0, 0, z_j) + r (cos el_j cos az, cos el_j sin az, sin el_j).
 
     Returns
     -------
@@ -147,10 +150,14 @@ def ordered_scan(seed: int, n_revolutions: float = 1.0, room=(6.0, 4.5, 2.8),
     el = np.deg2rad(np.asarray(VLP16_FIRING_ORDER_DEG, np.float64))
     aa, ee = np.meshgrid(az, el, indexing="ij")  # azimuth-major: firing after firing
     d = np.stack([np.cos(ee) * np.cos(aa), np.cos(ee) * np.sin(aa), np.sin(ee)], -1).reshape(-1, 3)
+    o = np.zeros((len(az), len(el), 3))
+    if laser_z_m is not None:
+        o[:, :, 2] = np.asarray(laser_z_m, np.float64).reshape(len(el))
+    o = o.reshape(-1, 3)  # each beam's centre on the spin axis [m]
     with np.errstate(divide="ignore"):
-        t = np.where(d > 0, hi / d, np.where(d < 0, lo / d, np.inf)).min(1)  # exit of the box
+        t = np.where(d > 0, (hi - o) / d, np.where(d < 0, (lo - o) / d, np.inf)).min(1)
     r = t + rng.normal(0.0, range_noise_m, len(t))
     if range_lattice_m:
         r = np.round(r / range_lattice_m) * range_lattice_m
     keep = rng.random(len(t)) >= dropout
-    return (d[keep] * r[keep, None]).astype(np.float32)
+    return (o[keep] + d[keep] * r[keep, None]).astype(np.float32)
