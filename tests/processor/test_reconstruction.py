@@ -366,3 +366,36 @@ def test_mount_rotation_calibrated_from_the_data(capture):
     a_est = ext.R_imu_lidar.T @ pan_axis_imu
     assert np.degrees(np.arccos(np.clip(a_true @ a_est, -1, 1))) < 0.5
     assert np.degrees(np.arccos(np.clip(a_true @ np.array([0, 0, 1.0]), -1, 1))) > 20  # not trivial
+
+
+def _stalled_imu_stamps(lost=()):
+    """100 Hz IMU stamps read by a host that stalls 120 ms every 2 s (samples then read in a
+    burst), with read jitter; optionally some samples lost."""
+    from numpy.random import default_rng
+
+    rng = default_rng(4)
+    P, n = 10_000_000, 6000
+    true = 7_000_000_000 + np.arange(n, dtype=np.int64) * P
+    host = true + 250_000 + rng.exponential(300_000, n).astype(np.int64)
+    for s in range(100, n - 20, 200):
+        host[s:s + 12] = np.maximum(host[s:s + 12], true[s + 12] + 100_000)
+    host = np.sort(host)
+    keep = np.setdiff1d(np.arange(n), lost)
+    return true[keep], host[keep]
+
+
+def test_dejitter_removes_host_stalls():
+    from tripod_processor.reconstruction.placement import dejitter_periodic
+
+    true, host = _stalled_imu_stamps()
+    err = dejitter_periodic(host) - true
+    assert (np.percentile(host - true, 99) - np.percentile(host - true, 1)) > 50e6  # stalls
+    assert np.abs(err - np.median(err)).max() < 1e6  # < 1 ms once de-jittered
+    assert 0 < np.median(err) < 1e6  # at the latency floor
+
+
+def test_dejitter_keeps_raw_stamps_when_samples_were_lost():
+    from tripod_processor.reconstruction.placement import _strictly_increasing, dejitter_periodic
+
+    _, host = _stalled_imu_stamps(lost=(1500, 3100, 4700))
+    assert np.array_equal(dejitter_periodic(host), _strictly_increasing(host))

@@ -86,8 +86,13 @@ def dejitter_periodic(host_ns: np.ndarray, max_gap_s: float = 0.5) -> np.ndarray
     host happens to read it (serial buffering, scheduling, several samples per read: jitter of
     milliseconds). Within each run (split where nothing came for ``max_gap_s``, e.g. a replug),
     sample k is fitted as t0 + k·P by least squares and put at the latency floor (1st percentile
-    of the residuals): the jitter goes, the smallest latency stays. A run whose residuals spread
-    over more than 5 periods has lost samples; its raw stamps are kept.
+    of the residuals): the jitter goes, the smallest latency stays.
+
+    When the residuals spread over more than 5 periods, either the host stalled (samples read
+    late, in a burst: only positive delays) or samples were lost (every later sample then looks
+    a period *early*). The run is then fitted to its lower envelope; if no sample lies more than
+    half a period before that line, the stall is removed the same way, otherwise samples were
+    lost and the raw stamps are kept.
     """
     t = np.asarray(host_ns, dtype=np.int64)
     out = t.astype(np.float64).copy()
@@ -102,10 +107,37 @@ def dejitter_periodic(host_ns: np.ndarray, max_gap_s: float = 0.5) -> np.ndarray
             r = y - (P * k + c)
             if P > 0 and np.percentile(r, 99) - np.percentile(r, 1) < 5 * P:
                 out[start:end] = t[start] + c + np.percentile(r, 1.0) + P * k
+            else:
+                fit = _lower_envelope_fit(k, y)
+                if fit is not None:
+                    out[start:end] = t[start] + fit[1] + fit[0] * k
         start = end
     out = np.round(out).astype(np.int64)
     # strictly increasing for interpolation (raw stamps may repeat: several samples per read)
     return _strictly_increasing(out)
+
+
+def _lower_envelope_fit(k: np.ndarray, y: np.ndarray) -> tuple[float, float] | None:
+    """Line P·k + c under the stamps y [ns] of sample indices k, fitted to the least-delayed
+    samples; None when some sample comes too early for it (a lost sample shifts the indices)."""
+    keep = np.ones(len(k), dtype=bool)
+    for _ in range(6):  # refit on the least-delayed fifth of the samples
+        P, c = np.polyfit(k[keep], y[keep], 1)
+        r = y - (P * k + c)
+        keep = r <= np.percentile(r, 20)
+        if keep.sum() < 10:
+            return None
+    floor = np.percentile(r, 1.0)
+    if P <= 0 or np.mean(r < floor - 0.5 * P) > 0.002:
+        return None
+    # a lost sample moves the envelope by a period from there on: the least delay of each
+    # stretch of 25 samples must stay on one line (a stall lifts only a few stretches)
+    m = len(r) // 25
+    if m >= 4:
+        lows = r[: m * 25].reshape(m, 25).min(axis=1)
+        if np.percentile(lows, 90) - np.percentile(lows, 10) > 0.5 * P:
+            return None
+    return float(P), float(c + floor)
 
 
 def _strictly_increasing(t: np.ndarray) -> np.ndarray:
