@@ -1,22 +1,29 @@
 # SPDX-License-Identifier: BSD-3-Clause
-"""Registration of two indoor scans by matching their floor heightmaps.
+"""Registration of two indoor scans by matching their plan heightmaps.
 
-Both clouds are levelled on their floor plane (which fixes roll, pitch and height), then each
-becomes a *plan heightmap*: an image over the floor plane whose pixels hold the height of the
-tallest point standing on it (walls reach the ceiling, furniture stops lower). Matching the two
-images under a 2-D rotation and translation gives the remaining yaw and x-y shift:
+Both clouds are levelled on their floor plane (the IMU keeps them near gravity; the floor fixes
+roll, pitch and height exactly), so only yaw and an x-y shift remain. Each scan becomes a *plan
+heightmap*: an image over the floor whose pixels hold the height of the tallest point standing
+there (walls reach the ceiling, furniture stops lower). Three matchers propose image transforms
+(yaw, shift), each good where the others are weak:
 
-1. **coarse** — for every yaw on a grid (default 2 deg) the source points are turned and
-   rasterised, and the translation comes from an FFT cross-correlation with the target image
-   (zero-mean, normalised); the best peak wins;
-2. **fine** — the same at a finer pixel and yaw step around the coarse answer, with a
-   sub-pixel parabolic peak;
-3. **3-D** — the image transform is lifted to T_target_source through the two levelling
-   transforms; Hu moments of the two floor footprints and the correlation peak are reported;
-4. **verify** (and optionally refine) — the best few coarse answers are refined; the one with
-   the highest image score among those whose overlap (fitness) passes wins (symmetric rooms
-   overlap equally well under each symmetry, only the furniture in the image tells them
-   apart); point-to-plane ICP polishes it; fitness and inlier RMSE say whether to trust it.
+1. **dense correlation** — for every yaw on a grid (2 deg) the source is turned and rasterised
+   and the shift comes from an FFT cross-correlation with the target (walls and the rest as two
+   channels); the best peaks of distinct yaws are kept (a rectangular room has two or four
+   near-equal peaks: its symmetry twins);
+2. **keypoints** — ORB (OpenCV) corners of the two heightmap images, matched by descriptor and
+   filtered by a 2-D rigid RANSAC (two matches per hypothesis); the best consensus sets are kept;
+3. **shapes** — the connected blobs of non-wall content (furniture, columns), described by their
+   rotation-invariant Hu moments, area and height, matched and filtered by the same RANSAC.
+
+Every proposal is refined by correlation at a finer pixel and yaw step, lifted to 3-D through the
+two levelling transforms, polished by a short point-to-plane ICP on the registration core and
+**verified in 3-D**: the share of the source's walls and furniture that land on target surfaces.
+The twins of a symmetric room overlap equally well in floor, ceiling and bare walls; the
+furniture and the relief of the walls (doors, windows, radiators) do not, so the verification,
+not the image score, picks the answer. The winner is reported with its runner-up's score
+(``ambiguity``): ``success`` needs enough verified overlap and a clear winner, so a pair that
+does not overlap, or an empty symmetric room, comes back as a failure instead of a guess.
 
 Exposed to ``tripod register`` as its heightmap method through :func:`register_by_heightmaps`.
 """
@@ -28,28 +35,40 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .planes import CEILING, FLOOR, extract_planes
+from .planes import CEILING, FLOOR, OTHER, WALL, extract_planes
 
 
 @dataclass
 class HeightmapMatch:
     """Result: T_target_source (4, 4) maps source points into the target frame.
 
-    score : normalised correlation of the plan heightmaps at the match (0..1)
-    fitness, inlier_rmse : overlap share and RMSE [m] of the ICP check (within ``max_distance``)
+    score : normalised image correlation of the plan heightmaps at the match (0..1)
+    structure_fitness : share of the source's wall and non-planar points (10 cm voxels) within
+        ``max_distance`` of a target point: the 3-D verification that picked the answer
+    ambiguity : best structure fitness among the other (distinct) hypotheses / the winner's
+        (1: as good an answer elsewhere, e.g. an empty symmetric room)
+    fitness, inlier_rmse : overlap share of all source points and RMSE [m] after the final ICP
     hu_distance : distance of the floor footprints' log Hu moments (0 = same shape)
-    success : the check passed (fitness >= min_fitness)
+    proposer : which matcher proposed the answer ("correlation", "keypoints", "shapes")
+    hypotheses : number of distinct hypotheses verified
+    success : structure_fitness >= min_fitness and ambiguity <= max_ambiguity
     seconds : wall time; stages : per-stage times [s]
+    verified : (proposer, structure fitness, T_target_source) of every hypothesis, best first
     """
 
     T_target_source: np.ndarray
     score: float
+    structure_fitness: float
+    ambiguity: float
     fitness: float
     inlier_rmse: float
     hu_distance: float
+    proposer: str
+    hypotheses: int
     success: bool
     seconds: float
     stages: dict = field(default_factory=dict)
+    verified: list = field(default_factory=list)
 
 
 def _rot_to_z(n: np.ndarray) -> np.ndarray:
@@ -249,14 +268,169 @@ def _log_hu(h):
     return -np.sign(h) * np.log10(np.abs(h) + 1e-30)
 
 
+# ------------------------------------------------------------------------ keypoints and shapes
+def plan_image(scan: "LevelledScan", pixel: float, border: int = 24):
+    """8-bit plan heightmap of a levelled scan (tallest point over the floor, ceiling = 255) and
+    its origin: pixel [i, j] covers x = lo_x + i * pixel, y = lo_y + j * pixel.
+
+    Returns (img (H, W) uint8, lo (2,) [m]); ``border`` empty pixels around the content.
+    """
+    from scipy import ndimage
+
+    lo = scan.xy.min(0) - border * pixel if len(scan.xy) else np.zeros(2)
+    hi = scan.xy.max(0) + border * pixel if len(scan.xy) else np.ones(2)
+    shape = tuple(int(v) for v in np.ceil((hi - lo) / pixel) + 1)
+    img = _raster(scan.xy, scan.z / max(scan.height, 1e-3), lo, pixel, shape)
+    img = ndimage.grey_closing(img, size=3)  # close the gaps between scan lines
+    return np.clip(img * 255, 0, 255).astype(np.uint8), lo
+
+
+def _ij_to_xy(ij: np.ndarray, lo: np.ndarray, pixel: float) -> np.ndarray:
+    return lo + (ij + 0.5) * pixel
+
+
+def orb_keypoints(img: np.ndarray, max_features: int = 1500):
+    """ORB keypoints (row-column positions (K, 2)) and descriptors (K, 32) uint8 of an image."""
+    import cv2
+
+    orb = cv2.ORB_create(nfeatures=max_features, scaleFactor=1.3, nlevels=3, edgeThreshold=19,
+                         patchSize=19, fastThreshold=10)
+    kps, desc = orb.detectAndCompute(img, None)
+    if desc is None or len(kps) < 2:
+        return np.zeros((0, 2)), np.zeros((0, 32), np.uint8)
+    ij = np.array([(k.pt[1], k.pt[0]) for k in kps])  # cv2 gives (column, row)
+    return ij, desc
+
+
+def match_binary(da: np.ndarray, db: np.ndarray, k: int = 2) -> np.ndarray:
+    """Pairs (M, 2) of indices: each descriptor of ``da`` with its ``k`` nearest in ``db``
+    (Hamming). Repetitive structure (a row of identical windows) has no unique best match, so
+    more than the best is kept and the RANSAC sorts them."""
+    import cv2
+
+    if len(da) == 0 or len(db) == 0:
+        return np.zeros((0, 2), np.int64)
+    bf = cv2.BFMatcher(cv2.NORM_HAMMING)
+    out = [(m.queryIdx, m.trainIdx) for ms in bf.knnMatch(da, db, k=min(k, len(db))) for m in ms]
+    return np.array(out, np.int64).reshape(-1, 2)
+
+
+def shape_blobs(scan: "LevelledScan", pixel: float = 0.05, min_area: float = 0.08,
+                max_area: float = 6.0):
+    """Blobs of non-wall content in the plan (furniture, columns, cabinets) with shape
+    descriptors: centroids (K, 2) [m] and descriptors (K, 7): log |Hu| 1-4 (rotation
+    invariant), log area [m^2], median and top height [m]."""
+    from scipy import ndimage
+
+    keep = scan.labels != WALL
+    xy, z = scan.xy[keep], scan.z[keep]
+    if len(xy) < 10:
+        return np.zeros((0, 2)), np.zeros((0, 7))
+    lo = xy.min(0) - 2 * pixel
+    shape = tuple(int(v) for v in np.ceil((xy.max(0) + 2 * pixel - lo) / pixel) + 1)
+    h = _raster(xy, z, lo, pixel, shape)
+    mask = ndimage.binary_closing(h > 0, iterations=2)
+    lab, n = ndimage.label(mask)
+    cents, descs = [], []
+    for k, sl in enumerate(ndimage.find_objects(lab), start=1):
+        m = lab[sl] == k
+        area = m.sum() * pixel ** 2
+        if not (min_area <= area <= max_area):
+            continue
+        ii, jj = np.nonzero(m)
+        c = np.array([ii.mean() + sl[0].start, jj.mean() + sl[1].start])
+        hv = h[sl][m]
+        hv = hv[hv > 0]
+        hu = _log_hu(hu_moments(m))[:4]
+        cents.append(_ij_to_xy(c, lo, pixel))
+        descs.append([*(hu / 3.0), np.log(area), 2 * np.median(hv), 2 * hv.max()])
+    if not cents:
+        return np.zeros((0, 2)), np.zeros((0, 7))
+    return np.array(cents), np.array(descs)
+
+
+def match_nearest(da: np.ndarray, db: np.ndarray, k: int = 2, max_distance: float = 1.5):
+    """Pairs (M, 2): each row of ``da`` with its ``k`` nearest rows of ``db`` (Euclidean)
+    closer than ``max_distance``."""
+    if len(da) == 0 or len(db) == 0:
+        return np.zeros((0, 2), np.int64)
+    d = np.linalg.norm(da[:, None, :] - db[None, :, :], axis=2)
+    nn = np.argsort(d, axis=1)[:, :k]
+    pairs = [(i, j) for i in range(len(da)) for j in nn[i] if d[i, j] < max_distance]
+    return np.array(pairs, np.int64).reshape(-1, 2)
+
+
+def rigid_2d_ransac(a: np.ndarray, b: np.ndarray, *, inlier_m: float = 0.15,
+                    min_separation_m: float = 0.5, iterations: int = 3000, keep: int = 3,
+                    min_inliers: int = 4, seed: int = 0):
+    """2-D rigid transforms b ~ R(yaw) a + t from putative matches, RANSAC with two matches per
+    hypothesis (a pair of matches whose lengths disagree by more than ``inlier_m`` is skipped).
+
+    Parameters
+    ----------
+    a, b : (M, 2) matched positions [m] (source, target)
+    keep : consensus sets returned, best first, each after removing the previous one's inliers
+
+    Returns
+    -------
+    list of (inliers, yaw [rad], t (2,) [m]), refined by least squares on the inliers.
+    """
+    rng = np.random.default_rng(seed)
+    out = []
+    alive = np.ones(len(a), bool)
+    for _ in range(keep):
+        idx = np.flatnonzero(alive)
+        if len(idx) < max(2, min_inliers):
+            break
+        i = idx[rng.integers(0, len(idx), iterations)]
+        j = idx[rng.integers(0, len(idx), iterations)]
+        da, db = a[j] - a[i], b[j] - b[i]
+        la, lb = np.linalg.norm(da, axis=1), np.linalg.norm(db, axis=1)
+        ok = (la > min_separation_m) & (np.abs(la - lb) < inlier_m)
+        if not ok.any():
+            break
+        i, j, da, db = i[ok], j[ok], da[ok], db[ok]
+        yaw = np.arctan2(db[:, 1], db[:, 0]) - np.arctan2(da[:, 1], da[:, 0])
+        c, s = np.cos(yaw), np.sin(yaw)
+        mid_a, mid_b = (a[i] + a[j]) / 2, (b[i] + b[j]) / 2
+        t = mid_b - np.stack([c * mid_a[:, 0] - s * mid_a[:, 1], s * mid_a[:, 0] + c * mid_a[:, 1]], 1)
+        A, B = a[idx], b[idx]
+        px = c[:, None] * A[None, :, 0] - s[:, None] * A[None, :, 1] + t[:, :1]
+        py = s[:, None] * A[None, :, 0] + c[:, None] * A[None, :, 1] + t[:, 1:]
+        inl = (px - B[None, :, 0]) ** 2 + (py - B[None, :, 1]) ** 2 < inlier_m ** 2
+        # one source point counts once however many of its matches agree
+        src_ids = np.unique(a[idx], axis=0, return_inverse=True)[1].ravel()
+        counts = np.array([len(np.unique(src_ids[r])) for r in inl])
+        best = int(np.argmax(counts))
+        if counts[best] < min_inliers:
+            break
+        members = idx[inl[best]]
+        y, tt = _fit_rigid_2d(a[members], b[members])
+        out.append((members, y, tt))
+        alive[members] = False
+    return out
+
+
+def _fit_rigid_2d(a: np.ndarray, b: np.ndarray):
+    """Least-squares yaw [rad] and t (2,) with b ~ R(yaw) a + t."""
+    ma, mb = a.mean(0), b.mean(0)
+    A, B = a - ma, b - mb
+    yaw = float(np.arctan2((A[:, 0] * B[:, 1] - A[:, 1] * B[:, 0]).sum(),
+                           (A * B).sum()))
+    c, s = np.cos(yaw), np.sin(yaw)
+    return yaw, mb - np.array([[c, -s], [s, c]]) @ ma
+
+
+# ----------------------------------------------------------------------------------- pipeline
 def register_by_heightmaps(source, target, *, source_labels=None, target_labels=None,
                            coarse_pixel: float = 0.10, coarse_step_deg: float = 2.0,
                            fine_pixel: float = 0.05, fine_step_deg: float = 0.5,
-                           refine: bool = True, max_distance: float = 0.10,
-                           min_fitness: float = 0.2, candidates: int = 3, other_weight: float = 2.0,
-                           weights=None, seed: int = 0,
-                           num_threads: int = 0) -> HeightmapMatch:
-    """Rigid transform between two overlapping indoor scans by matching floor heightmaps.
+                           feature_pixel: float = 0.05, candidates: int = 4,
+                           use_keypoints: bool = True, use_shapes: bool = True,
+                           max_distance: float = 0.08, min_fitness: float = 0.3,
+                           max_ambiguity: float = 0.97, other_weight: float = 2.0,
+                           weights=None, seed: int = 0, num_threads: int = 0) -> HeightmapMatch:
+    """Rigid transform between two overlapping indoor scans by matching plan heightmaps.
 
     Parameters
     ----------
@@ -264,15 +438,15 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
         plane absorbs any tilt), in any yaw and position
     source_labels, target_labels : (N,), (M,) class labels (0 ceiling, 1 floor, 2 wall, 3 other),
         or None to run the segmenter
-    coarse_pixel, coarse_step_deg : image pixel [m] and yaw step [deg] of the global search
-    fine_pixel, fine_step_deg : of the local refinement
-    refine : polish the image answer with point-to-plane ICP (Open3D); else only verify with it
-    max_distance : correspondence distance of the ICP check [m]
-    min_fitness : overlap share needed to call the match a success
-    candidates : coarse answers (yaws 20 deg apart) refined and checked (a symmetric room has as
-        many equally good image matches as symmetries)
-    other_weight : weight of the non-wall channel in the image score (2: chosen after the first
-        benchmark run, where three symmetry twins won with 1; checked on 20 other pairs)
+    coarse_pixel, coarse_step_deg : image pixel [m] and yaw step [deg] of the dense search
+    fine_pixel, fine_step_deg : of the refinement of every hypothesis
+    feature_pixel : pixel [m] of the images the keypoints and shapes are found on
+    candidates : best yaws (20 deg apart) the dense search proposes
+    use_keypoints, use_shapes : also propose from ORB keypoints / Hu-moment shape matches
+    max_distance : inlier distance of the 3-D verification [m]
+    min_fitness : verified structure overlap needed to call the match a success
+    max_ambiguity : runner-up / winner verification score above which the answer is not unique
+    other_weight : weight of the non-wall channel in the correlation score
     weights : segmenter weights when labels are None
 
     Returns
@@ -290,77 +464,154 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
         source_labels = seg(S.astype(np.float32)) if source_labels is None else source_labels
         target_labels = seg(Tg.astype(np.float32)) if target_labels is None else target_labels
         stages["segment"] = time.perf_counter() - t0
+    source_labels, target_labels = np.asarray(source_labels), np.asarray(target_labels)
+
+    # 1. level both scans on their floors
     t1 = time.perf_counter()
     ls = level_scan(S, source_labels, seed=seed)
     lt = level_scan(Tg, target_labels, seed=seed)
     stages["level"] = time.perf_counter() - t1
+
+    # 2. proposals (yaw, shift) of the levelled source onto the levelled target
     t1 = time.perf_counter()
-    # the image must stay small for big halls: a coarser pixel there
     extent = float(max(np.ptp(lt.xy, 0).max(), np.ptp(ls.xy, 0).max())) if len(lt.xy) and len(ls.xy) else 10.0
-    cp = max(coarse_pixel, extent / 150)
+    cp = max(coarse_pixel, extent / 150)  # the images stay small for big halls
     fp = max(fine_pixel, extent / 400)
     yaws = np.deg2rad(np.arange(0.0, 360.0, coarse_step_deg))
-    coarse = _search(ls, lt, yaws, cp, seed=seed, keep=candidates, other_weight=other_weight)
-    stages["coarse"] = time.perf_counter() - t1
+    proposals = [(yaw, shift, "correlation", score) for score, yaw, shift in
+                 _search(ls, lt, yaws, cp, seed=seed, keep=candidates, other_weight=other_weight)]
+    stages["correlation"] = time.perf_counter() - t1
     t1 = time.perf_counter()
+    fpx = max(feature_pixel, extent / 400)
+    if use_keypoints:
+        img_s, lo_s = plan_image(ls, fpx)
+        img_t, lo_t = plan_image(lt, fpx)
+        ij_s, d_s = orb_keypoints(img_s)
+        ij_t, d_t = orb_keypoints(img_t)
+        m = match_binary(d_s, d_t)
+        if len(m) >= 4:
+            a = _ij_to_xy(ij_s[m[:, 0]], lo_s, fpx)
+            b = _ij_to_xy(ij_t[m[:, 1]], lo_t, fpx)
+            for inl, yaw, t in rigid_2d_ransac(a, b, inlier_m=3 * fpx, min_inliers=6, seed=seed):
+                proposals.append((yaw, t, "keypoints", float(len(inl))))
+        stages["keypoints"] = time.perf_counter() - t1
+    t1 = time.perf_counter()
+    if use_shapes:
+        c_s, h_s = shape_blobs(ls, fpx)
+        c_t, h_t = shape_blobs(lt, fpx)
+        m = match_nearest(h_s, h_t, k=3)
+        if len(m) >= 3:
+            for inl, yaw, t in rigid_2d_ransac(c_s[m[:, 0]], c_t[m[:, 1]], inlier_m=0.2,
+                                                min_inliers=3, seed=seed):
+                proposals.append((yaw, t, "shapes", float(len(inl))))
+        stages["shapes"] = time.perf_counter() - t1
+
+    # 3. refine each distinct proposal by correlation (fine pixel and yaw) and lift it to 3-D
+    t1 = time.perf_counter()
+    hyps = []
+    for yaw0, shift0, who, _ in proposals:
+        yaw0 = float(yaw0)
+        if any(_close(yaw0, shift0, h[1], h[2]) for h in hyps):
+            continue
+        fine = yaw0 + np.deg2rad(np.arange(-coarse_step_deg, coarse_step_deg + 1e-9, fine_step_deg))
+        score, yaw, shift = _search(ls, lt, fine, fp, window=(np.asarray(shift0), int(np.ceil(2 * cp / fp)) + 2),
+                                    seed=seed, other_weight=other_weight)[0]
+        hyps.append((score, yaw0, np.asarray(shift0), who, _lift(ls, lt, yaw, shift)))
+    stages["refine"] = time.perf_counter() - t1
+
+    # 4. verify in 3-D: short ICP, then the share of walls and furniture on target surfaces
+    t1 = time.perf_counter()
+    check = _Verifier(S, source_labels, Tg, max_distance, num_threads)
+    checked = []
+    for score, _, _, who, T in hyps:
+        T_icp = check.polish(T)
+        checked.append((check.structure_fitness(T_icp), score, who, T_icp))
+    checked.sort(key=lambda c: -c[0])
+    best = checked[0]
+    others = [c for c in checked[1:] if not _same_pose(c[3], best[3])]
+    ambiguity = (others[0][0] / best[0]) if others and best[0] > 0 else 0.0
+    stages["verify"] = time.perf_counter() - t1
+
+    # 5. final polish at full density
+    t1 = time.perf_counter()
+    T, fitness, rmse = check.final(best[3])
+    sfit = check.structure_fitness(T)
+    stages["final"] = time.perf_counter() - t1
     hu_s = _log_hu(hu_moments(_footprint_mask(ls.floor_xy)))
     hu_t = _log_hu(hu_moments(_footprint_mask(lt.floor_xy)))
     hu_d = float(np.abs(hu_s[:4] - hu_t[:4]).sum())
-    checker = _IcpCheck(S, Tg, max_distance)
-    best = None
-    for score0, yaw0, shift0 in coarse:
-        fine = yaw0 + np.deg2rad(np.arange(-coarse_step_deg, coarse_step_deg + 1e-9, fine_step_deg))
-        score, yaw, shift = _search(ls, lt, fine, fp, window=(shift0, int(np.ceil(2 * cp / fp)) + 2),
-                                    seed=seed, other_weight=other_weight)[0]
-        # image transform: target_xy = R(yaw) source_xy + shift (in the levelled frames)
-        c, s = np.cos(yaw), np.sin(yaw)
-        M = np.eye(4)
-        M[:2, :2] = [[c, -s], [s, c]]
-        M[:2, 3] = shift
-        T = np.linalg.inv(lt.T_level_scan) @ M @ ls.T_level_scan
-        fitness = checker.fitness(T)
-        # the image score decides (walls, floor and ceiling of a symmetric hall overlap equally
-        # well under each symmetry, so overlap alone would pick at random); overlap only vetoes
-        key = (fitness >= min_fitness, score)
-        if best is None or key > best[0]:
-            best = (key, score, T)
-    stages["fine"] = time.perf_counter() - t1
-    t1 = time.perf_counter()
-    _, score, T = best
-    fitness, rmse, T = checker.final(T, refine)
-    stages["verify"] = time.perf_counter() - t1
-    return HeightmapMatch(T, float(score), fitness, rmse, hu_d, fitness >= min_fitness,
-                          time.perf_counter() - t0, stages)
+    ok = sfit >= min_fitness and ambiguity <= max_ambiguity
+    return HeightmapMatch(T, float(best[1]), float(sfit), float(ambiguity), fitness, rmse, hu_d,
+                          best[2], len(checked), bool(ok), time.perf_counter() - t0, stages,
+                          [(c[2], c[0], c[3]) for c in checked])
 
 
-class _IcpCheck:
-    """Overlap of two clouds under a transform (Open3D), and the final point-to-plane polish."""
+def _close(yaw_a, shift_a, yaw_b, shift_b, yaw_tol=np.deg2rad(3.0), shift_tol=0.3) -> bool:
+    dy = abs((yaw_a - yaw_b + np.pi) % (2 * np.pi) - np.pi)
+    return dy < yaw_tol and float(np.linalg.norm(np.asarray(shift_a) - np.asarray(shift_b))) < shift_tol
 
-    def __init__(self, S, Tg, max_distance: float, voxel: float = 0.05) -> None:
-        import open3d as o3d
 
-        self.o3d = o3d
+def _same_pose(A, B, deg: float = 3.0, m: float = 0.2) -> bool:
+    E = np.linalg.inv(A) @ B
+    ang = np.degrees(np.arccos(np.clip((np.trace(E[:3, :3]) - 1) / 2, -1, 1)))
+    return ang < deg and np.linalg.norm(E[:3, 3]) < m
+
+
+def _lift(ls: "LevelledScan", lt: "LevelledScan", yaw: float, shift) -> np.ndarray:
+    """T_target_source from the image transform target_xy = R(yaw) source_xy + shift (levelled)."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    M = np.eye(4)
+    M[:2, :2] = [[c, -s], [s, c]]
+    M[:2, 3] = shift
+    return np.linalg.inv(lt.T_level_scan) @ M @ ls.T_level_scan
+
+
+class _Verifier:
+    """3-D checks of hypotheses on the registration core: a short point-to-plane ICP, and the
+    share of the source's structure (walls and non-planar content, 10 cm voxels) that lands
+    within ``max_distance`` of a target point. Floor and ceiling are left out of that share:
+    they overlap under any yaw once both scans are levelled."""
+
+    def __init__(self, S, labels_s, Tg, max_distance: float, num_threads: int = 0) -> None:
+        from scipy.spatial import cKDTree
+
+        from .preprocess import voxel_downsample
+        from .registration import prepare
+
         self.max_distance = max_distance
+        self.threads = num_threads
+        self.src = prepare(S.astype(np.float32), 0.10, num_threads=num_threads)
+        self.tgt = prepare(Tg.astype(np.float32), 0.10, num_threads=num_threads)
+        self._S, self._Tg = S, Tg
+        struct = S[(labels_s == WALL) | (labels_s == OTHER)]
+        if len(struct) < 100:  # a scan of floor and ceiling only: use everything
+            struct = S
+        self.struct = np.asarray(voxel_downsample(struct.astype(np.float32), 0.10), np.float64)
+        self.tree = cKDTree(np.asarray(voxel_downsample(Tg.astype(np.float32), 0.04), np.float64))
 
-        def pcd(p, v):
-            c = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p))
-            c = c.voxel_down_sample(v)
-            c.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=4 * v, max_nn=20))
-            return c
+    def structure_fitness(self, T) -> float:
+        p = self.struct @ T[:3, :3].T + T[:3, 3]
+        d, _ = self.tree.query(p, distance_upper_bound=self.max_distance)
+        return float(np.mean(d < self.max_distance))
 
-        self.src, self.tgt = pcd(S, voxel), pcd(Tg, voxel)
-        self.src_coarse = self.src.voxel_down_sample(0.15)
+    def polish(self, T) -> np.ndarray:
+        from .registration import register
 
-    def fitness(self, T) -> float:
-        reg = self.o3d.pipelines.registration
-        return float(reg.evaluate_registration(self.src_coarse, self.tgt, 2 * self.max_distance, T).fitness)
+        r = register(self.src, self.tgt, "plane", init=T, max_correspondence_distance=[0.4, 0.15],
+                     max_iterations=15, num_threads=self.threads)
+        T2 = r.T_target_source
+        # a hypothesis ICP tipped over (tilted) is not one the levelled images proposed
+        tilt = np.degrees(np.arccos(np.clip((T2[:3, :3] @ T[:3, :3].T)[2, 2], -1, 1)))
+        return T2 if tilt < 3.0 else T
 
-    def final(self, T, refine: bool):
-        reg = self.o3d.pipelines.registration
-        if refine:
-            res = reg.registration_icp(self.src, self.tgt, self.max_distance, T,
-                                       reg.TransformationEstimationPointToPlane(),
-                                       reg.ICPConvergenceCriteria(max_iteration=30))
-            T = np.asarray(res.transformation)
-        res = reg.evaluate_registration(self.src, self.tgt, self.max_distance, T)
-        return float(res.fitness), float(res.inlier_rmse), np.asarray(T)
+    def final(self, T):
+        from .registration import prepare, register
+
+        src = prepare(self._S.astype(np.float32), 0.05, num_threads=self.threads)
+        tgt = prepare(self._Tg.astype(np.float32), 0.05, num_threads=self.threads)
+        r = register(src, tgt, "plane", init=T, max_correspondence_distance=[0.15, 0.08],
+                     max_iterations=30, num_threads=self.threads)
+        T2 = r.T_target_source
+        if not _same_pose(T2, T, 2.0, 0.3):  # the polish ran away: keep the verified pose
+            return np.asarray(T), float("nan"), float("nan")
+        return np.asarray(T2), float(r.fitness), float(r.inlier_rmse)
