@@ -254,7 +254,7 @@ def twin_pairs(n_pairs: int, seed: int = 0):
         src = (zb["points"] @ Tb[:3, :3].T + Tb[:3, 3]).astype(np.float32)
         # x_target = Ta T_station_a^-1 T_station_b Tb^-1 x_source
         T_true = Ta @ np.linalg.inv(za["T_world_station"]) @ zb["T_world_station"] @ np.linalg.inv(Tb)
-        yield f"{sc}_s{sd} {j}->{i}", tgt, src, T_true, ov, sc
+        yield f"{sc}_s{sd} {j}->{i}", tgt, src, T_true, ov, sc, Ta[:3, 3], Tb[:3, 3]
 
 
 def synthetic_pairs(n_pairs: int):
@@ -280,7 +280,8 @@ def synthetic_pairs(n_pairs: int):
         tgt = (pa @ Ta[:3, :3].T + Ta[:3, 3]).astype(np.float32)
         src = (pb @ Tb[:3, :3].T + Tb[:3, 3]).astype(np.float32)
         kind = "hall" if scene.height > 3.5 else f"{len(scene.footprint)}-corner"
-        yield f"synthetic {5000 + k}", tgt, src, Ta @ np.linalg.inv(Tb), overlap, kind
+        yield (f"synthetic {5000 + k}", tgt, src, Ta @ np.linalg.inv(Tb), overlap, kind,
+               (Ta @ [*a, 1.0])[:3], (Tb @ [*b, 1.0])[:3])
 
 
 def bench_registration(n_pairs: int, source: str = "twin", baselines: bool = True) -> None:
@@ -294,11 +295,12 @@ def bench_registration(n_pairs: int, source: str = "twin", baselines: bool = Tru
     what = "digital-twin station pairs" if source == "twin" else "synthetic-room pairs"
     ok_h, ok_f, ok_g, t_h, t_f, t_g, kinds, overlaps, flagged = 0, 0, 0, [], [], [], {}, [], 0
     n = 0
-    for name, tgt, src, T_true, overlap, kind in pairs:
+    for name, tgt, src, T_true, overlap, kind, vp_tgt, vp_src in pairs:
         n += 1
         overlaps.append(overlap)
         t0 = time.perf_counter()
-        r = register_by_heightmaps(src, tgt)  # labels from the shipped segmenter
+        # labels from the shipped segmenter; each fragment was captured at its own origin
+        r = register_by_heightmaps(src, tgt, viewpoint_source=vp_src, viewpoint_target=vp_tgt)
         t_h.append(time.perf_counter() - t0)
         good_h = good(r.T_target_source, T_true)
         ok_h += good_h

@@ -429,7 +429,9 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
                            use_keypoints: bool = True, use_shapes: bool = True,
                            max_distance: float = 0.08, min_fitness: float = 0.3,
                            max_ambiguity: float = 0.97, other_weight: float = 2.0,
-                           weights=None, seed: int = 0, num_threads: int = 0) -> HeightmapMatch:
+                           free_space_weight: float = 5.0, viewpoint_source=(0.0, 0.0, 0.0),
+                           viewpoint_target=(0.0, 0.0, 0.0), weights=None, seed: int = 0,
+                           num_threads: int = 0) -> HeightmapMatch:
     """Rigid transform between two overlapping indoor scans by matching plan heightmaps.
 
     Parameters
@@ -521,11 +523,13 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
 
     # 4. verify in 3-D: short ICP, then the share of walls and furniture on target surfaces
     t1 = time.perf_counter()
-    check = _Verifier(S, source_labels, Tg, max_distance, num_threads)
+    check = _Verifier(S, source_labels, Tg, target_labels, max_distance, viewpoint_source,
+                      viewpoint_target, num_threads)
     checked = []
     for score, _, _, who, T in hyps:
         T_icp = check.polish(T)
-        checked.append((check.structure_fitness(T_icp), score, who, T_icp))
+        fit, viol = check.structure_fitness(T_icp), check.free_space_violation(T_icp)
+        checked.append((fit - free_space_weight * viol, score, who, T_icp, fit, viol))
     checked.sort(key=lambda c: -c[0])
     best = checked[0]
     others = [c for c in checked[1:] if not _same_pose(c[3], best[3])]
@@ -543,7 +547,7 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
     ok = sfit >= min_fitness and ambiguity <= max_ambiguity
     return HeightmapMatch(T, float(best[1]), float(sfit), float(ambiguity), fitness, rmse, hu_d,
                           best[2], len(checked), bool(ok), time.perf_counter() - t0, stages,
-                          [(c[2], c[0], c[3]) for c in checked])
+                          [(c[2], c[0], c[3], c[4], c[5]) for c in checked])
 
 
 def _close(yaw_a, shift_a, yaw_b, shift_b, yaw_tol=np.deg2rad(3.0), shift_tol=0.3) -> bool:
@@ -566,13 +570,50 @@ def _lift(ls: "LevelledScan", lt: "LevelledScan", yaw: float, shift) -> np.ndarr
     return np.linalg.inv(lt.T_level_scan) @ M @ ls.T_level_scan
 
 
+class _RangeImage:
+    """Nearest return per direction around a scan's viewpoint: a spherical image (``step_deg``
+    bins of azimuth and elevation) of the smallest range, eroded over the 3 x 3 neighbourhood so
+    that only space seen through in every neighbouring direction counts as free."""
+
+    def __init__(self, P: np.ndarray, viewpoint, step_deg: float = 0.5) -> None:
+        from scipy import ndimage
+
+        self.v = np.asarray(viewpoint, np.float64).reshape(3)
+        self.step = np.radians(step_deg)
+        self.shape = (int(round(2 * np.pi / self.step)), int(round(np.pi / self.step)) + 1)
+        i, j, r = self._bins(P)
+        img = np.full(self.shape, np.inf)
+        np.minimum.at(img, (i, j), r)
+        self.img = ndimage.minimum_filter(img, size=3, mode="wrap")
+
+    def _bins(self, P):
+        d = np.asarray(P, np.float64) - self.v
+        r = np.linalg.norm(d, axis=1)
+        az = np.arctan2(d[:, 1], d[:, 0]) + np.pi
+        el = np.arcsin(np.clip(d[:, 2] / np.maximum(r, 1e-9), -1, 1)) + np.pi / 2
+        i = np.minimum((az / self.step).astype(np.int64), self.shape[0] - 1)
+        j = np.minimum((el / self.step).astype(np.int64), self.shape[1] - 1)
+        return i, j, r
+
+    def seen_through(self, P) -> np.ndarray:
+        """(N,) bool: the point lies clearly in front of the nearest return in its direction."""
+        i, j, r = self._bins(P)
+        lim = self.img[i, j]
+        return np.isfinite(lim) & (r < 0.95 * lim - 0.10)
+
+
+def _in_free_space(P: np.ndarray, rimg: _RangeImage) -> float:
+    return float(rimg.seen_through(P).mean()) if len(P) else 0.0
+
+
 class _Verifier:
     """3-D checks of hypotheses on the registration core: a short point-to-plane ICP, and the
     share of the source's structure (walls and non-planar content, 10 cm voxels) that lands
     within ``max_distance`` of a target point. Floor and ceiling are left out of that share:
     they overlap under any yaw once both scans are levelled."""
 
-    def __init__(self, S, labels_s, Tg, max_distance: float, num_threads: int = 0) -> None:
+    def __init__(self, S, labels_s, Tg, labels_t, max_distance: float, viewpoint_s, viewpoint_t,
+                 num_threads: int = 0) -> None:
         from scipy.spatial import cKDTree
 
         from .preprocess import voxel_downsample
@@ -583,11 +624,25 @@ class _Verifier:
         self.src = prepare(S.astype(np.float32), 0.10, num_threads=num_threads)
         self.tgt = prepare(Tg.astype(np.float32), 0.10, num_threads=num_threads)
         self._S, self._Tg = S, Tg
-        struct = S[(labels_s == WALL) | (labels_s == OTHER)]
-        if len(struct) < 100:  # a scan of floor and ceiling only: use everything
-            struct = S
-        self.struct = np.asarray(voxel_downsample(struct.astype(np.float32), 0.10), np.float64)
+        def structure(P, lab):
+            st = P[(lab == WALL) | (lab == OTHER)]
+            if len(st) < 100:  # a scan of floor and ceiling only: use everything
+                st = P
+            return np.asarray(voxel_downsample(st.astype(np.float32), 0.10), np.float64)
+
+        self.struct, self.struct_t = structure(S, labels_s), structure(Tg, labels_t)
+        self.range_s = _RangeImage(S, viewpoint_s)
+        self.range_t = _RangeImage(Tg, viewpoint_t)
         self.tree = cKDTree(np.asarray(voxel_downsample(Tg.astype(np.float32), 0.04), np.float64))
+
+    def free_space_violation(self, T) -> float:
+        """Share of each scan's structure that the other scan saw through (points lying in front
+        of the other's nearest return in their direction, by more than 5 % + 10 cm), averaged
+        over both directions; 0 for a consistent pose."""
+        Ti = np.linalg.inv(T)
+        a = _in_free_space(self.struct @ T[:3, :3].T + T[:3, 3], self.range_t)
+        b = _in_free_space(self.struct_t @ Ti[:3, :3].T + Ti[:3, 3], self.range_s)
+        return 0.5 * (a + b)
 
     def structure_fitness(self, T) -> float:
         p = self.struct @ T[:3, :3].T + T[:3, 3]
@@ -605,13 +660,24 @@ class _Verifier:
         return T2 if tilt < 3.0 else T
 
     def final(self, T):
-        from .registration import prepare, register
+        """Point-to-plane ICP on oriented normals (each facing its scan's viewpoint): a wall
+        seen from both of its sides (a partition between two rooms) is two faces, and plain ICP
+        would pull them together. Returns (T, fitness, inlier RMSE [m])."""
+        from . import _ext
+        from .preprocess import voxel_downsample
+        from .registration import prepare
 
-        src = prepare(self._S.astype(np.float32), 0.05, num_threads=self.threads)
-        tgt = prepare(self._Tg.astype(np.float32), 0.05, num_threads=self.threads)
-        r = register(src, tgt, "plane", init=T, max_correspondence_distance=[0.15, 0.08],
-                     max_iterations=30, num_threads=self.threads)
-        T2 = r.T_target_source
-        if not _same_pose(T2, T, 2.0, 0.3):  # the polish ran away: keep the verified pose
+        def oriented(P, v):
+            return prepare(voxel_downsample(P.astype(np.float32), 0.05), num_neighbors=12,
+                           viewpoint=v, point_sigma=0.03, num_threads=self.threads)
+
+        src, tgt = oriented(self._S, self.range_s.v), oriented(self._Tg, self.range_t.v)
+        T2 = np.ascontiguousarray(T, dtype=np.float64)
+        r = None
+        for dist in (0.15, 0.08):
+            r = _ext.oriented_point_to_plane(src._native, tgt._native, T2, dist, 15, 0.03, 0.5,
+                                             60_000, int(self.threads))
+            T2 = np.asarray(r["T_target_source"], np.float64)
+        if not r["linearized"] or not _same_pose(T2, T, 2.0, 0.3):  # ran away: keep verified
             return np.asarray(T), float("nan"), float("nan")
-        return np.asarray(T2), float(r.fitness), float(r.inlier_rmse)
+        return T2, float(r["fitness"]), float(r["rmse"])
