@@ -51,7 +51,9 @@ class HeightmapMatch:
     hu_distance : distance of the floor footprints' log Hu moments (0 = same shape)
     proposer : which matcher proposed the answer ("correlation", "keypoints", "shapes")
     hypotheses : number of distinct hypotheses verified
-    success : structure_fitness >= min_fitness and ambiguity <= max_ambiguity
+    free_space_violation : share of either scan's structure the other saw through, at the answer
+    success : structure_fitness >= min_fitness, free_space_violation <= max_violation and
+        ambiguity <= max_ambiguity
     seconds : wall time; stages : per-stage times [s]
     verified : (proposer, structure fitness, T_target_source) of every hypothesis, best first
     """
@@ -59,6 +61,7 @@ class HeightmapMatch:
     T_target_source: np.ndarray
     score: float
     structure_fitness: float
+    free_space_violation: float
     ambiguity: float
     fitness: float
     inlier_rmse: float
@@ -425,10 +428,10 @@ def _fit_rigid_2d(a: np.ndarray, b: np.ndarray):
 def register_by_heightmaps(source, target, *, source_labels=None, target_labels=None,
                            coarse_pixel: float = 0.10, coarse_step_deg: float = 2.0,
                            fine_pixel: float = 0.05, fine_step_deg: float = 0.5,
-                           feature_pixel: float = 0.05, candidates: int = 4,
+                           feature_pixel: float = 0.05, candidates: int = 8,
                            use_keypoints: bool = True, use_shapes: bool = True,
                            max_distance: float = 0.08, min_fitness: float = 0.3,
-                           max_ambiguity: float = 0.97, other_weight: float = 2.0,
+                           max_ambiguity: float = 0.97, max_violation: float = 0.05, other_weight: float = 2.0,
                            free_space_weight: float = 5.0, viewpoint_source=(0.0, 0.0, 0.0),
                            viewpoint_target=(0.0, 0.0, 0.0), weights=None, seed: int = 0,
                            num_threads: int = 0) -> HeightmapMatch:
@@ -448,6 +451,12 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
     max_distance : inlier distance of the 3-D verification [m]
     min_fitness : verified structure overlap needed to call the match a success
     max_ambiguity : runner-up / winner verification score above which the answer is not unique
+    max_violation : share of structure seen through by the other scan above which the answer is
+        inconsistent (two different rooms of similar shape overlap well, but not in free space)
+    free_space_weight : weight of that share against the structure fitness when ranking
+        hypotheses (a point seen through is a contradiction, a missing overlap is only unseen)
+    viewpoint_source, viewpoint_target : (3,) the sensor position in each cloud's frame [m]
+        (a fragment's origin): the free-space check and the normals' orientation need it
     other_weight : weight of the non-wall channel in the correlation score
     weights : segmenter weights when labels are None
 
@@ -544,8 +553,9 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
     hu_s = _log_hu(hu_moments(_footprint_mask(ls.floor_xy)))
     hu_t = _log_hu(hu_moments(_footprint_mask(lt.floor_xy)))
     hu_d = float(np.abs(hu_s[:4] - hu_t[:4]).sum())
-    ok = sfit >= min_fitness and ambiguity <= max_ambiguity
-    return HeightmapMatch(T, float(best[1]), float(sfit), float(ambiguity), fitness, rmse, hu_d,
+    viol = check.free_space_violation(T)
+    ok = sfit >= min_fitness and viol <= max_violation and ambiguity <= max_ambiguity
+    return HeightmapMatch(T, float(best[1]), float(sfit), float(viol), float(ambiguity), fitness, rmse, hu_d,
                           best[2], len(checked), bool(ok), time.perf_counter() - t0, stages,
                           [(c[2], c[0], c[3], c[4], c[5]) for c in checked])
 
@@ -633,7 +643,10 @@ class _Verifier:
         self.struct, self.struct_t = structure(S, labels_s), structure(Tg, labels_t)
         self.range_s = _RangeImage(S, viewpoint_s)
         self.range_t = _RangeImage(Tg, viewpoint_t)
-        self.tree = cKDTree(np.asarray(voxel_downsample(Tg.astype(np.float32), 0.04), np.float64))
+        dense = prepare(Tg.astype(np.float32), 0.04, num_neighbors=12, num_threads=num_threads)
+        self.tgt_pts = np.asarray(dense.points, np.float64)
+        self.tgt_nrm, self.tgt_normal_ok = dense.normals, dense.normal_valid
+        self.tree = cKDTree(self.tgt_pts)
 
     def free_space_violation(self, T) -> float:
         """Share of each scan's structure that the other scan saw through (points lying in front
@@ -645,9 +658,17 @@ class _Verifier:
         return 0.5 * (a + b)
 
     def structure_fitness(self, T) -> float:
+        """Share of the source structure within ``max_distance`` of the target's surface: the
+        nearest target point within 30 cm, distance measured along its normal (a sparse scan
+        has gaps between its lines that a point-to-point test would count as misses)."""
         p = self.struct @ T[:3, :3].T + T[:3, 3]
-        d, _ = self.tree.query(p, distance_upper_bound=self.max_distance)
-        return float(np.mean(d < self.max_distance))
+        d, j = self.tree.query(p, distance_upper_bound=0.3)
+        near = np.isfinite(d)
+        jj = j[near]
+        dist = np.where(self.tgt_normal_ok[jj],
+                        np.abs(np.einsum("ij,ij->i", p[near] - self.tgt_pts[jj], self.tgt_nrm[jj])),
+                        d[near])
+        return float((dist < self.max_distance).sum() / max(len(p), 1))
 
     def polish(self, T) -> np.ndarray:
         from .registration import register
