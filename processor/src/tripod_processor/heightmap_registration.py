@@ -43,8 +43,8 @@ class HeightmapMatch:
     """Result: T_target_source (4, 4) maps source points into the target frame.
 
     score : normalised image correlation of the plan heightmaps at the match (0..1)
-    structure_fitness : share of the source's wall and non-planar points (10 cm voxels) within
-        ``max_distance`` of a target point: the 3-D verification that picked the answer
+    structure_fitness : share of each scan's wall and non-planar points (10 cm voxels) within
+        ``max_distance`` of the other's surface, mean of both directions: the 3-D verification
     ambiguity : best structure fitness among the other (distinct) hypotheses / the winner's
         (1: as good an answer elsewhere, e.g. an empty symmetric room)
     fitness, inlier_rmse : overlap share of all source points and RMSE [m] after the final ICP
@@ -145,38 +145,52 @@ def _normalise(img: np.ndarray) -> np.ndarray:
     return out
 
 
-def _xcorr_peak(F_target: np.ndarray, src: np.ndarray, window=None, extra=None):
-    """Peak of the circular cross-correlation (shift of src onto target) with sub-pixel refinement.
-    window: optional ((i0, j0), radius) limiting the search to shifts near (i0, j0);
-    extra: optional (F_target2, src2), a second channel whose correlation is added."""
+def _xcorr_peaks(F_target: np.ndarray, src: np.ndarray, window=None, extra=None,
+                 n_peaks: int = 1, suppress_px: int = 10):
+    """Peaks of the circular cross-correlation (shift of src onto target) with sub-pixel
+    refinement: a list of (value, shift (2,) [px]), best first.
+
+    window: optional ((i0, j0), radius) limiting the search to shifts near (i0, j0) (one peak);
+    extra: optional (F_target2, src2), a second channel whose correlation is added;
+    n_peaks: without a window, that many peaks at least ``suppress_px`` apart (a corridor or a
+    row of equal rooms matches at several shifts under one yaw)."""
     from scipy import fft
 
     X = F_target * np.conj(fft.rfft2(src, workers=-1))
     if extra is not None:
         X = X + extra[0] * np.conj(fft.rfft2(extra[1], workers=-1))
     c = fft.irfft2(X, s=src.shape, workers=-1)
+    H, W = c.shape
     if window is not None:
         (i0, j0), r = window
-        H, W = c.shape
         ii = (np.arange(-r, r + 1) + i0) % H
         jj = (np.arange(-r, r + 1) + j0) % W
         sub = c[np.ix_(ii, jj)]
         a, b = np.unravel_index(int(np.argmax(sub)), sub.shape)
-        i, j = int(ii[a]), int(jj[b])
+        found = [(int(ii[a]), int(jj[b]))]
     else:
-        i, j = np.unravel_index(int(np.argmax(c)), c.shape)
-    peak = float(c[i, j])
-    H, W = c.shape
+        work = c.copy()
+        found = []
+        for _ in range(n_peaks):
+            i, j = np.unravel_index(int(np.argmax(work)), work.shape)
+            found.append((int(i), int(j)))
+            ri = np.arange(i - suppress_px, i + suppress_px + 1) % H
+            rj = np.arange(j - suppress_px, j + suppress_px + 1) % W
+            work[np.ix_(ri, rj)] = -np.inf
 
     def parabola(m1, z0, p1):
         den = m1 - 2 * z0 + p1
         return 0.0 if abs(den) < 1e-12 else 0.5 * (m1 - p1) / den
 
-    di = parabola(c[(i - 1) % H, j], peak, c[(i + 1) % H, j])
-    dj = parabola(c[i, (j - 1) % W], peak, c[i, (j + 1) % W])
-    si = (i + di + H / 2) % H - H / 2  # wrap to signed shifts
-    sj = (j + dj + W / 2) % W - W / 2
-    return peak, np.array([si, sj])
+    out = []
+    for i, j in found:
+        peak = float(c[i, j])
+        di = parabola(c[(i - 1) % H, j], peak, c[(i + 1) % H, j])
+        dj = parabola(c[i, (j - 1) % W], peak, c[i, (j + 1) % W])
+        si = (i + di + H / 2) % H - H / 2  # wrap to signed shifts
+        sj = (j + dj + W / 2) % W - W / 2
+        out.append((peak, np.array([si, sj])))
+    return out
 
 
 def _channels(xy, z, labels, lo, pixel, shape) -> list[np.ndarray]:
@@ -188,8 +202,10 @@ def _channels(xy, z, labels, lo, pixel, shape) -> list[np.ndarray]:
 
 
 def _search(src: LevelledScan, tgt: LevelledScan, yaws: np.ndarray, pixel: float, window=None,
-            max_points: int = 30_000, seed: int = 0, keep: int = 1, other_weight: float = 2.0):
-    """The ``keep`` best (score, yaw, shift [m]) over the yaws (at least 20 deg apart); shift maps
+            max_points: int = 30_000, seed: int = 0, keep: int = 1, other_weight: float = 2.0,
+            shifts: int = 1):
+    """The ``keep`` best distinct (score, yaw, shift [m]) over the yaws (``shifts`` correlation
+    peaks per yaw); shift maps
     the rotated source xy onto the target xy. The score is the walls' correlation plus
     ``other_weight`` times the rest's: walls of a box room match equally well under its
     symmetries, the furniture must outvote them."""
@@ -217,12 +233,14 @@ def _search(src: LevelledScan, tgt: LevelledScan, yaws: np.ndarray, pixel: float
             centre = np.round(window[0] / pixel).astype(int)
             win = ((int(centre[0]), int(centre[1])), int(window[1]))
         # summed correlation of the channels; the peak position from their sum
-        peak, shift = _xcorr_peak(F_t[0] + 0.0, S_c[0], win, extra=(other_weight * F_t[1], S_c[1]))
-        results.append((peak, float(yaw), shift * pixel))
+        for peak, shift in _xcorr_peaks(F_t[0] + 0.0, S_c[0], win, extra=(other_weight * F_t[1], S_c[1]),
+                                        n_peaks=shifts, suppress_px=int(np.ceil(1.0 / pixel))):
+            results.append((peak, float(yaw), shift * pixel))
     results.sort(key=lambda r: -r[0])
     out = []
-    for r in results:
-        if all(abs((r[1] - o[1] + np.pi) % (2 * np.pi) - np.pi) > np.deg2rad(20) for o in out):
+    for r in results:  # distinct: yaws 20 deg apart, or shifts 1 m apart under a near yaw
+        if all(abs((r[1] - o[1] + np.pi) % (2 * np.pi) - np.pi) > np.deg2rad(20)
+               or np.linalg.norm(r[2] - o[2]) > 1.0 for o in out):
             out.append(r)
         if len(out) == keep:
             break
@@ -428,9 +446,9 @@ def _fit_rigid_2d(a: np.ndarray, b: np.ndarray):
 def register_by_heightmaps(source, target, *, source_labels=None, target_labels=None,
                            coarse_pixel: float = 0.10, coarse_step_deg: float = 2.0,
                            fine_pixel: float = 0.05, fine_step_deg: float = 0.5,
-                           feature_pixel: float = 0.05, candidates: int = 8,
+                           feature_pixel: float = 0.05, candidates: int = 40, verify: int = 8,
                            use_keypoints: bool = True, use_shapes: bool = True,
-                           max_distance: float = 0.08, min_fitness: float = 0.3,
+                           max_distance: float = 0.08, min_fitness: float = 0.4,
                            max_ambiguity: float = 0.97, max_violation: float = 0.05, other_weight: float = 2.0,
                            free_space_weight: float = 5.0, viewpoint_source=(0.0, 0.0, 0.0),
                            viewpoint_target=(0.0, 0.0, 0.0), weights=None, seed: int = 0,
@@ -446,7 +464,9 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
     coarse_pixel, coarse_step_deg : image pixel [m] and yaw step [deg] of the dense search
     fine_pixel, fine_step_deg : of the refinement of every hypothesis
     feature_pixel : pixel [m] of the images the keypoints and shapes are found on
-    candidates : best yaws (20 deg apart) the dense search proposes
+    candidates : best distinct answers (yaws 20 deg or shifts 1 m apart) the dense search
+        proposes (five correlation peaks per yaw); all proposals are screened in 3-D as they
+        are, the best ``verify`` of them refined, polished by ICP and verified
     use_keypoints, use_shapes : also propose from ORB keypoints / Hu-moment shape matches
     max_distance : inlier distance of the 3-D verification [m]
     min_fitness : verified structure overlap needed to call the match a success
@@ -490,7 +510,8 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
     fp = max(fine_pixel, extent / 400)
     yaws = np.deg2rad(np.arange(0.0, 360.0, coarse_step_deg))
     proposals = [(yaw, shift, "correlation", score) for score, yaw, shift in
-                 _search(ls, lt, yaws, cp, seed=seed, keep=candidates, other_weight=other_weight)]
+                 _search(ls, lt, yaws, cp, seed=seed, keep=candidates, other_weight=other_weight,
+                         shifts=5)]
     stages["correlation"] = time.perf_counter() - t1
     t1 = time.perf_counter()
     fpx = max(feature_pixel, extent / 400)
@@ -517,25 +538,33 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
                 proposals.append((yaw, t, "shapes", float(len(inl))))
         stages["shapes"] = time.perf_counter() - t1
 
-    # 3. refine each distinct proposal by correlation (fine pixel and yaw) and lift it to 3-D
-    t1 = time.perf_counter()
-    hyps = []
-    for yaw0, shift0, who, _ in proposals:
-        yaw0 = float(yaw0)
-        if any(_close(yaw0, shift0, h[1], h[2]) for h in hyps):
-            continue
-        fine = yaw0 + np.deg2rad(np.arange(-coarse_step_deg, coarse_step_deg + 1e-9, fine_step_deg))
-        score, yaw, shift = _search(ls, lt, fine, fp, window=(np.asarray(shift0), int(np.ceil(2 * cp / fp)) + 2),
-                                    seed=seed, other_weight=other_weight)[0]
-        hyps.append((score, yaw0, np.asarray(shift0), who, _lift(ls, lt, yaw, shift)))
-    stages["refine"] = time.perf_counter() - t1
-
-    # 4. verify in 3-D: short ICP, then the share of walls and furniture on target surfaces
+    # 3. screen the distinct proposals in 3-D as they are (loose distance, free space), then
+    #    refine the best by correlation (fine pixel and yaw) and lift them to 3-D
     t1 = time.perf_counter()
     check = _Verifier(S, source_labels, Tg, target_labels, max_distance, viewpoint_source,
                       viewpoint_target, num_threads)
+    screened = []
+    for yaw0, shift0, who, score0 in proposals:
+        yaw0, shift0 = float(yaw0), np.asarray(shift0, np.float64)
+        if any(_close(yaw0, shift0, h[1], h[2]) for h in screened):
+            continue
+        T0 = _lift(ls, lt, yaw0, shift0)
+        pre = check.structure_fitness(T0, 3 * cp) - free_space_weight * check.free_space_violation(T0)
+        screened.append((pre, yaw0, shift0, who))
+    screened.sort(key=lambda h: -h[0])
+    hyps = []
+    for _, yaw0, shift0, who in screened[:verify]:
+        fine = yaw0 + np.deg2rad(np.arange(-coarse_step_deg, coarse_step_deg + 1e-9, fine_step_deg))
+        score, yaw, shift = _search(ls, lt, fine, fp, window=(shift0, int(np.ceil(2 * cp / fp)) + 2),
+                                    seed=seed, other_weight=other_weight)[0]
+        hyps.append((score, who, _lift(ls, lt, yaw, shift)))
+    stages["screen+refine"] = time.perf_counter() - t1
+
+    # 4. verify in 3-D: short ICP, then the share of walls and furniture on the other's
+    #    surfaces, less what either scan saw through
+    t1 = time.perf_counter()
     checked = []
-    for score, _, _, who, T in hyps:
+    for score, who, T in hyps:
         T_icp = check.polish(T)
         fit, viol = check.structure_fitness(T_icp), check.free_space_violation(T_icp)
         checked.append((fit - free_space_weight * viol, score, who, T_icp, fit, viol))
@@ -643,10 +672,12 @@ class _Verifier:
         self.struct, self.struct_t = structure(S, labels_s), structure(Tg, labels_t)
         self.range_s = _RangeImage(S, viewpoint_s)
         self.range_t = _RangeImage(Tg, viewpoint_t)
-        dense = prepare(Tg.astype(np.float32), 0.04, num_neighbors=12, num_threads=num_threads)
-        self.tgt_pts = np.asarray(dense.points, np.float64)
-        self.tgt_nrm, self.tgt_normal_ok = dense.normals, dense.normal_valid
-        self.tree = cKDTree(self.tgt_pts)
+        def surface(P):
+            dense = prepare(P.astype(np.float32), 0.04, num_neighbors=12, num_threads=num_threads)
+            pts = np.asarray(dense.points, np.float64)
+            return cKDTree(pts), pts, dense.normals, dense.normal_valid
+
+        self.surf_s, self.surf_t = surface(S), surface(Tg)
 
     def free_space_violation(self, T) -> float:
         """Share of each scan's structure that the other scan saw through (points lying in front
@@ -657,18 +688,23 @@ class _Verifier:
         b = _in_free_space(self.struct_t @ Ti[:3, :3].T + Ti[:3, 3], self.range_s)
         return 0.5 * (a + b)
 
-    def structure_fitness(self, T) -> float:
-        """Share of the source structure within ``max_distance`` of the target's surface: the
-        nearest target point within 30 cm, distance measured along its normal (a sparse scan
-        has gaps between its lines that a point-to-point test would count as misses)."""
-        p = self.struct @ T[:3, :3].T + T[:3, 3]
-        d, j = self.tree.query(p, distance_upper_bound=0.3)
+    def structure_fitness(self, T, max_distance: float | None = None) -> float:
+        """Share of the structure within ``max_distance`` of the other scan's surface, the mean
+        of both directions (source on target, target on source): the nearest point within
+        30 cm counts, distance measured along its normal (a sparse scan has gaps between its
+        lines that a point-to-point test would count as misses)."""
+        Ti = np.linalg.inv(T)
+        tol = self.max_distance if max_distance is None else max_distance
+        return 0.5 * (self._on_surface(self.struct @ T[:3, :3].T + T[:3, 3], self.surf_t, tol)
+                      + self._on_surface(self.struct_t @ Ti[:3, :3].T + Ti[:3, 3], self.surf_s, tol))
+
+    def _on_surface(self, p, surf, tol: float) -> float:
+        tree, pts, nrm, nok = surf
+        d, j = tree.query(p, distance_upper_bound=max(0.3, tol))
         near = np.isfinite(d)
         jj = j[near]
-        dist = np.where(self.tgt_normal_ok[jj],
-                        np.abs(np.einsum("ij,ij->i", p[near] - self.tgt_pts[jj], self.tgt_nrm[jj])),
-                        d[near])
-        return float((dist < self.max_distance).sum() / max(len(p), 1))
+        dist = np.where(nok[jj], np.abs(np.einsum("ij,ij->i", p[near] - pts[jj], nrm[jj])), d[near])
+        return float((dist < tol).sum() / max(len(p), 1))
 
     def polish(self, T) -> np.ndarray:
         from .registration import register
