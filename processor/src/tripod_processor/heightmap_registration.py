@@ -450,7 +450,7 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
                            use_keypoints: bool = True, use_shapes: bool = True,
                            max_distance: float = 0.08, min_fitness: float = 0.4,
                            max_ambiguity: float = 0.97, max_violation: float = 0.05, other_weight: float = 2.0,
-                           free_space_weight: float = 5.0, viewpoint_source=(0.0, 0.0, 0.0),
+                           free_space_weight: float = 10.0, viewpoint_source=(0.0, 0.0, 0.0),
                            viewpoint_target=(0.0, 0.0, 0.0), weights=None, seed: int = 0,
                            num_threads: int = 0) -> HeightmapMatch:
     """Rigid transform between two overlapping indoor scans by matching plan heightmaps.
@@ -549,7 +549,8 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
         if any(_close(yaw0, shift0, h[1], h[2]) for h in screened):
             continue
         T0 = _lift(ls, lt, yaw0, shift0)
-        pre = check.structure_fitness(T0, 3 * cp) - free_space_weight * check.free_space_violation(T0)
+        pre = (check.structure_fitness(T0, 3 * cp, screen=True)
+               - free_space_weight * check.free_space_violation(T0, screen=True))
         screened.append((pre, yaw0, shift0, who))
     screened.sort(key=lambda h: -h[0])
     hyps = []
@@ -670,6 +671,9 @@ class _Verifier:
             return np.asarray(voxel_downsample(st.astype(np.float32), 0.10), np.float64)
 
         self.struct, self.struct_t = structure(S, labels_s), structure(Tg, labels_t)
+        # an even subset for screening many hypotheses
+        self.few = self.struct[:: max(1, len(self.struct) // 3000)]
+        self.few_t = self.struct_t[:: max(1, len(self.struct_t) // 3000)]
         self.range_s = _RangeImage(S, viewpoint_s)
         self.range_t = _RangeImage(Tg, viewpoint_t)
         def surface(P):
@@ -679,24 +683,26 @@ class _Verifier:
 
         self.surf_s, self.surf_t = surface(S), surface(Tg)
 
-    def free_space_violation(self, T) -> float:
+    def free_space_violation(self, T, screen: bool = False) -> float:
         """Share of each scan's structure that the other scan saw through (points lying in front
         of the other's nearest return in their direction, by more than 5 % + 10 cm), averaged
         over both directions; 0 for a consistent pose."""
         Ti = np.linalg.inv(T)
-        a = _in_free_space(self.struct @ T[:3, :3].T + T[:3, 3], self.range_t)
-        b = _in_free_space(self.struct_t @ Ti[:3, :3].T + Ti[:3, 3], self.range_s)
+        a, b = (self.few, self.few_t) if screen else (self.struct, self.struct_t)
+        a = _in_free_space(a @ T[:3, :3].T + T[:3, 3], self.range_t)
+        b = _in_free_space(b @ Ti[:3, :3].T + Ti[:3, 3], self.range_s)
         return 0.5 * (a + b)
 
-    def structure_fitness(self, T, max_distance: float | None = None) -> float:
+    def structure_fitness(self, T, max_distance: float | None = None, screen: bool = False) -> float:
         """Share of the structure within ``max_distance`` of the other scan's surface, the mean
         of both directions (source on target, target on source): the nearest point within
         30 cm counts, distance measured along its normal (a sparse scan has gaps between its
         lines that a point-to-point test would count as misses)."""
         Ti = np.linalg.inv(T)
         tol = self.max_distance if max_distance is None else max_distance
-        return 0.5 * (self._on_surface(self.struct @ T[:3, :3].T + T[:3, 3], self.surf_t, tol)
-                      + self._on_surface(self.struct_t @ Ti[:3, :3].T + Ti[:3, 3], self.surf_s, tol))
+        a, b = (self.few, self.few_t) if screen else (self.struct, self.struct_t)
+        return 0.5 * (self._on_surface(a @ T[:3, :3].T + T[:3, 3], self.surf_t, tol)
+                      + self._on_surface(b @ Ti[:3, :3].T + Ti[:3, 3], self.surf_s, tol))
 
     def _on_surface(self, p, surf, tol: float) -> float:
         tree, pts, nrm, nok = surf
