@@ -338,12 +338,12 @@ def match_binary(da: np.ndarray, db: np.ndarray, k: int = 2) -> np.ndarray:
 
 def shape_blobs(scan: "LevelledScan", pixel: float = 0.05, min_area: float = 0.08,
                 max_area: float = 6.0):
-    """Blobs of non-wall content in the plan (furniture, columns, cabinets) with shape
+    """Blobs of "other" content in the plan (furniture, columns, cabinets) with shape
     descriptors: centroids (K, 2) [m] and descriptors (K, 7): log |Hu| 1-4 (rotation
     invariant), log area [m^2], median and top height [m]."""
     from scipy import ndimage
 
-    keep = scan.labels != WALL
+    keep = scan.labels == OTHER
     xy, z = scan.xy[keep], scan.z[keep]
     if len(xy) < 10:
         return np.zeros((0, 2)), np.zeros((0, 7))
