@@ -9,12 +9,18 @@
 * planes on a simulated room of ~1 M points against the true planes, time, vs Open3D's
   planar-patch detector;
 * heightmap relief RMSE against the mesh (3 cm range noise);
-* registration by heightmaps over random pairs of overlapping simulated scans (synthetic rooms
-  of ``tripod_processor.synthetic_rooms``, VLP-16 on a turning head, 3 cm noise; >= 30 % of one
-  scan within 10 cm of the other; random yaw, position and 0.3 deg levelling error; success:
-  <= 1 deg and <= 5 cm) with its time, next to FPFH + RANSAC + ICP (Open3D) on the same pairs.
+* registration by heightmaps over random pairs of overlapping digital-twin scans: ``tripod
+  simulate`` captures of every scene type (seeds 201-203, never used in training; 4 stations
+  each, 3 cm range noise), each station's points decoded from the capture's packets, placed
+  with the true poses and taken into the station's frame (``scene_data.station_fragments``,
+  cached under .cache/scene_data/pairs); a pair is two stations of one capture with >= 30 % of
+  the source within 10 cm of the target, each moved by a random yaw and shift; success:
+  <= 1 deg and <= 5 cm; with its time, next to Open3D's FPFH + RANSAC + ICP and the core's own
+  gravity-constrained ``register_global`` + ICP on the same pairs. ``--pair-source synthetic``
+  uses the ``synthetic_rooms`` generator instead.
 
-Usage: ``python bench/scene.py [--pairs 50] [--pictures]`` (``--pictures`` rewrites docs/*.png).
+Usage: ``python bench/scene.py [--pairs 50] [--pictures] [--only registration]
+[--pair-source twin|synthetic] [--no-baselines]`` (``--pictures`` rewrites docs/*.png).
 """
 
 from __future__ import annotations

@@ -51,7 +51,8 @@ def test_register_by_heightmaps(seed):
     tgt, Ta = _turn(pa, 0.3, [1, 2, 0.1])
     src, Tb = _turn(pb, -2.0, [-3, 0.5, -0.2])
     r = register_by_heightmaps(src, tgt, source_labels=lb, target_labels=la,
-                               viewpoint_source=(Tb @ [*b, 1])[:3], viewpoint_target=(Ta @ [*a, 1])[:3])
+                               viewpoint_source=(Tb @ [*b, 1])[:3],
+                               viewpoint_target=(Ta @ [*a, 1])[:3])
     ang, dist = _pose_error(r.T_target_source, Ta @ np.linalg.inv(Tb))
     assert ang < 1.0 and dist < 0.05, (ang, dist)
     assert r.success and r.fitness > 0.5 and r.structure_fitness > 0.5
@@ -165,8 +166,8 @@ def test_cli_register_heightmaps_method(tmp_path, capsys):
     write_ply(tmp_path / "t.ply", make_cloud(pa))
     write_ply(tmp_path / "s.ply", make_cloud(src))
     capsys.readouterr()
-    assert main(["register", str(tmp_path / "s.ply"), str(tmp_path / "t.ply"), "--method", "heightmaps",
-                 "-o", str(tmp_path / "r.json")]) == 0
+    assert main(["register", str(tmp_path / "s.ply"), str(tmp_path / "t.ply"),
+                 "--method", "heightmaps", "-o", str(tmp_path / "r.json")]) == 0
     out = json.loads(capsys.readouterr().out)
     E = Tb @ np.array(out["T_target_source"])  # truth: T_target_source = Tb^-1
     ang = np.degrees(np.arccos(np.clip((np.trace(E[:3, :3]) - 1) / 2, -1, 1)))

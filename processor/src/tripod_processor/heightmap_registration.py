@@ -55,7 +55,8 @@ class HeightmapMatch:
     success : structure_fitness >= min_fitness, free_space_violation <= max_violation and
         ambiguity <= max_ambiguity
     seconds : wall time; stages : per-stage times [s]
-    verified : (proposer, structure fitness, T_target_source) of every hypothesis, best first
+    verified : (proposer, verification score, T_target_source, structure fitness, free-space
+        violation) of every verified hypothesis, best first (score = fitness - weight x violation)
     """
 
     T_target_source: np.ndarray
@@ -233,7 +234,8 @@ def _search(src: LevelledScan, tgt: LevelledScan, yaws: np.ndarray, pixel: float
             centre = np.round(window[0] / pixel).astype(int)
             win = ((int(centre[0]), int(centre[1])), int(window[1]))
         # summed correlation of the channels; the peak position from their sum
-        for peak, shift in _xcorr_peaks(F_t[0] + 0.0, S_c[0], win, extra=(other_weight * F_t[1], S_c[1]),
+        for peak, shift in _xcorr_peaks(F_t[0] + 0.0, S_c[0], win,
+                                        extra=(other_weight * F_t[1], S_c[1]),
                                         n_peaks=shifts, suppress_px=int(np.ceil(1.0 / pixel))):
             results.append((peak, float(yaw), shift * pixel))
     results.sort(key=lambda r: -r[0])
@@ -414,7 +416,8 @@ def rigid_2d_ransac(a: np.ndarray, b: np.ndarray, *, inlier_m: float = 0.15,
         yaw = np.arctan2(db[:, 1], db[:, 0]) - np.arctan2(da[:, 1], da[:, 0])
         c, s = np.cos(yaw), np.sin(yaw)
         mid_a, mid_b = (a[i] + a[j]) / 2, (b[i] + b[j]) / 2
-        t = mid_b - np.stack([c * mid_a[:, 0] - s * mid_a[:, 1], s * mid_a[:, 0] + c * mid_a[:, 1]], 1)
+        t = mid_b - np.stack([c * mid_a[:, 0] - s * mid_a[:, 1],
+                              s * mid_a[:, 0] + c * mid_a[:, 1]], 1)
         A, B = a[idx], b[idx]
         px = c[:, None] * A[None, :, 0] - s[:, None] * A[None, :, 1] + t[:, :1]
         py = s[:, None] * A[None, :, 0] + c[:, None] * A[None, :, 1] + t[:, 1:]
@@ -449,7 +452,8 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
                            feature_pixel: float = 0.05, candidates: int = 40, verify: int = 8,
                            use_keypoints: bool = True, use_shapes: bool = True,
                            max_distance: float = 0.08, min_fitness: float = 0.4,
-                           max_ambiguity: float = 0.97, max_violation: float = 0.05, other_weight: float = 2.0,
+                           max_ambiguity: float = 0.97, max_violation: float = 0.05,
+                           other_weight: float = 2.0,
                            free_space_weight: float = 10.0, viewpoint_source=(0.0, 0.0, 0.0),
                            viewpoint_target=(0.0, 0.0, 0.0), weights=None, seed: int = 0,
                            num_threads: int = 0) -> HeightmapMatch:
@@ -505,7 +509,8 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
 
     # 2. proposals (yaw, shift) of the levelled source onto the levelled target
     t1 = time.perf_counter()
-    extent = float(max(np.ptp(lt.xy, 0).max(), np.ptp(ls.xy, 0).max())) if len(lt.xy) and len(ls.xy) else 10.0
+    extent = (float(max(np.ptp(lt.xy, 0).max(), np.ptp(ls.xy, 0).max()))
+              if len(lt.xy) and len(ls.xy) else 10.0)
     cp = max(coarse_pixel, extent / 150)  # the images stay small for big halls
     fp = max(fine_pixel, extent / 400)
     yaws = np.deg2rad(np.arange(0.0, 360.0, coarse_step_deg))
@@ -544,7 +549,7 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
     check = _Verifier(S, source_labels, Tg, target_labels, max_distance, viewpoint_source,
                       viewpoint_target, num_threads)
     screened = []
-    for yaw0, shift0, who, score0 in proposals:
+    for yaw0, shift0, who, _ in proposals:
         yaw0, shift0 = float(yaw0), np.asarray(shift0, np.float64)
         if any(_close(yaw0, shift0, h[1], h[2]) for h in screened):
             continue
@@ -556,7 +561,8 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
     hyps = []
     for _, yaw0, shift0, who in screened[:verify]:
         fine = yaw0 + np.deg2rad(np.arange(-coarse_step_deg, coarse_step_deg + 1e-9, fine_step_deg))
-        score, yaw, shift = _search(ls, lt, fine, fp, window=(shift0, int(np.ceil(2 * cp / fp)) + 2),
+        win = (shift0, int(np.ceil(2 * cp / fp)) + 2)
+        score, yaw, shift = _search(ls, lt, fine, fp, window=win,
                                     seed=seed, other_weight=other_weight)[0]
         hyps.append((score, who, _lift(ls, lt, yaw, shift)))
     stages["screen+refine"] = time.perf_counter() - t1
@@ -572,7 +578,10 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
     checked.sort(key=lambda c: -c[0])
     best = checked[0]
     others = [c for c in checked[1:] if not _same_pose(c[3], best[3])]
-    ambiguity = (others[0][0] / best[0]) if others and best[0] > 0 else 0.0
+    if best[0] <= 0:  # even the best contradicts free space or barely overlaps: no winner
+        ambiguity = 1.0
+    else:
+        ambiguity = max(0.0, others[0][0] / best[0]) if others else 0.0
     stages["verify"] = time.perf_counter() - t1
 
     # 5. final polish at full density
@@ -585,14 +594,16 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
     hu_d = float(np.abs(hu_s[:4] - hu_t[:4]).sum())
     viol = check.free_space_violation(T)
     ok = sfit >= min_fitness and viol <= max_violation and ambiguity <= max_ambiguity
-    return HeightmapMatch(T, float(best[1]), float(sfit), float(viol), float(ambiguity), fitness, rmse, hu_d,
+    return HeightmapMatch(T, float(best[1]), float(sfit), float(viol), float(ambiguity), fitness,
+                          rmse, hu_d,
                           best[2], len(checked), bool(ok), time.perf_counter() - t0, stages,
                           [(c[2], c[0], c[3], c[4], c[5]) for c in checked])
 
 
 def _close(yaw_a, shift_a, yaw_b, shift_b, yaw_tol=np.deg2rad(3.0), shift_tol=0.3) -> bool:
     dy = abs((yaw_a - yaw_b + np.pi) % (2 * np.pi) - np.pi)
-    return dy < yaw_tol and float(np.linalg.norm(np.asarray(shift_a) - np.asarray(shift_b))) < shift_tol
+    ds = float(np.linalg.norm(np.asarray(shift_a) - np.asarray(shift_b)))
+    return dy < yaw_tol and ds < shift_tol
 
 
 def _same_pose(A, B, deg: float = 3.0, m: float = 0.2) -> bool:
@@ -693,7 +704,8 @@ class _Verifier:
         b = _in_free_space(b @ Ti[:3, :3].T + Ti[:3, 3], self.range_s)
         return 0.5 * (a + b)
 
-    def structure_fitness(self, T, max_distance: float | None = None, screen: bool = False) -> float:
+    def structure_fitness(self, T, max_distance: float | None = None,
+                          screen: bool = False) -> float:
         """Share of the structure within ``max_distance`` of the other scan's surface, the mean
         of both directions (source on target, target on source): the nearest point within
         30 cm counts, distance measured along its normal (a sparse scan has gaps between its
@@ -715,8 +727,12 @@ class _Verifier:
     def polish(self, T) -> np.ndarray:
         from .registration import register
 
-        r = register(self.src, self.tgt, "plane", init=T, max_correspondence_distance=[0.4, 0.15],
-                     max_iterations=15, num_threads=self.threads)
+        try:
+            r = register(self.src, self.tgt, "plane", init=T,
+                         max_correspondence_distance=[0.4, 0.15], max_iterations=15,
+                         num_threads=self.threads)
+        except ValueError:  # too few correspondences: judge the hypothesis as proposed
+            return T
         T2 = r.T_target_source
         # a hypothesis ICP tipped over (tilted) is not one the levelled images proposed
         tilt = np.degrees(np.arccos(np.clip((T2[:3, :3] @ T[:3, :3].T)[2, 2], -1, 1)))
