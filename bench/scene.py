@@ -9,12 +9,18 @@
 * planes on a simulated room of ~1 M points against the true planes, time, vs Open3D's
   planar-patch detector;
 * heightmap relief RMSE against the mesh (3 cm range noise);
-* registration by heightmaps over random pairs of overlapping simulated scans (synthetic rooms
-  of ``tripod_processor.synthetic_rooms``, VLP-16 on a turning head, 3 cm noise; >= 30 % of one
-  scan within 10 cm of the other; random yaw, position and 0.3 deg levelling error; success:
-  <= 1 deg and <= 5 cm) with its time, next to FPFH + RANSAC + ICP (Open3D) on the same pairs.
+* registration by heightmaps over random pairs of overlapping digital-twin scans: ``tripod
+  simulate`` captures of every scene type (seeds 201-203, never used in training; 4 stations
+  each, 3 cm range noise), each station's points decoded from the capture's packets, placed
+  with the true poses and taken into the station's frame (``scene_data.station_fragments``,
+  cached under .cache/scene_data/pairs); a pair is two stations of one capture with >= 30 % of
+  the source within 10 cm of the target, each moved by a random yaw and shift; success:
+  <= 1 deg and <= 5 cm; with its time, next to Open3D's FPFH + RANSAC + ICP and the core's own
+  gravity-constrained ``register_global`` + ICP on the same pairs. ``--pair-source synthetic``
+  uses the ``synthetic_rooms`` generator instead.
 
-Usage: ``python bench/scene.py [--pairs 50] [--pictures]`` (``--pictures`` rewrites docs/*.png).
+Usage: ``python bench/scene.py [--pairs 50] [--pictures] [--only registration]
+[--pair-source twin|synthetic] [--no-baselines]`` (``--pictures`` rewrites docs/*.png).
 """
 
 from __future__ import annotations
@@ -178,95 +184,197 @@ def bench_planes(pictures: bool) -> None:
 
 
 # ---------------------------------------------------------------------------- registration
-def bench_registration(n_pairs: int) -> None:
+def _fpfh_ransac(src, tgt, voxel=0.10):
+    """Open3D FPFH + RANSAC + point-to-plane ICP (the usual global-registration baseline)."""
     import open3d as o3d
 
-    from tripod_processor.heightmap_registration import register_by_heightmaps
-    from tripod_processor.synthetic_rooms import _axis_angle, free_station, make_room, scan
+    reg = o3d.pipelines.registration
 
-    def rand_T(rng):
-        T = np.eye(4)
-        T[:3, :3] = _axis_angle([0, 0, 1], rng.uniform(-np.pi, np.pi)) @ _axis_angle(
-            [*rng.normal(size=2), 0], np.deg2rad(rng.normal(0, 0.3)))  # IMU levelling error
-        T[:3, 3] = [*rng.uniform(-5, 5, 2), rng.uniform(-0.3, 0.3)]
-        return T
+    def prep(p):
+        c = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p.astype(np.float64)))
+        c = c.voxel_down_sample(voxel)
+        c.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2 * voxel, max_nn=30))
+        f = reg.compute_fpfh_feature(c, o3d.geometry.KDTreeSearchParamHybrid(radius=5 * voxel, max_nn=100))
+        return c, f
 
-    def fpfh_ransac(src, tgt, voxel=0.10):
-        reg = o3d.pipelines.registration
+    s, fs = prep(src)
+    t, ft = prep(tgt)
+    res = reg.registration_ransac_based_on_feature_matching(
+        s, t, fs, ft, True, 1.5 * voxel, reg.TransformationEstimationPointToPoint(False), 3,
+        [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(1.5 * voxel)],
+        reg.RANSACConvergenceCriteria(100000, 0.999))
+    fine = reg.registration_icp(s, t, voxel, res.transformation,
+                                reg.TransformationEstimationPointToPlane())
+    return np.asarray(fine.transformation)
 
-        def prep(p):
-            c = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p.astype(np.float64)))
-            c = c.voxel_down_sample(voxel)
-            c.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2 * voxel, max_nn=30))
-            f = reg.compute_fpfh_feature(c, o3d.geometry.KDTreeSearchParamHybrid(radius=5 * voxel, max_nn=100))
-            return c, f
 
-        s, fs = prep(src)
-        t, ft = prep(tgt)
-        res = reg.registration_ransac_based_on_feature_matching(
-            s, t, fs, ft, True, 1.5 * voxel, reg.TransformationEstimationPointToPoint(False), 3,
-            [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(1.5 * voxel)],
-            reg.RANSACConvergenceCriteria(100000, 0.999))
-        fine = reg.registration_icp(s, t, voxel, res.transformation,
-                                    reg.TransformationEstimationPointToPlane())
-        return np.asarray(fine.transformation)
+def _rand_T(rng, tilt_deg: float = 0.0):
+    """A random yaw (any), x-y shift (+-5 m), height shift (+-0.3 m) and optional tilt [deg]."""
+    from tripod_processor.synthetic_rooms import _axis_angle
 
+    T = np.eye(4)
+    T[:3, :3] = _axis_angle([0, 0, 1], rng.uniform(-np.pi, np.pi)) @ _axis_angle(
+        [*rng.normal(size=2), 0], np.deg2rad(rng.normal(0, tilt_deg)) if tilt_deg else 0.0)
+    T[:3, 3] = [*rng.uniform(-5, 5, 2), rng.uniform(-0.3, 0.3)]
+    return T
+
+
+def twin_pairs(n_pairs: int, seed: int = 0):
+    """Random overlapping station pairs of ``tripod simulate`` captures (every scene type, seeds
+    ``scene_data.PAIR_SEEDS``, 4 stations each): yields (name, target, source, T_true, overlap,
+    kind); overlap = share of the source points within 10 cm of the target's (true poses),
+    pairs under 30 % are never drawn. Each fragment is moved by its own random yaw and shift."""
+    from scene_data import PAIR_SEEDS, SCENES, station_fragments
     from scipy.spatial import cKDTree
 
-    ok_h, ok_f, t_h, t_f, kinds, overlaps = 0, 0, [], [], {}, []
+    cache = REPO / ".cache" / "scene_data" / "pairs"
+    frags = {}
+    for sd in PAIR_SEEDS:
+        for sc in SCENES:
+            frags[(sc, sd)] = station_fragments(sc, sd, cache)
+    cands = []
+    for (sc, sd), files in frags.items():
+        world = []
+        for f in files:
+            z = np.load(f)
+            T = z["T_world_station"]
+            world.append(z["points"][::20] @ T[:3, :3].T.astype(np.float32) + T[:3, 3])
+        trees = [cKDTree(w) for w in world]
+        for i in range(len(files)):
+            for j in range(len(files)):
+                if i < j:
+                    ov = float((trees[i].query(world[j], distance_upper_bound=0.1)[0] < 0.1).mean())
+                    if ov >= 0.3:
+                        cands.append((sc, sd, i, j, ov))
+    rng = np.random.default_rng(seed)
+    order = rng.permutation(len(cands))
+    if n_pairs > len(cands):
+        print(f"    only {len(cands)} overlapping pairs available", flush=True)
+    for k in order[:n_pairs]:
+        sc, sd, i, j, ov = cands[k]
+        za, zb = np.load(frags[(sc, sd)][i]), np.load(frags[(sc, sd)][j])
+        if rng.random() < 0.5:  # either station may be the target
+            za, zb, i, j = zb, za, j, i
+        Ta, Tb = _rand_T(rng), _rand_T(rng)
+        tgt = (za["points"] @ Ta[:3, :3].T + Ta[:3, 3]).astype(np.float32)
+        src = (zb["points"] @ Tb[:3, :3].T + Tb[:3, 3]).astype(np.float32)
+        # x_target = Ta T_station_a^-1 T_station_b Tb^-1 x_source
+        T_true = Ta @ np.linalg.inv(za["T_world_station"]) @ zb["T_world_station"] @ np.linalg.inv(Tb)
+        yield f"{sc}_s{sd} {j}->{i}", tgt, src, T_true, ov, sc, Ta[:3, 3], Tb[:3, 3]
+
+
+def synthetic_pairs(n_pairs: int):
+    """Pairs of scans of ``tripod_processor.synthetic_rooms`` (the generator the segmenter also
+    trains on), >= 30 % overlap, random yaw, shift and 0.3 deg levelling error."""
+    from scipy.spatial import cKDTree
+
+    from tripod_processor.synthetic_rooms import free_station, make_room, scan
+
     for k in range(n_pairs):
         rng = np.random.default_rng(1000 + k)
         scene = make_room(5000 + k)
         a = free_station(scene, rng)
-        pa, la = scan(scene, a, head_steps=12, noise_m=0.03, seed=k)
+        pa, _ = scan(scene, a, head_steps=12, noise_m=0.03, seed=k)
         tree = cKDTree(pa)
-        # an overlapping pair: >= 30 % of the second scan within 10 cm of the first (a station
-        # in the other room of a two-room scene sees it only through the door: drawn again)
         for attempt in range(20):
             b = free_station(scene, rng)
-            pb, lb = scan(scene, b, head_steps=12, noise_m=0.03, seed=k + 77 + attempt)
+            pb, _ = scan(scene, b, head_steps=12, noise_m=0.03, seed=k + 77 + attempt)
             overlap = float((tree.query(pb[::10], distance_upper_bound=0.1)[0] < 0.1).mean())
             if overlap >= 0.3:
                 break
-        overlaps.append(overlap)
-        Ta, Tb = rand_T(rng), rand_T(rng)
+        Ta, Tb = _rand_T(rng, 0.3), _rand_T(rng, 0.3)
         tgt = (pa @ Ta[:3, :3].T + Ta[:3, 3]).astype(np.float32)
         src = (pb @ Tb[:3, :3].T + Tb[:3, 3]).astype(np.float32)
-        T_true = Ta @ np.linalg.inv(Tb)
-        t0 = time.perf_counter()
-        r = register_by_heightmaps(src, tgt)  # labels from the shipped segmenter
-        t_h.append(time.perf_counter() - t0)
-        E = np.linalg.inv(T_true) @ r.T_target_source
-        good_h = rot_err_deg(E[:3, :3]) <= 1.0 and np.linalg.norm(E[:3, 3]) <= 0.05
-        t0 = time.perf_counter()
-        Tf = fpfh_ransac(src, tgt)
-        t_f.append(time.perf_counter() - t0)
-        E = np.linalg.inv(T_true) @ Tf
-        good_f = rot_err_deg(E[:3, :3]) <= 1.0 and np.linalg.norm(E[:3, 3]) <= 0.05
-        ok_h += good_h
-        ok_f += good_f
         kind = "hall" if scene.height > 3.5 else f"{len(scene.footprint)}-corner"
+        yield (f"synthetic {5000 + k}", tgt, src, Ta @ np.linalg.inv(Tb), overlap, kind,
+               (Ta @ [*a, 1.0])[:3], (Tb @ [*b, 1.0])[:3])
+
+
+def bench_registration(n_pairs: int, source: str = "twin", baselines: bool = True) -> None:
+    from tripod_processor.heightmap_registration import register_by_heightmaps
+
+    def errors(T, T_true):
+        E = np.linalg.inv(T_true) @ T
+        return rot_err_deg(E[:3, :3]), float(np.linalg.norm(E[:3, 3]))
+
+    def good(T, T_true):
+        a, d = errors(T, T_true)
+        return a <= 1.0 and d <= 0.05
+
+    def err_text(T, T_true):
+        a, d = errors(T, T_true)
+        return f"{a:.2f} deg {d * 100:.1f} cm"
+
+    pairs = twin_pairs(n_pairs) if source == "twin" else synthetic_pairs(n_pairs)
+    what = "digital-twin station pairs" if source == "twin" else "synthetic-room pairs"
+    ok_h, ok_f, ok_g, t_h, t_f, t_g, kinds, overlaps, flagged = 0, 0, 0, [], [], [], {}, [], 0
+    doubted = 0  # correct poses whose own check said success = false
+    n = 0
+    for name, tgt, src, T_true, overlap, kind, vp_tgt, vp_src in pairs:
+        n += 1
+        overlaps.append(overlap)
+        t0 = time.perf_counter()
+        # labels from the shipped segmenter; each fragment was captured at its own origin
+        r = register_by_heightmaps(src, tgt, viewpoint_source=vp_src, viewpoint_target=vp_tgt)
+        t_h.append(time.perf_counter() - t0)
+        good_h = good(r.T_target_source, T_true)
+        ok_h += good_h
+        flagged += (not good_h) and (not r.success)
+        doubted += good_h and (not r.success)
         kinds.setdefault(kind, [0, 0])
         kinds[kind][0] += good_h
         kinds[kind][1] += 1
-        print(f"    pair {k}: heightmaps {'ok' if good_h else 'FAIL'} {t_h[-1]:.1f} s, "
-              f"fpfh {'ok' if good_f else 'FAIL'} {t_f[-1]:.1f} s", flush=True)
-    row("registration", f"heightmaps: success <= 1 deg / 5 cm over {n_pairs} pairs (goal >= 95 %)",
-        f"{ok_h / n_pairs:.0%}")
+        line = (f"    {n:3d} {name:<22} overlap {overlap:.2f}: heightmaps {'ok' if good_h else 'FAIL'}"
+                f" {t_h[-1]:.1f} s ({err_text(r.T_target_source, T_true)}, flag {r.success}, "
+                f"by {r.proposer})")
+        if baselines:
+            from tripod_processor.registration import register, register_global
+
+            t0 = time.perf_counter()
+            Tf = _fpfh_ransac(src, tgt)
+            t_f.append(time.perf_counter() - t0)
+            good_f = good(Tf, T_true)
+            ok_f += good_f
+            t0 = time.perf_counter()
+            # ours: FPFH + RANSAC over yaw and shift only (both scans near gravity), then the
+            # core's point-to-plane ICP, as ``tripod register --global --gravity`` does
+            g = register_global(src, tgt, 0.10, gravity_aligned=True, seed=0)
+            Tg = register(src, tgt, "plane", init=g.T_target_source, voxel_size=0.05,
+                          max_correspondence_distance=[0.3, 0.1]).T_target_source
+            t_g.append(time.perf_counter() - t0)
+            good_g = good(Tg, T_true)
+            ok_g += good_g
+            line += (f", fpfh {'ok' if good_f else 'FAIL'} {t_f[-1]:.1f} s ({err_text(Tf, T_true)})"
+                     f", global {'ok' if good_g else 'FAIL'} {t_g[-1]:.1f} s ({err_text(Tg, T_true)})")
+        print(line, flush=True)
+    row("registration", f"{what}: pairs, overlap (share within 10 cm) min / median",
+        f"{n}, {min(overlaps):.2f} / {np.median(overlaps):.2f}")
+    row("registration", "heightmaps: success <= 1 deg / 5 cm (goal >= 95 %)",
+        f"{ok_h / n:.0%} ({ok_h}/{n})")
+    row("registration", "heightmaps: failures its own check flagged (success = false)",
+        f"{flagged} of {n - ok_h}")
+    row("registration", "heightmaps: correct poses its check did not trust (ambiguous)",
+        f"{doubted} of {ok_h}")
     row("registration", "heightmaps: time per pair incl. segmentation, median [s]", f"{np.median(t_h):.2f}")
-    row("registration", "FPFH + RANSAC (+ICP), Open3D: success", f"{ok_f / n_pairs:.0%}")
-    row("registration", "FPFH + RANSAC (+ICP): time per pair, median [s]", f"{np.median(t_f):.2f}")
-    row("registration", "pairs: overlap (share within 10 cm), min / median",
-        f"{min(overlaps):.2f} / {np.median(overlaps):.2f}")
-    row("registration", "heightmaps success by room kind",
+    row("registration", "heightmaps: success by scene",
         ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in sorted(kinds.items())))
+    if baselines:
+        row("registration", "FPFH + RANSAC (+ICP), Open3D: success", f"{ok_f / n:.0%} ({ok_f}/{n})")
+        row("registration", "FPFH + RANSAC (+ICP): time per pair, median [s]", f"{np.median(t_f):.2f}")
+        row("registration", "tripod register_global (FPFH, gravity) + ICP: success", f"{ok_g / n:.0%} ({ok_g}/{n})")
+        row("registration", "tripod register_global + ICP: time per pair, median [s]", f"{np.median(t_g):.2f}")
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description="scene understanding benchmark")
     ap.add_argument("--pairs", type=int, default=50, help="registration pairs")
     ap.add_argument("--pictures", action="store_true", help="rewrite docs/scene_*.png")
-    ap.add_argument("--only", choices=("segmentation", "real", "planes", "registration"), default=None)
+    ap.add_argument("--only", choices=("segmentation", "real", "planes", "registration"), default=None,
+                    help="run one section only")
+    ap.add_argument("--pair-source", choices=("twin", "synthetic"), default="twin",
+                    help="registration pairs: digital-twin stations (default) or synthetic rooms")
+    ap.add_argument("--no-baselines", action="store_true",
+                    help="registration: heightmaps only (no FPFH + RANSAC, no register_global)")
     a = ap.parse_args(argv)
     DOCS.mkdir(exist_ok=True)
     t0 = time.perf_counter()
@@ -277,7 +385,7 @@ def main(argv=None) -> int:
     if a.only in (None, "planes"):
         bench_planes(a.pictures)
     if a.only in (None, "registration"):
-        bench_registration(a.pairs)
+        bench_registration(a.pairs, a.pair_source, not a.no_baselines)
     from rich.console import Console
     from rich.table import Table
 

@@ -58,6 +58,51 @@ def make(split: str, out_dir: Path, stations: int = 1, max_points: int = 2_000_0
     return files
 
 
+#: digital-twin captures the registration benchmark draws its station pairs from: every scene
+#: type, seeds never used in training (nor in the segmentation test)
+PAIR_SEEDS = (201, 202, 203)
+
+
+def station_fragments(scene: str, seed: int, out_dir: Path, stations: int = 4,
+                      voxel_m: float = 0.02) -> list[Path]:
+    """One ``tripod simulate`` capture (``stations`` stations, 3 cm range noise); each station's
+    points (decoded from the capture's packets, placed with the true pose at their firing time,
+    the pan window only) taken into that station's base frame (tripod head, gravity up to the
+    tripod's tilt) and voxel-filtered like the reconstruction's fragments.
+
+    Writes ``<scene>_s<seed>_st<k>.npz`` (``points`` (N, 3) float32 [m] in the station frame,
+    ``T_world_station`` (4, 4) the true pose) per station; cached.
+    """
+    from tripod_processor.preprocess import voxel_downsample
+    from tripod_processor.sim.fidelity import labeled_points
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    files = [out_dir / f"{scene}_s{seed}_st{k}.npz" for k in range(stations)]
+    if all(f.exists() for f in files):
+        return files
+    tripod = Path(sys.executable).with_name("tripod")
+    with tempfile.TemporaryDirectory() as tmp:
+        cap = Path(tmp) / "cap"
+        subprocess.run([str(tripod), "simulate", "-o", str(cap), "--scene", scene,
+                        "--stations", str(stations), "--seed", str(seed)], check=True,
+                       stdout=subprocess.DEVNULL)
+        xyz, _lab, pts = labeled_points(cap)
+        rows = np.loadtxt(cap / "gt" / "stations.csv", delimiter=",", skiprows=1, ndmin=2)
+    from scipy.spatial.transform import Rotation
+
+    for f, r in zip(files, rows):
+        t0, t1 = int(r[1]), int(r[2])
+        sel = (pts.host_ns >= t0) & (pts.host_ns <= t1)
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_quat([r[7], r[8], r[9], r[6]]).as_matrix()  # x y z w
+        T[:3, 3] = r[3:6]
+        local = (xyz[sel] - T[:3, 3]) @ T[:3, :3]  # R^T (p - t)
+        local = voxel_downsample(local.astype(np.float32), voxel_m)
+        np.savez_compressed(f, points=np.asarray(local, np.float32), T_world_station=T)
+    print(f"{scene}_s{seed}: {stations} station fragments", flush=True)
+    return files
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--split", choices=sorted(SPLITS), required=True)

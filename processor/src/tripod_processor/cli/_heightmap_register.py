@@ -1,5 +1,5 @@
 # SPDX-License-Identifier: BSD-3-Clause
-"""``tripod register --method heightmaps``: global registration by floor-heightmap matching."""
+"""``tripod register --method heightmaps``: global registration by plan-heightmap matching."""
 
 from __future__ import annotations
 
@@ -31,8 +31,11 @@ def register_heightmaps_cmd(source: Path, target: Path, output: Path | None, thr
         fail(f"heightmap registration: {exc}")
     out = {"source": str(source), "target": str(target), "method": "heightmaps",
            "T_target_source": np.round(r.T_target_source, 9).tolist(),
-           "success": bool(r.success), "image_score": r.score, "fitness": r.fitness,
-           "inlier_rmse_m": r.inlier_rmse, "hu_distance": r.hu_distance,
+           "success": bool(r.success), "image_score": r.score,
+           "structure_fitness": r.structure_fitness,
+           "free_space_violation": r.free_space_violation, "ambiguity": r.ambiguity,
+           "proposer": r.proposer, "hypotheses": r.hypotheses,
+           "fitness": r.fitness, "inlier_rmse_m": r.inlier_rmse, "hu_distance": r.hu_distance,
            "stage_seconds": {k: round(v, 4) for k, v in r.stages.items()},
            "wall_time_s": time.perf_counter() - t0}
     text = dumps(out)
@@ -43,5 +46,6 @@ def register_heightmaps_cmd(source: Path, target: Path, output: Path | None, thr
         output.with_name(output.stem + ".options.json").write_text(
             json.dumps({"method": "heightmaps", "threads": threads}, indent=2))
     if not r.success:
-        print("tripod: warning: heightmap registration did not pass its overlap check",
+        print("tripod: warning: heightmap registration did not pass its check (too little verified "
+              "overlap, free space seen through, or an equally good answer elsewhere)",
               file=sys.stderr)

@@ -1,0 +1,177 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""Registration by heightmap matching: poses against the truth on synthetic rooms and
+simulator station scans (a furnished rectangular room, whose 180 deg twin must be rejected), an
+empty symmetric room and non-overlapping pairs reported as failures, the pieces (2-D RANSAC,
+free-space test, Hu moments), and ``tripod register --method heightmaps``."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from tripod_processor import heightmap_registration as hr
+from tripod_processor.cli import main
+from tripod_processor.cloud_io import make_cloud, write_ply
+from tripod_processor.sim.scenes import make_scene
+from tripod_processor.sim.station_scan import box_room, pose, station_scan
+
+
+def _pose_error(T, T_true):
+    E = np.linalg.inv(T_true) @ T
+    return (float(np.degrees(np.arccos(np.clip((np.trace(E[:3, :3]) - 1) / 2, -1, 1)))),
+            float(np.linalg.norm(E[:3, 3])))
+
+
+def _station(scene, xy, yaw_deg, seed, z=1.4):
+    """A static station scan (3 head tilts, 0.4 deg azimuth steps: ~43 k points) and its pose."""
+    T = pose(yaw_deg=yaw_deg, xyz=(*xy, z))
+    return station_scan(scene, T, tilts_deg=(-20, 0, 20), azimuth_step_deg=0.4, seed=seed), T
+
+
+def _turn(points, yaw, t):
+    c, s = np.cos(yaw), np.sin(yaw)
+    T = np.eye(4)
+    T[:3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
+    T[:3, 3] = t
+    return (points @ T[:3, :3].T + T[:3, 3]).astype(np.float32), T
+
+
+@pytest.mark.parametrize("seed", [41, 42])
+def test_register_by_heightmaps(seed):
+    from tripod_processor.heightmap_registration import register_by_heightmaps
+    from tripod_processor.synthetic_rooms import free_station, make_room, scan
+
+    scene = make_room(seed)
+    rng = np.random.default_rng(seed)
+    a, b = free_station(scene, rng), free_station(scene, rng)
+    pa, la = scan(scene, a, head_steps=10, noise_m=0.03, seed=1)
+    pb, lb = scan(scene, b, head_steps=10, noise_m=0.03, seed=2)
+    tgt, Ta = _turn(pa, 0.3, [1, 2, 0.1])
+    src, Tb = _turn(pb, -2.0, [-3, 0.5, -0.2])
+    r = register_by_heightmaps(src, tgt, source_labels=lb, target_labels=la,
+                               viewpoint_source=(Tb @ [*b, 1])[:3],
+                               viewpoint_target=(Ta @ [*a, 1])[:3])
+    ang, dist = _pose_error(r.T_target_source, Ta @ np.linalg.inv(Tb))
+    assert ang < 1.0 and dist < 0.05, (ang, dist)
+    assert r.success and r.fitness > 0.5 and r.structure_fitness > 0.5
+    assert r.free_space_violation < 0.02
+
+
+def test_furnished_rectangular_room_rejects_its_twin():
+    """A rectangular room matches its 180 deg twin in walls, floor and ceiling; the furniture
+    and free space must pick the right one (labels from the shipped segmenter)."""
+    room = make_scene("room", 7)
+    w, d = room.params["width_m"], room.params["depth_m"]
+    tgt, T_w_t = _station(room, (0.35 * w, 0.4 * d), 30.0, 1)
+    src, T_w_s = _station(room, (0.7 * w, 0.6 * d), -110.0, 2, z=1.5)
+    r = hr.register_by_heightmaps(src, tgt)
+    ang, dist = _pose_error(r.T_target_source, np.linalg.inv(T_w_t) @ T_w_s)
+    assert ang <= 1.0 and dist <= 0.05, (ang, dist)
+    assert r.success and r.ambiguity < 0.9
+    # the twin was among the hypotheses, and lost
+    twins = [v for v in r.verified if _pose_error(v[2], np.linalg.inv(T_w_t) @ T_w_s)[0] > 170]
+    assert twins and all(t[1] < r.verified[0][1] for t in twins)
+
+
+def test_empty_symmetric_room_is_ambiguous_not_a_guess():
+    """An empty box room looks the same under a half turn: no unique answer, so no success."""
+    scene = box_room()
+    tgt, _ = _station(scene, (2.0, 1.8), 30.0, 1)
+    src, _ = _station(scene, (4.5, 2.6), -110.0, 2)
+    r = hr.register_by_heightmaps(src, tgt)
+    assert not r.success and r.ambiguity > 0.97
+
+
+@pytest.mark.parametrize("other", [("corridor", 3), ("room", 8)])
+def test_non_overlapping_pair_fails(other):
+    room = make_scene("room", 7)
+    w, d = room.params["width_m"], room.params["depth_m"]
+    tgt, _ = _station(room, (0.35 * w, 0.4 * d), 30.0, 1)
+    scene = make_scene(*other)
+    src, _ = _station(scene, tuple(0.5 * scene.route[0] + 0.5 * scene.route[1]), -110.0, 2)
+    r = hr.register_by_heightmaps(src, tgt)
+    assert not r.success and r.structure_fitness < 0.4
+
+
+def test_rigid_2d_ransac_with_outliers():
+    rng = np.random.default_rng(0)
+    a = rng.uniform(-5, 5, (60, 2))
+    yaw, t = 2.1, np.array([1.5, -3.0])
+    R = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
+    b = a @ R.T + t + rng.normal(0, 0.01, a.shape)
+    b[:30] = rng.uniform(-8, 8, (30, 2))  # half the matches wrong
+    sets = hr.rigid_2d_ransac(a, b, inlier_m=0.05, seed=1)
+    members, y, tt = sets[0]
+    assert set(members.tolist()) >= set(range(30, 60)) and len(members) < 34
+    assert abs((y - yaw + np.pi) % (2 * np.pi) - np.pi) < np.radians(0.2)
+    np.testing.assert_allclose(tt, t, atol=0.02)
+
+
+def test_range_image_free_space():
+    """A wall 4 m in front of the sensor: a point 2 m out was seen through, one on or behind the
+    wall was not; a direction without returns is no evidence."""
+    yy, zz = np.meshgrid(np.linspace(-3, 3, 300), np.linspace(-1, 1, 100))
+    wall = np.stack([np.full(yy.size, 4.0), yy.ravel(), zz.ravel()], 1)
+    ri = hr._RangeImage(wall, (0.0, 0.0, 0.0))
+    probe = np.array([[2.0, 0.0, 0.0], [4.0, 0.5, 0.0], [6.0, 0.0, 0.0], [-2.0, 0.0, 0.0]])
+    assert ri.seen_through(probe).tolist() == [True, False, False, False]
+
+
+def test_keypoints_and_shapes_on_a_plan_image():
+    """ORB finds corners on a plan heightmap; the shape blobs of the furniture carry Hu moments
+    that do not change when the room turns."""
+    from tripod_processor.synthetic_rooms import free_station, make_room, scan
+
+    scene = make_room(42)
+    st = free_station(scene, np.random.default_rng(42))
+    p, lab = scan(scene, st, head_steps=10, noise_m=0.03, seed=1)
+    turned, _ = _turn(p, 1.0, [0, 0, 0])
+    a = hr.level_scan(p, lab)
+    b = hr.level_scan(turned, lab)
+    img, lo = hr.plan_image(a, 0.05)
+    assert img.dtype == np.uint8 and img.max() > 200
+    ij, desc = hr.orb_keypoints(img)
+    assert len(ij) > 50 and desc.shape == (len(ij), 32)
+    ca, da = hr.shape_blobs(a)
+    cb, db = hr.shape_blobs(b)
+    assert len(ca) >= 2 and len(ca) == len(cb)
+    m = hr.match_nearest(da, db, k=1, max_distance=0.5)
+    assert len(m) >= len(ca) - 1
+
+
+def test_hu_moments_are_rotation_invariant():
+    from scipy import ndimage
+
+    from tripod_processor.heightmap_registration import hu_moments
+
+    m = np.zeros((200, 200), bool)
+    m[50:150, 80:120] = True
+    m[50:70, 80:160] = True  # an L
+    r = ndimage.rotate(m.astype(float), 37, order=0, reshape=True) > 0.5
+    h1, h2 = hu_moments(m), hu_moments(r)
+    np.testing.assert_allclose(h1[:4], h2[:4], rtol=0.05)
+
+
+def test_cli_register_heightmaps_method(tmp_path, capsys):
+    from tripod_processor.synthetic_rooms import free_station, make_room, scan
+
+    scene = make_room(43)
+    rng = np.random.default_rng(43)
+    a, b = free_station(scene, rng), free_station(scene, rng)
+    pa, _ = scan(scene, a, head_steps=10, noise_m=0.03, seed=1)
+    pb, _ = scan(scene, b, head_steps=10, noise_m=0.03, seed=2)
+    src, Tb = _turn(pb, 2.5, [2, -1, 0])
+    write_ply(tmp_path / "t.ply", make_cloud(pa))
+    write_ply(tmp_path / "s.ply", make_cloud(src))
+    capsys.readouterr()
+    assert main(["register", str(tmp_path / "s.ply"), str(tmp_path / "t.ply"),
+                 "--method", "heightmaps", "-o", str(tmp_path / "r.json")]) == 0
+    out = json.loads(capsys.readouterr().out)
+    E = Tb @ np.array(out["T_target_source"])  # truth: T_target_source = Tb^-1
+    ang = np.degrees(np.arccos(np.clip((np.trace(E[:3, :3]) - 1) / 2, -1, 1)))
+    assert ang < 1.0 and np.linalg.norm(E[:3, 3]) < 0.05, (ang, E[:3, 3])
+    assert out["method"] == "heightmaps" and (tmp_path / "r.json").is_file()
+    assert out["success"] is True and out["structure_fitness"] > 0.5
+    assert {"free_space_violation", "ambiguity", "proposer"} <= out.keys()
