@@ -114,7 +114,9 @@ def test_range_image_free_space():
     wall was not; a direction without returns is no evidence."""
     yy, zz = np.meshgrid(np.linspace(-3, 3, 300), np.linspace(-1, 1, 100))
     wall = np.stack([np.full(yy.size, 4.0), yy.ravel(), zz.ravel()], 1)
-    ri = hr._RangeImage(wall, (0.0, 0.0, 0.0))
+    from tripod_processor.heightmap_registration.verification import _RangeImage as RangeImage
+
+    ri = RangeImage(wall, (0.0, 0.0, 0.0))
     probe = np.array([[2.0, 0.0, 0.0], [4.0, 0.5, 0.0], [6.0, 0.0, 0.0], [-2.0, 0.0, 0.0]])
     assert ri.seen_through(probe).tolist() == [True, False, False, False]
 

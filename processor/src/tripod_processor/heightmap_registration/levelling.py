@@ -1,0 +1,65 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""Levelling a labelled scan on its floor plane: the frame where only yaw and an x-y shift
+remain between two scans."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..planes import CEILING, FLOOR, extract_planes
+
+
+def _rot_to_z(n: np.ndarray) -> np.ndarray:
+    """Smallest rotation taking unit n onto +z."""
+    n = n / np.linalg.norm(n)
+    v = np.cross(n, [0.0, 0.0, 1.0])
+    s, c = np.linalg.norm(v), n[2]
+    if s < 1e-12:
+        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
+    K = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]]) / s
+    ang = np.arctan2(s, c)
+    return np.eye(3) + np.sin(ang) * K + (1 - np.cos(ang)) * K @ K
+
+
+@dataclass
+class LevelledScan:
+    """A scan on its floor: T_level_scan (4, 4) puts the floor at z = 0 with +z up; ``xy``/``z``
+    are the points standing between floor and ceiling in that frame, ``floor_xy`` the floor's."""
+
+    T_level_scan: np.ndarray
+    xy: np.ndarray
+    z: np.ndarray
+    floor_xy: np.ndarray
+    height: float
+    labels: np.ndarray
+
+
+def level_scan(points, labels, *, seed: int = 0, max_points: int = 200_000) -> LevelledScan:
+    """Level a labelled scan on its largest floor plane (and measure the ceiling height)."""
+    P = np.asarray(points, np.float64)
+    labels = np.asarray(labels)
+    ok = np.isfinite(P).all(1)
+    P, labels = P[ok], labels[ok]
+    if len(P) > max_points:  # planes and images need no more
+        idx = np.random.default_rng(seed).choice(len(P), max_points, replace=False)
+        P, labels = P[idx], labels[idx]
+    planes = extract_planes(P, labels, classes=(FLOOR, CEILING), min_points=200, seed=seed)
+    floors = [p for p in planes if p.label == FLOOR]
+    if not floors:
+        raise ValueError("no floor plane found: cannot level the scan")
+    fl = max(floors, key=lambda p: len(p.indices))
+    R = _rot_to_z(fl.normal)
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[2, 3] = fl.offset  # n.x + d = 0 on the floor -> z' = n.x + d
+    Q = P @ R.T + T[:3, 3]
+    ceilings = [p for p in planes if p.label == CEILING]
+    if ceilings:
+        cl = max(ceilings, key=lambda p: len(p.indices))
+        height = float(np.median(Q[cl.indices, 2]))
+    else:
+        height = float(np.percentile(Q[:, 2], 99.5))
+    band = (Q[:, 2] > 0.10) & (Q[:, 2] < height - 0.10)
+    return LevelledScan(T, Q[band, :2], Q[band, 2], Q[fl.indices, :2], height, labels[band])

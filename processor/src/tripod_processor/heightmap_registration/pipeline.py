@@ -1,0 +1,207 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""The heightmap registration pipeline: proposals from the three matchers, refinement,
+verification and the decision (see the package docstring)."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .correlation import _search
+from .features import (_footprint_mask, _ij_to_xy, _log_hu, hu_moments, match_binary, match_nearest,
+                       orb_keypoints, plan_image, rigid_2d_ransac, shape_blobs)
+from .levelling import level_scan
+from .verification import _close, _lift, _same_pose, _Verifier
+
+
+@dataclass
+class HeightmapMatch:
+    """Result: T_target_source (4, 4) maps source points into the target frame.
+
+    score : normalised image correlation of the plan heightmaps at the match (0..1)
+    structure_fitness : share of each scan's wall and non-planar points (10 cm voxels) within
+        ``max_distance`` of the other's surface, mean of both directions: the 3-D verification
+    ambiguity : best structure fitness among the other (distinct) hypotheses / the winner's
+        (1: as good an answer elsewhere, e.g. an empty symmetric room)
+    fitness, inlier_rmse : overlap share of all source points and RMSE [m] after the final ICP
+    hu_distance : distance of the floor footprints' log Hu moments (0 = same shape)
+    proposer : which matcher proposed the answer ("correlation", "keypoints", "shapes")
+    hypotheses : number of distinct hypotheses verified
+    free_space_violation : share of either scan's structure the other saw through, at the answer
+    success : structure_fitness >= min_fitness, free_space_violation <= max_violation and
+        ambiguity <= max_ambiguity
+    seconds : wall time; stages : per-stage times [s]
+    verified : (proposer, verification score, T_target_source, structure fitness, free-space
+        violation) of every verified hypothesis, best first (score = fitness - weight x violation)
+    """
+
+    T_target_source: np.ndarray
+    score: float
+    structure_fitness: float
+    free_space_violation: float
+    ambiguity: float
+    fitness: float
+    inlier_rmse: float
+    hu_distance: float
+    proposer: str
+    hypotheses: int
+    success: bool
+    seconds: float
+    stages: dict = field(default_factory=dict)
+    verified: list = field(default_factory=list)
+
+
+def register_by_heightmaps(source, target, *, source_labels=None, target_labels=None,
+                           coarse_pixel: float = 0.10, coarse_step_deg: float = 2.0,
+                           fine_pixel: float = 0.05, fine_step_deg: float = 0.5,
+                           feature_pixel: float = 0.05, candidates: int = 40, verify: int = 8,
+                           use_keypoints: bool = True, use_shapes: bool = True,
+                           max_distance: float = 0.08, min_fitness: float = 0.4,
+                           max_ambiguity: float = 0.97, max_violation: float = 0.05,
+                           other_weight: float = 2.0,
+                           free_space_weight: float = 10.0, viewpoint_source=(0.0, 0.0, 0.0),
+                           viewpoint_target=(0.0, 0.0, 0.0), weights=None, seed: int = 0,
+                           num_threads: int = 0) -> HeightmapMatch:
+    """Rigid transform between two overlapping indoor scans by matching plan heightmaps.
+
+    Parameters
+    ----------
+    source, target : (N, 3), (M, 3) array_like [m], roughly z up (levelled by an IMU; the floor
+        plane absorbs any tilt), in any yaw and position
+    source_labels, target_labels : (N,), (M,) class labels (0 ceiling, 1 floor, 2 wall, 3 other),
+        or None to run the segmenter
+    coarse_pixel, coarse_step_deg : image pixel [m] and yaw step [deg] of the dense search
+    fine_pixel, fine_step_deg : of the refinement of every hypothesis
+    feature_pixel : pixel [m] of the images the keypoints and shapes are found on
+    candidates : best distinct answers (yaws 20 deg or shifts 1 m apart) the dense search
+        proposes (five correlation peaks per yaw); all proposals are screened in 3-D as they
+        are, the best ``verify`` of them refined, polished by ICP and verified
+    use_keypoints, use_shapes : also propose from ORB keypoints / Hu-moment shape matches
+    max_distance : inlier distance of the 3-D verification [m]
+    min_fitness : verified structure overlap needed to call the match a success
+    max_ambiguity : runner-up / winner verification score above which the answer is not unique
+    max_violation : share of structure seen through by the other scan above which the answer is
+        inconsistent (two different rooms of similar shape overlap well, but not in free space)
+    free_space_weight : weight of that share against the structure fitness when ranking
+        hypotheses (a point seen through is a contradiction, a missing overlap is only unseen)
+    viewpoint_source, viewpoint_target : (3,) the sensor position in each cloud's frame [m]
+        (a fragment's origin): the free-space check and the normals' orientation need it
+    other_weight : weight of the non-wall channel in the correlation score
+    weights : segmenter weights when labels are None
+
+    Returns
+    -------
+    :class:`HeightmapMatch` with ``T_target_source`` (4, 4): x_target = T @ x_source.
+    """
+    t0 = time.perf_counter()
+    stages = {}
+    S = np.asarray(source, np.float64)
+    Tg = np.asarray(target, np.float64)
+    if source_labels is None or target_labels is None:
+        from ..segmentation import Segmenter
+
+        seg = Segmenter(weights, num_threads)
+        source_labels = seg(S.astype(np.float32)) if source_labels is None else source_labels
+        target_labels = seg(Tg.astype(np.float32)) if target_labels is None else target_labels
+        stages["segment"] = time.perf_counter() - t0
+    source_labels, target_labels = np.asarray(source_labels), np.asarray(target_labels)
+
+    # 1. level both scans on their floors
+    t1 = time.perf_counter()
+    ls = level_scan(S, source_labels, seed=seed)
+    lt = level_scan(Tg, target_labels, seed=seed)
+    stages["level"] = time.perf_counter() - t1
+
+    # 2. proposals (yaw, shift) of the levelled source onto the levelled target
+    t1 = time.perf_counter()
+    extent = (float(max(np.ptp(lt.xy, 0).max(), np.ptp(ls.xy, 0).max()))
+              if len(lt.xy) and len(ls.xy) else 10.0)
+    cp = max(coarse_pixel, extent / 150)  # the images stay small for big halls
+    fp = max(fine_pixel, extent / 400)
+    yaws = np.deg2rad(np.arange(0.0, 360.0, coarse_step_deg))
+    proposals = [(yaw, shift, "correlation", score) for score, yaw, shift in
+                 _search(ls, lt, yaws, cp, seed=seed, keep=candidates, other_weight=other_weight,
+                         shifts=5)]
+    stages["correlation"] = time.perf_counter() - t1
+    t1 = time.perf_counter()
+    fpx = max(feature_pixel, extent / 400)
+    if use_keypoints:
+        img_s, lo_s = plan_image(ls, fpx)
+        img_t, lo_t = plan_image(lt, fpx)
+        ij_s, d_s = orb_keypoints(img_s)
+        ij_t, d_t = orb_keypoints(img_t)
+        m = match_binary(d_s, d_t)
+        if len(m) >= 4:
+            a = _ij_to_xy(ij_s[m[:, 0]], lo_s, fpx)
+            b = _ij_to_xy(ij_t[m[:, 1]], lo_t, fpx)
+            for inl, yaw, t in rigid_2d_ransac(a, b, inlier_m=3 * fpx, min_inliers=6, seed=seed):
+                proposals.append((yaw, t, "keypoints", float(len(inl))))
+        stages["keypoints"] = time.perf_counter() - t1
+    t1 = time.perf_counter()
+    if use_shapes:
+        c_s, h_s = shape_blobs(ls, fpx)
+        c_t, h_t = shape_blobs(lt, fpx)
+        m = match_nearest(h_s, h_t, k=3)
+        if len(m) >= 3:
+            for inl, yaw, t in rigid_2d_ransac(c_s[m[:, 0]], c_t[m[:, 1]], inlier_m=0.2,
+                                                min_inliers=3, seed=seed):
+                proposals.append((yaw, t, "shapes", float(len(inl))))
+        stages["shapes"] = time.perf_counter() - t1
+
+    # 3. screen the distinct proposals in 3-D as they are (loose distance, free space), then
+    #    refine the best by correlation (fine pixel and yaw) and lift them to 3-D
+    t1 = time.perf_counter()
+    check = _Verifier(S, source_labels, Tg, target_labels, max_distance, viewpoint_source,
+                      viewpoint_target, num_threads)
+    screened = []
+    for yaw0, shift0, who, _ in proposals:
+        yaw0, shift0 = float(yaw0), np.asarray(shift0, np.float64)
+        if any(_close(yaw0, shift0, h[1], h[2]) for h in screened):
+            continue
+        T0 = _lift(ls, lt, yaw0, shift0)
+        pre = (check.structure_fitness(T0, 3 * cp, screen=True)
+               - free_space_weight * check.free_space_violation(T0, screen=True))
+        screened.append((pre, yaw0, shift0, who))
+    screened.sort(key=lambda h: -h[0])
+    hyps = []
+    for _, yaw0, shift0, who in screened[:verify]:
+        fine = yaw0 + np.deg2rad(np.arange(-coarse_step_deg, coarse_step_deg + 1e-9, fine_step_deg))
+        win = (shift0, int(np.ceil(2 * cp / fp)) + 2)
+        score, yaw, shift = _search(ls, lt, fine, fp, window=win,
+                                    seed=seed, other_weight=other_weight)[0]
+        hyps.append((score, who, _lift(ls, lt, yaw, shift)))
+    stages["screen+refine"] = time.perf_counter() - t1
+
+    # 4. verify in 3-D: short ICP, then the share of walls and furniture on the other's
+    #    surfaces, less what either scan saw through
+    t1 = time.perf_counter()
+    checked = []
+    for score, who, T in hyps:
+        T_icp = check.polish(T)
+        fit, viol = check.structure_fitness(T_icp), check.free_space_violation(T_icp)
+        checked.append((fit - free_space_weight * viol, score, who, T_icp, fit, viol))
+    checked.sort(key=lambda c: -c[0])
+    best = checked[0]
+    others = [c for c in checked[1:] if not _same_pose(c[3], best[3])]
+    if best[0] <= 0:  # even the best contradicts free space or barely overlaps: no winner
+        ambiguity = 1.0
+    else:
+        ambiguity = max(0.0, others[0][0] / best[0]) if others else 0.0
+    stages["verify"] = time.perf_counter() - t1
+
+    # 5. final polish at full density
+    t1 = time.perf_counter()
+    T, fitness, rmse = check.final(best[3])
+    sfit = check.structure_fitness(T)
+    stages["final"] = time.perf_counter() - t1
+    hu_s = _log_hu(hu_moments(_footprint_mask(ls.floor_xy)))
+    hu_t = _log_hu(hu_moments(_footprint_mask(lt.floor_xy)))
+    hu_d = float(np.abs(hu_s[:4] - hu_t[:4]).sum())
+    viol = check.free_space_violation(T)
+    ok = sfit >= min_fitness and viol <= max_violation and ambiguity <= max_ambiguity
+    return HeightmapMatch(T, float(best[1]), float(sfit), float(viol), float(ambiguity), fitness,
+                          rmse, hu_d,
+                          best[2], len(checked), bool(ok), time.perf_counter() - t0, stages,
+                          [(c[2], c[0], c[3], c[4], c[5]) for c in checked])

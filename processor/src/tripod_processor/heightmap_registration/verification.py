@@ -1,0 +1,173 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""3-D verification of a heightmap hypothesis: structure fitness (walls and furniture of each
+scan on the other's surfaces), the free-space test (points placed where the other scan saw
+straight through) and the final oriented point-to-plane polish."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..planes import OTHER, WALL
+from .levelling import LevelledScan
+
+
+def _close(yaw_a, shift_a, yaw_b, shift_b, yaw_tol=np.deg2rad(3.0), shift_tol=0.3) -> bool:
+    dy = abs((yaw_a - yaw_b + np.pi) % (2 * np.pi) - np.pi)
+    ds = float(np.linalg.norm(np.asarray(shift_a) - np.asarray(shift_b)))
+    return dy < yaw_tol and ds < shift_tol
+
+
+def _same_pose(A, B, deg: float = 3.0, m: float = 0.2) -> bool:
+    E = np.linalg.inv(A) @ B
+    ang = np.degrees(np.arccos(np.clip((np.trace(E[:3, :3]) - 1) / 2, -1, 1)))
+    return ang < deg and np.linalg.norm(E[:3, 3]) < m
+
+
+def _lift(ls: "LevelledScan", lt: "LevelledScan", yaw: float, shift) -> np.ndarray:
+    """T_target_source from the image transform target_xy = R(yaw) source_xy + shift (levelled)."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    M = np.eye(4)
+    M[:2, :2] = [[c, -s], [s, c]]
+    M[:2, 3] = shift
+    return np.linalg.inv(lt.T_level_scan) @ M @ ls.T_level_scan
+
+
+class _RangeImage:
+    """Nearest return per direction around a scan's viewpoint: a spherical image (``step_deg``
+    bins of azimuth and elevation) of the smallest range, eroded over the 3 x 3 neighbourhood so
+    that only space seen through in every neighbouring direction counts as free."""
+
+    def __init__(self, P: np.ndarray, viewpoint, step_deg: float = 0.5) -> None:
+        from scipy import ndimage
+
+        self.v = np.asarray(viewpoint, np.float64).reshape(3)
+        self.step = np.radians(step_deg)
+        self.shape = (int(round(2 * np.pi / self.step)), int(round(np.pi / self.step)) + 1)
+        i, j, r = self._bins(P)
+        img = np.full(self.shape, np.inf)
+        np.minimum.at(img, (i, j), r)
+        self.img = ndimage.minimum_filter(img, size=3, mode="wrap")
+
+    def _bins(self, P):
+        d = np.asarray(P, np.float64) - self.v
+        r = np.linalg.norm(d, axis=1)
+        az = np.arctan2(d[:, 1], d[:, 0]) + np.pi
+        el = np.arcsin(np.clip(d[:, 2] / np.maximum(r, 1e-9), -1, 1)) + np.pi / 2
+        i = np.minimum((az / self.step).astype(np.int64), self.shape[0] - 1)
+        j = np.minimum((el / self.step).astype(np.int64), self.shape[1] - 1)
+        return i, j, r
+
+    def seen_through(self, P) -> np.ndarray:
+        """(N,) bool: the point lies clearly in front of the nearest return in its direction."""
+        i, j, r = self._bins(P)
+        lim = self.img[i, j]
+        return np.isfinite(lim) & (r < 0.95 * lim - 0.10)
+
+
+def _in_free_space(P: np.ndarray, rimg: _RangeImage) -> float:
+    return float(rimg.seen_through(P).mean()) if len(P) else 0.0
+
+
+class _Verifier:
+    """3-D checks of hypotheses on the registration core: a short point-to-plane ICP, and the
+    share of the source's structure (walls and non-planar content, 10 cm voxels) that lands
+    within ``max_distance`` of a target point. Floor and ceiling are left out of that share:
+    they overlap under any yaw once both scans are levelled."""
+
+    def __init__(self, S, labels_s, Tg, labels_t, max_distance: float, viewpoint_s, viewpoint_t,
+                 num_threads: int = 0) -> None:
+        from scipy.spatial import cKDTree
+
+        from ..preprocess import voxel_downsample
+        from ..registration import prepare
+
+        self.max_distance = max_distance
+        self.threads = num_threads
+        self.src = prepare(S.astype(np.float32), 0.10, num_threads=num_threads)
+        self.tgt = prepare(Tg.astype(np.float32), 0.10, num_threads=num_threads)
+        self._S, self._Tg = S, Tg
+        def structure(P, lab):
+            st = P[(lab == WALL) | (lab == OTHER)]
+            if len(st) < 100:  # a scan of floor and ceiling only: use everything
+                st = P
+            return np.asarray(voxel_downsample(st.astype(np.float32), 0.10), np.float64)
+
+        self.struct, self.struct_t = structure(S, labels_s), structure(Tg, labels_t)
+        # an even subset for screening many hypotheses
+        self.few = self.struct[:: max(1, len(self.struct) // 3000)]
+        self.few_t = self.struct_t[:: max(1, len(self.struct_t) // 3000)]
+        self.range_s = _RangeImage(S, viewpoint_s)
+        self.range_t = _RangeImage(Tg, viewpoint_t)
+        def surface(P):
+            dense = prepare(P.astype(np.float32), 0.04, num_neighbors=12, num_threads=num_threads)
+            pts = np.asarray(dense.points, np.float64)
+            return cKDTree(pts), pts, dense.normals, dense.normal_valid
+
+        self.surf_s, self.surf_t = surface(S), surface(Tg)
+
+    def free_space_violation(self, T, screen: bool = False) -> float:
+        """Share of each scan's structure that the other scan saw through (points lying in front
+        of the other's nearest return in their direction, by more than 5 % + 10 cm), averaged
+        over both directions; 0 for a consistent pose."""
+        Ti = np.linalg.inv(T)
+        a, b = (self.few, self.few_t) if screen else (self.struct, self.struct_t)
+        a = _in_free_space(a @ T[:3, :3].T + T[:3, 3], self.range_t)
+        b = _in_free_space(b @ Ti[:3, :3].T + Ti[:3, 3], self.range_s)
+        return 0.5 * (a + b)
+
+    def structure_fitness(self, T, max_distance: float | None = None,
+                          screen: bool = False) -> float:
+        """Share of the structure within ``max_distance`` of the other scan's surface, the mean
+        of both directions (source on target, target on source): the nearest point within
+        30 cm counts, distance measured along its normal (a sparse scan has gaps between its
+        lines that a point-to-point test would count as misses)."""
+        Ti = np.linalg.inv(T)
+        tol = self.max_distance if max_distance is None else max_distance
+        a, b = (self.few, self.few_t) if screen else (self.struct, self.struct_t)
+        return 0.5 * (self._on_surface(a @ T[:3, :3].T + T[:3, 3], self.surf_t, tol)
+                      + self._on_surface(b @ Ti[:3, :3].T + Ti[:3, 3], self.surf_s, tol))
+
+    def _on_surface(self, p, surf, tol: float) -> float:
+        tree, pts, nrm, nok = surf
+        d, j = tree.query(p, distance_upper_bound=max(0.3, tol))
+        near = np.isfinite(d)
+        jj = j[near]
+        dist = np.where(nok[jj], np.abs(np.einsum("ij,ij->i", p[near] - pts[jj], nrm[jj])), d[near])
+        return float((dist < tol).sum() / max(len(p), 1))
+
+    def polish(self, T) -> np.ndarray:
+        from ..registration import register
+
+        try:
+            r = register(self.src, self.tgt, "plane", init=T,
+                         max_correspondence_distance=[0.4, 0.15], max_iterations=15,
+                         num_threads=self.threads)
+        except ValueError:  # too few correspondences: judge the hypothesis as proposed
+            return T
+        T2 = r.T_target_source
+        # a hypothesis ICP tipped over (tilted) is not one the levelled images proposed
+        tilt = np.degrees(np.arccos(np.clip((T2[:3, :3] @ T[:3, :3].T)[2, 2], -1, 1)))
+        return T2 if tilt < 3.0 else T
+
+    def final(self, T):
+        """Point-to-plane ICP on oriented normals (each facing its scan's viewpoint): a wall
+        seen from both of its sides (a partition between two rooms) is two faces, and plain ICP
+        would pull them together. Returns (T, fitness, inlier RMSE [m])."""
+        from .. import _ext
+        from ..preprocess import voxel_downsample
+        from ..registration import prepare
+
+        def oriented(P, v):
+            return prepare(voxel_downsample(P.astype(np.float32), 0.05), num_neighbors=12,
+                           viewpoint=v, point_sigma=0.03, num_threads=self.threads)
+
+        src, tgt = oriented(self._S, self.range_s.v), oriented(self._Tg, self.range_t.v)
+        T2 = np.ascontiguousarray(T, dtype=np.float64)
+        r = None
+        for dist in (0.15, 0.08):
+            r = _ext.oriented_point_to_plane(src._native, tgt._native, T2, dist, 15, 0.03, 0.5,
+                                             60_000, int(self.threads))
+            T2 = np.asarray(r["T_target_source"], np.float64)
+        if not r["linearized"] or not _same_pose(T2, T, 2.0, 0.3):  # ran away: keep verified
+            return np.asarray(T), float("nan"), float("nan")
+        return T2, float(r["fitness"]), float(r["rmse"])
