@@ -35,7 +35,15 @@ $(DEPS_STAMP): $(SYSTEM_STAMP) requirements-dev.txt
 	$(PIP) install -r requirements-dev.txt $(QUIET)
 	@touch $@
 
-$(INSTALL_STAMP): $(DEPS_STAMP) $(PYPROJECTS)
+# The editable installs map each package's files when installed: a module added or removed
+# (a pull, a merge) needs a reinstall, so the list of source files is part of the stamp.
+SOURCES_HASH := $(shell find shared/src daemon/src processor/src -name '*.py' | sort | md5sum | cut -c1-12)
+SOURCES_STAMP := $(VENV)/.stamp-sources-$(SOURCES_HASH)
+
+$(SOURCES_STAMP):
+	@mkdir -p $(VENV) && rm -f $(VENV)/.stamp-sources-* && touch $@
+
+$(INSTALL_STAMP): $(DEPS_STAMP) $(PYPROJECTS) $(SOURCES_STAMP)
 	@echo "tripod: installing shared, daemon and processor (building the C++ extension)"
 	$(PIP) install -e shared -e daemon $(QUIET)
 	$(PIP) install --no-build-isolation -e processor \
