@@ -236,12 +236,19 @@ def angle_lattice(az: np.ndarray, tol_rad: float = 2e-6, max_count: int = 1 << 2
     # its whole uncertainty, nearest first, on a small subsample, then on every point
     step = float(np.median(gaps[gaps < 1.5 * gaps.min()]))
     probe = az[:: max(1, len(az) // 2000)]
+    few = probe[:: max(1, len(probe) // 32)]  # a subset of the probe: screens all M at once
     for step in (step, step / 2) if step >= 40 * tol_rad else (step,):
         m0 = 2 * math.pi / step
         spread = int(math.ceil(m0 * 4 * tol_rad / step)) + 1
-        for m in sorted(range(max(2, int(m0) - spread), int(m0) + spread + 2),
-                        key=lambda v: abs(v - m0)):
-            if m > max_count or _lattice_dev(probe, m) > tol_rad:
+        cands = np.array(sorted(range(max(2, int(m0) - spread), int(m0) + spread + 2),
+                                key=lambda v: abs(v - m0)), dtype=np.int64)
+        cands = cands[cands <= max_count]
+        if len(cands) == 0:
+            continue
+        u = few[None, :] * (cands[:, None] / (2 * math.pi))
+        screen = np.abs(u - np.round(u)).max(axis=1) * (2 * math.pi) / cands <= tol_rad
+        for m in cands[screen].tolist():
+            if _lattice_dev(probe, m) > tol_rad:
                 continue
             dev = _lattice_dev(az, m)
             if dev <= tol_rad:
