@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import math
 import struct
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -240,19 +239,14 @@ def test_azimuth_lattice_detection():
     assert predictive.angle_lattice(rng.uniform(-math.pi, math.pi, 20000)) is None
 
 
-REAL_VLP16 = Path(__file__).resolve().parents[3] / "shared" / "data" / "velodyne"
-
-
 @pytest.mark.parametrize("calibration", ["veloview", "manual"])
-def test_real_decoded_rotation(calibration):
+def test_real_decoded_rotation(calibration, velodyne_dir):
     """A rotation as ``tripod decode`` writes it (sensor frame, firing order), with the nominal
     angles and with the manual's per-laser vertical offsets: predictive, within the bound,
     smaller than the octree at q12."""
     from tripod_processor.decode import DecodeConfig, decode_file
 
-    path = REAL_VLP16 / "veloview-vlp16-20hz.pcap"
-    if not path.exists():
-        pytest.skip(f"{path} is not available")
+    path = velodyne_dir / "veloview-vlp16-20hz.pcap"
     frames = iter(decode_file(path, DecodeConfig(calibration=calibration)))
     next(frames)  # the first frame is a partial rotation
     rec = next(frames).points
