@@ -50,6 +50,18 @@ Grid build_grid(Eigen::Index n, KeyFn key_of, int nt) {
     return g;
 }
 
+/// The cubic voxels (edge voxel_size [m], lattice floor(p / size)) of a cloud.
+Grid voxel_grid(const PointsXYZ& points, double voxel_size, int nt) {
+    const double inv = 1.0 / voxel_size;
+    auto key_of = [&](Eigen::Index i) -> int64_t {
+        const auto p = points.row(i);
+        if (!p.allFinite()) return -1;
+        return pack(int64_t(std::floor(p.x() * inv)), int64_t(std::floor(p.y() * inv)),
+                    int64_t(std::floor(p.z() * inv)));
+    };
+    return build_grid(points.rows(), key_of, nt);
+}
+
 }  // namespace
 
 FeaturesF voxel_local_shape(const PointsXYZ& points, double voxel_size, int radius_voxels,
@@ -58,14 +70,7 @@ FeaturesF voxel_local_shape(const PointsXYZ& points, double voxel_size, int radi
     if (radius_voxels < 0) throw std::invalid_argument("radius_voxels must be >= 0");
     const int nt = threads(num_threads);
     const Eigen::Index n = points.rows();
-    const double inv = 1.0 / voxel_size;
-    auto key_of = [&](Eigen::Index i) -> int64_t {
-        const auto p = points.row(i);
-        if (!p.allFinite()) return -1;
-        return pack(int64_t(std::floor(p.x() * inv)), int64_t(std::floor(p.y() * inv)),
-                    int64_t(std::floor(p.z() * inv)));
-    };
-    Grid g = build_grid(n, key_of, nt);
+    const Grid g = voxel_grid(points, voxel_size, nt);
     const size_t nv = g.keys.size();
 
     // 1. moments per voxel, relative to the voxel's corner for numerical stability
@@ -137,14 +142,7 @@ void voxel_assign(const PointsXYZ& points, double voxel_size, PointsXYZ& centroi
     if (!(voxel_size > 0)) throw std::invalid_argument("voxel_size must be > 0");
     const int nt = threads(num_threads);
     const Eigen::Index n = points.rows();
-    const double inv = 1.0 / voxel_size;
-    auto key_of = [&](Eigen::Index i) -> int64_t {
-        const auto p = points.row(i);
-        if (!p.allFinite()) return -1;
-        return pack(int64_t(std::floor(p.x() * inv)), int64_t(std::floor(p.y() * inv)),
-                    int64_t(std::floor(p.z() * inv)));
-    };
-    Grid g = build_grid(n, key_of, nt);
+    const Grid g = voxel_grid(points, voxel_size, nt);
     const size_t nv = g.keys.size();
     std::vector<double> sum(nv * 3, 0.0);
     counts.assign(nv, 0);
