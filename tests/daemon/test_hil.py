@@ -113,6 +113,9 @@ def test_replay_real_capture_is_recorded_byte_exact(name, n_data, n_pos, velodyn
 def test_replay_capture_with_imu_and_zenoh_subscriber(velodyne_dir, tmp_path):
     import zenoh
 
+    from tripod_daemon.config import ZenohConfig
+    from tripod_daemon.publisher import build_zenoh_config
+
     data, pos = _split(velodyne_dir / "mrpt-vlp16-gps.pcap")
     frames = _imu_stream(300, "tfp")
     dev = FakePty(tmp_path / "tripod-imu")
@@ -131,10 +134,8 @@ def test_replay_capture_with_imu_and_zenoh_subscriber(velodyne_dir, tmp_path):
         with lock:
             got.setdefault(leaf, []).append(sample.payload.to_bytes())
 
-    zconf = zenoh.Config()
-    zconf.insert_json5("mode", '"peer"')
-    zconf.insert_json5("scouting/multicast/enabled", "false")
-    zconf.insert_json5("connect/endpoints", f'["tcp/127.0.0.1:{port}"]')
+    # a subscriber peer: the daemon's own config builder, connecting to it
+    zconf = build_zenoh_config(ZenohConfig(listen=[], connect=[f"tcp/127.0.0.1:{port}"]))
     try:
         with RunningDaemon(cfg) as d:
             with zenoh.open(zconf) as session:

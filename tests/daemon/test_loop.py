@@ -22,13 +22,13 @@ from daemon_helpers import (
 )
 from tripod_daemon.loop import Daemon
 from tripod_daemon.systemd import Notifier
+from tripod_daemon.config import ZenohConfig
+from tripod_daemon.publisher import build_zenoh_config
 
 
 def _client(port: int) -> zenoh.Session:
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("connect/endpoints", f'["tcp/127.0.0.1:{port}"]')
+    # a subscriber peer: the daemon's own config builder, connecting to it
+    conf = build_zenoh_config(ZenohConfig(listen=[], connect=[f"tcp/127.0.0.1:{port}"]))
     return zenoh.open(conf)
 
 

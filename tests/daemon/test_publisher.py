@@ -34,10 +34,8 @@ def test_slow_subscriber_drops_are_counted_and_recording_is_complete(tmp_path):
     port = free_tcp_port()
     cfg = loopback_config(tmp_path, zenoh={"enabled": True, "listen": [f"tcp/127.0.0.1:{port}"],
                                            "queue_messages": 500})
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("connect/endpoints", f'["tcp/127.0.0.1:{port}"]')
+    # a subscriber peer: the daemon's own config builder, connecting to it
+    conf = build_zenoh_config(ZenohConfig(listen=[], connect=[f"tcp/127.0.0.1:{port}"]))
     received = [0]
     status_seen = threading.Event()
 

@@ -12,6 +12,8 @@ from pathlib import Path
 
 import pytest
 import zenoh
+from tripod_daemon.config import ZenohConfig
+from tripod_daemon.publisher import build_zenoh_config
 
 from tripod_shared import messages
 from tripod_shared.recording import RecordingReader
@@ -57,10 +59,8 @@ def test_simulated_capture_replayed_into_the_daemon(capture, tmp_path):
         with lock:
             got.setdefault(leaf, []).append(sample.payload.to_bytes())
 
-    zconf = zenoh.Config()
-    zconf.insert_json5("mode", '"peer"')
-    zconf.insert_json5("scouting/multicast/enabled", "false")
-    zconf.insert_json5("connect/endpoints", f'["tcp/127.0.0.1:{port}"]')
+    # a subscriber peer: the daemon's own config builder, connecting to it
+    zconf = build_zenoh_config(ZenohConfig(listen=[], connect=[f"tcp/127.0.0.1:{port}"]))
     try:
         with RunningDaemon(cfg) as d, zenoh.open(zconf) as z:
             z.declare_subscriber(f"tripod/{cfg.device_id}/**", on_sample)
