@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 import zenoh
+
 from tripod_daemon.config import ZenohConfig
 from tripod_daemon.publisher import build_zenoh_config
-
 from tripod_shared import messages
 from tripod_shared.recording import RecordingReader
 
