@@ -30,7 +30,7 @@ def parse_length(text: str) -> float:
 
 
 def _read_cloud(path: Path):
-    from ..cloud_io import read_cloud
+    from ..io.clouds import read_cloud
 
     try:
         return read_cloud(path)
@@ -41,7 +41,7 @@ def _read_cloud(path: Path):
 def _read_points(path: Path):
     import numpy as np
 
-    from ..cloud_io import xyz
+    from ..io.clouds import xyz
 
     return xyz(_read_cloud(path), np.float32)
 
@@ -70,7 +70,7 @@ def compress_cmd(
     predictive coding of an ordered scan: the smaller of the two by default)."""
     import numpy as np
 
-    from ..cloud_io import pcd_viewpoint, xyz
+    from ..io.clouds import pcd_viewpoint, xyz
     from ..compression import MODES, CodecError, compress_with_info
     from ..compression.model import load_table
 
@@ -122,7 +122,7 @@ def decompress_cmd(
 ) -> None:
     """Decompress a .tpc file to a PLY/PCD cloud (octree: one point per occupied voxel;
     predictive: every point, in the original order)."""
-    from ..cloud_io import make_cloud, write_cloud
+    from ..io.clouds import make_cloud, write_cloud
     from ..compression import CodecError, ContainerError
     from ..compression.codec import decode_cloud
     from ..compression.model import load_table
@@ -160,7 +160,7 @@ def rd_cmd(
     (the 'mode' column says which geometry mode auto chose at each step)."""
     from tqdm import tqdm
 
-    from ..cloud_io import pcd_viewpoint
+    from ..io.clouds import pcd_viewpoint
     from ..compression import MODES
     from ..compression.rd import draco_available, plot_rd, run_rd
 

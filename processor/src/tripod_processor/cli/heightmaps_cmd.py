@@ -33,9 +33,9 @@ def heightmaps_cmd(
 
     from tripod_shared.config_io import ConfigError, dump_config, load_config
 
-    from ..heightmaps import CLASS_NAMES, low_poly_mesh, plane_heightmap, write_mesh_ply
-    from ..planes import extract_planes, plane_inlier_share
-    from ..scene_config import SceneConfig
+    from ..scene.heightmaps import CLASS_NAMES, low_poly_mesh, plane_heightmap, write_mesh_ply
+    from ..scene.planes import extract_planes, plane_inlier_share
+    from ..scene.config import SceneConfig
     from .segment_cmd import _read_points
 
     try:
@@ -50,7 +50,7 @@ def heightmaps_cmd(
         labels = np.asarray(src[label_field]).astype(np.int32)
         how = f"field {label_field!r}"
     else:
-        from ..segmentation import Segmenter
+        from ..scene.segmentation import Segmenter
 
         try:
             labels = Segmenter(cfg.segment.weights, cfg.segment.num_threads,
@@ -80,7 +80,7 @@ def heightmaps_cmd(
         {"source": str(cloud), "labels": how,
          "planes": [dict(pl.as_dict(), heightmap=f"plane_{k:02d}_{CLASS_NAMES[pl.label]}.png")
                     for k, pl in enumerate(planes)]}, indent=1))
-    from ..scene_plots import save_overview
+    from ..scene.plots import save_overview
 
     save_overview(output / "overview.png", pts, labels, planes, hms, title=f"{cloud.name}: {len(planes)} planes")
     dump_config(cfg, output / "config.yaml")

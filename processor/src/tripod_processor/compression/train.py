@@ -108,7 +108,7 @@ def train(out: Path, clouds: list[Path] | None = None, n_fragments: int = DEFAUL
     """
     t0 = time.time()
     if clouds:
-        from ..cloud_io import read_cloud, xyz
+        from ..io.clouds import read_cloud, xyz
 
         data = (xyz(read_cloud(p), np.float32) for p in clouds)
         source = [str(p) for p in clouds]

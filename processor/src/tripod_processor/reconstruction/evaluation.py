@@ -182,7 +182,7 @@ def evaluate_run(outdir, truth_t_ns: np.ndarray, truth_T: np.ndarray,
     true trajectory on the lidar time line (and the scene mesh, when given)."""
     from pathlib import Path
 
-    from .. import cloud_io
+    from ..io import clouds as cloud_io
     from .outputs import read_tum
 
     out = Path(outdir)

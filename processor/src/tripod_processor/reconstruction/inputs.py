@@ -236,7 +236,7 @@ def _read_mcap(path: Path) -> Recording:
 
 
 def _read_pcap(path: Path) -> Recording:
-    from ..pcap import PcapFormatError, PcapReader
+    from ..io.pcap import PcapFormatError, PcapReader
 
     try:
         reader = PcapReader(path)
@@ -281,7 +281,7 @@ def read_imu_log(path: str | os.PathLike) -> ImuTrack:
     with host read times), or text lines ``host_time_s w x y z`` (or ``host_ns,w,x,y,z``;
     ``#`` comments). Times are host_realtime, like the pcap's capture stamps.
     """
-    from ..imu_log import MAGIC, ImuLogError, ImuLogReader
+    from ..io.imu_log import MAGIC, ImuLogError, ImuLogReader
 
     path = Path(path)
     if not path.is_file():
@@ -331,7 +331,7 @@ def decode_points(lidar: LidarPackets, start: int, stop: int, *, min_range: floa
                   ) -> np.ndarray:
     """Decode packets ``[start, stop)`` into points in the lidar frame with per-point lidar time.
 
-    Decoding is the C++ core's batch VLP-16 decoder (:mod:`tripod_processor.native_decoder`,
+    Decoding is the C++ core's batch VLP-16 decoder (:mod:`tripod_processor.decode.native`,
     point for point equal to velodyne-decoder's): one call per chunk of packets, the GIL
     released, OpenMP over packets. The product byte is not looked at (an early VLP-16 says
     0x21). Times are exact integer ns: the packet's lidar time plus the firing offset.
@@ -347,7 +347,7 @@ def decode_points(lidar: LidarPackets, start: int, stop: int, *, min_range: floa
     structured ndarray (N,) of POINT_DTYPE: x, y, z [m] (float32, lidar frame), intensity,
     ring, return_type, time_ns (int64, lidar time, UNIX ns).
     """
-    from ..native_decoder import NativeVlp16Decoder
+    from ..decode.native import NativeVlp16Decoder
 
     dec = NativeVlp16Decoder(min_range_m=float(max(min_range, 0.0)), max_range_m=float(max_range),
                              num_threads=num_threads)

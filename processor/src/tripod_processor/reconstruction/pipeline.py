@@ -17,7 +17,7 @@ from tqdm import tqdm
 
 from tripod_shared.config_io import dump_config
 
-from .. import cloud_io
+from ..io import clouds as cloud_io
 from ..preprocess import mls_smooth, voxel_downsample
 from . import outputs
 from .calibration import estimate_time_offset

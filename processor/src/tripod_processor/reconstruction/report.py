@@ -140,7 +140,7 @@ def write_report(res, cfg: ReconstructConfig) -> Path:
     out = res.outdir
     slam = res.slam
     main = [k for k in range(len(res.fragments)) if slam.component[k] == 0]
-    from .. import cloud_io
+    from ..io import clouds as cloud_io
     from .outputs import read_tum
 
     map_xyz = cloud_io.xyz(cloud_io.read_ply(out / "map.ply"))

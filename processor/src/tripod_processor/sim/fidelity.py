@@ -19,8 +19,8 @@ from tripod_shared import tfp
 from tripod_shared import velodyne as v
 from tripod_shared.timebase import HOUR_NS, unwrap_toh_us
 
-from ..imu_log import ImuLogReader
-from ..pcap import PcapReader
+from ..io.imu_log import ImuLogReader
+from ..io.pcap import PcapReader
 from .capture import CAPTURE_FILE, IMU_FILE, LABELS_FILE, META_FILE, build_rig
 from .config import SimConfig
 from .lidar import FIRING_NS, LASER_RING, LASER_VERT_OFFSET_M, SEQUENCE_NS, sequences_per_packet

@@ -17,8 +17,8 @@ from typing import Sequence
 
 import numpy as np
 
-from . import _ext
-from .preprocess import as_cloud, voxel_downsample
+from .. import _ext
+from ..preprocess import as_cloud, voxel_downsample
 
 #: Local registration methods: point-to-point (closed-form SVD), point-to-plane, Generalized ICP,
 #: symmetric ICP, and robust non-linear point-to-plane ICP in Ceres' Levenberg-Marquardt.

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import _ext
+from ... import _ext
 
 SEGMENT_VOXEL = 0.10  # [m] grid of the region growing; normals from its 3x3x3 (30 cm) cube
 MIN_PLANARITY = 0.5  # (l1 - l0) / l2 of a voxel's neighbourhood to take part

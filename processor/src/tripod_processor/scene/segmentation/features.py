@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import _ext
-from ..preprocess import as_cloud
+from ... import _ext
+from ...preprocess import as_cloud
 from .segments import planar_segments
 
 FEATURE_NAMES = (

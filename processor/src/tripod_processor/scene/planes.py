@@ -23,8 +23,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import _ext
-from .preprocess import as_cloud
+from .. import _ext
+from ..preprocess import as_cloud
 
 CEILING, FLOOR, WALL, OTHER = 0, 1, 2, 3
 PLANAR_CLASSES = (CEILING, FLOOR, WALL)

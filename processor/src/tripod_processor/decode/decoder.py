@@ -60,8 +60,8 @@ from pydantic import Field
 from tripod_shared import velodyne as vl
 from tripod_shared.config_io import StrictModel
 
-from .native_decoder import POINT_DTYPE, CalibrationError, NativeVlp16Decoder
-from .packet_sources import PacketBatch, PacketSource, SourceError, group_packets, open_source
+from .native import POINT_DTYPE, CalibrationError, NativeVlp16Decoder
+from ..io.packets import PacketBatch, PacketSource, SourceError, group_packets, open_source
 
 #: VLP-16 firing order of each ring: lasers alternate -15°, +1°, -13°, +3°, ...
 _LASER_OF_RING = np.array([0, 2, 4, 6, 8, 10, 12, 14, 1, 3, 5, 7, 9, 11, 13, 15], np.uint8)
