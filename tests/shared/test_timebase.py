@@ -29,11 +29,11 @@ def test_nearest_hour():
 def test_unwrapper_over_rollover_and_chunks():
     toh = [H_US - 300, 50, 1000, H_US // 2, H_US - 10, 20]  # two rollovers, forward only
     want = [t * tb.NS_PER_US for t in tb.unwrap_toh_us(toh)]
-    u = tb.TohUnwrapper()
+    u = tb.TohChunkUnwrapper()
     got = np.concatenate([u(np.array(toh[:3])), u(np.array(toh[3:5])), u(np.array([])),
                           u(np.array(toh[5:]))])
     assert got.tolist() == want
-    u2 = tb.TohUnwrapper(base_ns=5 * tb.HOUR_NS)
+    u2 = tb.TohChunkUnwrapper(base_ns=5 * tb.HOUR_NS)
     assert u2(np.array(toh))[0] == 5 * tb.HOUR_NS + toh[0] * tb.NS_PER_US
 
 
@@ -42,3 +42,17 @@ def test_same_hour_shift():
     assert tb.same_hour_shift_ns(t, t + 3 * tb.HOUR_NS + 7) == 3 * tb.HOUR_NS
     assert tb.same_hour_shift_ns(t, t - 2 * tb.HOUR_NS - 7) == -2 * tb.HOUR_NS
     assert tb.same_hour_shift_ns(t, t + 5) == 0
+
+
+def test_unwrap_array_matches_list_form_both_directions():
+    rng = np.random.default_rng(3)
+    toh = rng.integers(0, H_US, 300)  # random stamps: backward and forward hour jumps alike
+    assert tb.unwrap_toh_us_array(toh).tolist() == tb.unwrap_toh_us(toh.tolist())
+    assert tb.unwrap_toh_us_array(toh, H_US).tolist() == tb.unwrap_toh_us(toh.tolist(), H_US)
+    assert len(tb.unwrap_toh_us_array(np.array([], np.int64))) == 0
+
+
+def test_ns_placement_keeps_sub_microsecond():
+    ref = 1_780_000_000 * tb.NS_PER_S
+    t = tb.toh_ns_to_unix_ns(1_234_567_891, ref)
+    assert t % tb.HOUR_NS == 1_234_567_891 and abs(t - ref) <= tb.HOUR_NS // 2

@@ -16,8 +16,8 @@ NS_PER_S = 1_000_000_000
 def checksum(body: str) -> str:
     """Two upper-case hex digits: the XOR of the characters between ``$`` and ``*``."""
     c = 0
-    for ch in body.encode("ascii", "replace"):
-        c ^= ch
+    for ch in body:
+        c ^= ord(ch)
     return f"{c:02X}"
 
 
