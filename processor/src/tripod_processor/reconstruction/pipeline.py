@@ -188,7 +188,7 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
         from .report import write_report
 
         with _Stage(times, "report", None, quiet):
-            res.files["report"] = str(write_report(res, cfg))
+            res.files["report"] = str(write_report(res, cfg, summary(res)))
     outputs.write_json(out / "result.json", summary(res))
     res.files["result"] = str(out / "result.json")
     return res
