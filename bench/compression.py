@@ -150,7 +150,7 @@ def print_summary(curves: dict, sizes: dict, noise_m: dict, load: float | None) 
     from rich.console import Console
     from rich.table import Table
 
-    from tripod_processor.cli.compress_cmd import print_rd_tables
+    from tripod_processor.compression.rd import print_rd_tables
     from tripod_processor.compression.rd import ratio_at_equal_psnr
 
     print_rd_tables(curves)

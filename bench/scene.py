@@ -123,17 +123,17 @@ def true_planes(scene):
 def bench_planes(pictures: bool) -> None:
     import open3d as o3d
 
-    from tripod_processor.scene.heightmaps import plane_heightmap, relief_rmse
-    from tripod_processor.scene.planes import extract_planes
+    from tripod_processor.scene.heightmaps import relief_rmse
+    from tripod_processor.scene.pipeline import analyse_scene
     from tripod_processor.sim.rooms import free_station, make_room, scan
 
     scene = make_room(7, kind="box", size=(7.0, 5.5), height=2.8)
     st = free_station(scene, np.random.default_rng(3))
     p, lab = scan(scene, st, head_steps=70, noise_m=0.03, seed=7)
     row("planes", "simulated room: points, range noise", f"{len(p):,}, 3 cm")
-    t0, c0 = time.perf_counter(), time.process_time()
-    planes = extract_planes(p, lab)
-    dt, dc = time.perf_counter() - t0, time.process_time() - c0
+    res = analyse_scene(p, lab)  # the pipeline of `tripod heightmaps`, default settings
+    planes, hms = res.planes, res.heightmaps
+    dt, dc = res.seconds["planes"], res.seconds["planes_cpu"]
     worst_a, worst_o, found, expected = 0.0, 0.0, 0, 0
     for label, n, d in true_planes(scene):
         if ((lab == label) & (np.abs(p @ n + d) < 0.1)).sum() < 3000:
@@ -162,13 +162,7 @@ def bench_planes(pictures: bool) -> None:
     # heightmaps of the same room against the mesh
     rs = scene.raycasting_scene()
     rmses = []
-    hms = []
-    from tripod_processor import _ext
-
-    normals = _ext.voxel_local_shape(p, 0.05, 1, 0)[:, :3]
-    for pl in planes:
-        hm = plane_heightmap(p, pl, normals=normals)
-        hms.append(hm)
+    for hm in hms:
         r, n = relief_rmse(hm, rs)
         if n > 200:
             rmses.append(r)

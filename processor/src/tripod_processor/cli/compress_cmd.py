@@ -162,7 +162,7 @@ def rd_cmd(
 
     from ..io.clouds import pcd_viewpoint
     from ..compression import MODES
-    from ..compression.rd import draco_available, plot_rd, run_rd
+    from ..compression.rd import draco_available, plot_rd, print_rd_tables, run_rd
 
     if not 2 <= q_min <= q_max <= 20:
         fail("need 2 <= --q-min <= --q-max <= 20")
@@ -186,30 +186,6 @@ def rd_cmd(
     plot.with_suffix(".json").write_text(json.dumps(
         {k: [r.as_dict() for r in v] for k, v in curves.items()}, indent=1))
     console.print(f"plot: {plot}")
-
-
-def print_rd_tables(curves: dict) -> None:
-    """One rich table per cloud: both codecs side by side at each q, and the rate ratio."""
-    from rich.console import Console
-    from rich.table import Table
-
-    from ..compression.rd import ratio_at_equal_psnr
-
-    out = Console(width=max(Console().width, 150))
-    for name, rows in curves.items():
-        ratio = ratio_at_equal_psnr(rows)
-        table = Table(title=f"{name}: rate-distortion (bpp per input point, D1 PSNR, speed M pts/s)")
-        for col in ("codec", "mode", "q", "step mm", "bpp", "RMSE mm", "PSNR diag", "PSNR mpeg10",
-                    "enc M/s", "dec M/s", "enc M/cpu-s", "dec M/cpu-s", "bpp ratio @ equal PSNR"):
-            table.add_column(col, justify="right")
-        for r in sorted(rows, key=lambda r: (r.q_bits, r.codec)):
-            table.add_row(r.codec, r.mode, str(r.q_bits), f"{1e3 * r.step_m:.2f}", f"{r.bpp:.3f}",
-                          f"{r.rmse_mm:.2f}", f"{r.psnr_diag_db:.2f}", f"{r.psnr_mpeg10_db:.2f}",
-                          f"{r.encode_mpts_s:.2f}", f"{r.decode_mpts_s:.2f}",
-                          f"{r.encode_mpts_cpu_s:.2f}", f"{r.decode_mpts_cpu_s:.2f}",
-                          f"{ratio[r.q_bits]:.2f}" if r.codec == "draco" and r.q_bits in ratio
-                          else "")
-        out.print(table)
 
 
 @app.command("train-compressor", rich_help_panel=_PANEL)

@@ -9,23 +9,9 @@ from pathlib import Path
 import typer
 
 from . import app
-from ._common import console, fail
+from ._common import console, fail, read_points
 
 CLASS_HELP = "0 ceiling, 1 floor, 2 wall, 3 other"
-
-
-def _read_points(path: Path):
-    from ..io.clouds import CloudFormatError, read_cloud, xyz
-
-    try:
-        cloud = read_cloud(path)
-    except FileNotFoundError:
-        fail(f"no such file: {path}")
-    except (CloudFormatError, ValueError, OSError) as exc:
-        fail(f"{path}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}")
-    if cloud.dtype.names is None or not {"x", "y", "z"} <= set(cloud.dtype.names):
-        fail(f"{path}: the cloud has no x, y, z fields")
-    return cloud, xyz(cloud, dtype="float32")
 
 
 @app.command("segment", rich_help_panel="Scene understanding")
@@ -51,7 +37,7 @@ def segment_cmd(
 
     if output.suffix.lower() not in (".ply", ".pcd"):
         fail(f"output must end in .ply or .pcd, not {output.suffix!r}")
-    src, pts = _read_points(cloud)
+    src, pts = read_points(cloud)
     if truth_field and truth_field not in src.dtype.names:
         fail(f"{cloud}: no field {truth_field!r} to score against")
     try:
