@@ -243,3 +243,59 @@ def _finite_cloud(points) -> np.ndarray:
         raise ValueError("points contain NaN or inf: drop them first (e.g. "
                          "points[np.isfinite(points).all(axis=1)])")
     return pts
+
+
+# ---- per-voxel attributes (numpy): the same lattice as ``voxel_downsample(align="origin")`` ----
+_KEY_BITS = 21  # per axis: |index| < 2^20 voxels (20 km at 2 cm)
+
+
+def voxel_keys(points, voxel_size: float) -> np.ndarray:
+    """(N,) int64 key of each point's voxel on the origin lattice (index = floor(p / size)),
+    the lattice of :func:`voxel_downsample`; a centroid it returns has its voxel's key (but for
+    float rounding on a voxel face)."""
+    idx = np.floor(np.asarray(points, dtype=np.float64)[:, :3] / voxel_size).astype(np.int64)
+    idx += 1 << (_KEY_BITS - 1)
+    np.clip(idx, 0, (1 << _KEY_BITS) - 1, out=idx)
+    return (idx[:, 0] << (2 * _KEY_BITS)) | (idx[:, 1] << _KEY_BITS) | idx[:, 2]
+
+
+def voxel_mean(keys: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean of the finite ``values`` (N,) per voxel key: (sorted unique keys (M,), means (M,)
+    float32, NaN for a voxel with no finite value)."""
+    uk, inv = np.unique(keys, return_inverse=True)
+    v = np.asarray(values, dtype=np.float64)
+    ok = np.isfinite(v)
+    s = np.bincount(inv[ok], weights=v[ok], minlength=len(uk))
+    c = np.bincount(inv[ok], minlength=len(uk))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return uk, (s / c).astype(np.float32)
+
+
+def voxel_majority(keys: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The most frequent integer value per voxel key (ties: the smallest value): (sorted unique
+    keys (M,), values (M,) int64)."""
+    vals = np.asarray(values, dtype=np.int64)
+    order = np.lexsort((vals, keys))
+    k, v = keys[order], vals[order]
+    new_run = np.ones(len(k), bool)
+    new_run[1:] = (k[1:] != k[:-1]) | (v[1:] != v[:-1])
+    starts = np.flatnonzero(new_run)
+    run_len = np.diff(np.append(starts, len(k)))
+    rk, rv = k[starts], v[starts]
+    # per key, the longest run first (stable: the smallest value among equal lengths)
+    best = np.lexsort((-run_len, rk))
+    rk, rv = rk[best], rv[best]
+    first = np.ones(len(rk), bool)
+    first[1:] = rk[1:] != rk[:-1]
+    return rk[first], rv[first]
+
+
+def lookup_keys(table_keys: np.ndarray, table_values: np.ndarray, keys: np.ndarray,
+                missing) -> np.ndarray:
+    """``table_values`` at ``keys`` in the sorted ``table_keys``; ``missing`` where absent."""
+    if len(table_keys) == 0:
+        return np.full(len(keys), missing, dtype=np.asarray(table_values).dtype)
+    i = np.searchsorted(table_keys, keys)
+    i = np.minimum(i, len(table_keys) - 1)
+    hit = table_keys[i] == keys
+    return np.where(hit, np.asarray(table_values)[i], missing)

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..preprocess import voxel_downsample
+from ..preprocess import lookup_keys, voxel_downsample, voxel_keys, voxel_mean
 from .inputs import LidarPackets, decode_points
 from .placement import Extrinsic, ImuOrientation, place_points, pose_world_lidar
 from .stations import Station
@@ -24,12 +24,15 @@ class Fragment:
     points : (N, 3) float32 [m], lidar frame at ``station.mid_ns``, voxel-filtered
     R_world_lidar : (3, 3) IMU attitude of that frame (yaw from the drifting IMU)
     raw_points : int, points placed before the voxel filter
+    intensity : (N,) float32 or None, mean reflectivity (0–255) of each point's voxel (NaN: a
+        centroid on a voxel face that missed its voxel); built only when asked (survey outputs)
     """
 
     station: Station
     points: np.ndarray
     R_world_lidar: np.ndarray
     raw_points: int
+    intensity: np.ndarray | None = None
 
     @property
     def up_in_lidar(self) -> np.ndarray:
@@ -39,15 +42,18 @@ class Fragment:
 
 def build_fragment(lidar: LidarPackets, station: Station, orient: ImuOrientation, ext: Extrinsic,
                    voxel_m: float, min_range: float, max_range: float,
-                   num_threads: int = 0, chunk: int = 1000, max_points: int = 6_000_000
-                   ) -> Fragment:
+                   num_threads: int = 0, chunk: int = 1000, max_points: int = 6_000_000,
+                   with_intensity: bool = False) -> Fragment:
     """Decode, place and voxel-filter one station's packets.
 
     Decodes and places the station in chunks of ``chunk`` packets, then voxel-filters all its
     placed points at once (a 10 s station is ~3 M points, 36 MB); a long station is bounded by
     filtering what has gathered at half the voxel whenever it passes ``max_points``.
+    ``with_intensity``: also the mean intensity of each output voxel (from every placed point,
+    12 bytes a point while the station is built).
     """
     parts, raw = [], 0
+    key_parts, inten_parts = [], []
     gathered, limit = 0, max_points
     for a in range(station.packet_start, station.packet_stop, chunk):
         b = min(station.packet_stop, a + chunk)
@@ -59,6 +65,9 @@ def build_fragment(lidar: LidarPackets, station: Station, orient: ImuOrientation
         xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=1)
         placed = place_points(xyz, pts["time_ns"], orient, ext, station.mid_ns, num_threads)
         parts.append(placed)
+        if with_intensity:
+            key_parts.append(voxel_keys(placed, voxel_m))
+            inten_parts.append(pts["intensity"].astype(np.float32))
         gathered += len(placed)
         if gathered > limit:
             parts = [voxel_downsample(np.concatenate(parts), voxel_m * 0.5, num_threads)]
@@ -69,4 +78,11 @@ def build_fragment(lidar: LidarPackets, station: Station, orient: ImuOrientation
     else:
         down = np.zeros((0, 3), np.float32)
     R = pose_world_lidar(orient, ext, np.array([station.mid_ns]))[0, :3, :3]
-    return Fragment(station, down, R, raw)
+    intensity = None
+    if with_intensity:
+        if key_parts:
+            uk, mean = voxel_mean(np.concatenate(key_parts), np.concatenate(inten_parts))
+            intensity = lookup_keys(uk, mean, voxel_keys(down, voxel_m), np.float32(np.nan))
+        else:
+            intensity = np.zeros(0, np.float32)
+    return Fragment(station, down, R, raw, intensity)
