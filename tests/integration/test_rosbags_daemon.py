@@ -55,7 +55,7 @@ def daemon_recording(tmp_path_factory):
             assert d.wait_for(lambda: c["imu_samples"] == N_IMU)
             send_paced(udp_sender(), d.data_addr, [make_data_packet(i) for i in range(N_PACKETS)],
                        3000.0)
-            assert d.wait_for(lambda: c["lidar_packets"] >= N_PACKETS)
+            assert d.wait_for(lambda: c["lidar_data"] >= N_PACKETS)
             assert d.daemon.control("mark", "station A")["ok"] is not False
             assert d.stop() == 0
     finally:
