@@ -398,3 +398,63 @@ def test_dejitter_keeps_raw_stamps_when_samples_were_lost():
 
     _, host = _stalled_imu_stamps(lost=(1500, 3100, 4700))
     assert np.array_equal(dejitter_periodic(host), _strictly_increasing(host))
+
+
+# ---- survey deliverables: E57 per station, LAS/LAZ map (read back by pye57 and laspy) ----------
+def test_survey_deliverables(run, tmp_path):
+    import laspy
+    import pye57
+
+    from tripod_processor.cli import main
+    from tripod_processor.io.e57 import NO_LABEL, read_e57
+    from tripod_processor.reconstruction.survey import labels_from_asprs
+
+    res, truth, out = run
+    t_st, T_st = read_tum(out / "stations.tum")
+    # E57: one scan per station, points in the station frame, the pose of stations.tum
+    e57 = pye57.E57(str(out / "stations.e57"))
+    assert e57.scan_count == 3
+    for k in range(3):
+        h = e57.get_header(k)
+        frag = cloud_io.read_ply(out / "fragments" / f"station_{k:03d}.ply")
+        assert h.point_count == len(frag)
+        glob = e57.read_scan(k, intensity=True, transform=True)
+        p_map = np.stack([glob["cartesianX"], glob["cartesianY"], glob["cartesianZ"]], 1)
+        want = cloud_io.xyz(frag) @ T_st[k][:3, :3].T + T_st[k][:3, 3]
+        assert np.abs(p_map - want).max() < 2e-4  # 0.1 mm grid + float32 fragment points
+        # the synthetic lidar returns intensity 100 everywhere
+        assert np.nanmedian(glob["intensity"]) == pytest.approx(100.0)
+    e57.close()
+    scans = read_e57(out / "stations.e57")
+    labelled = np.concatenate([s.label for s in scans])
+    assert np.isin(labelled, [0, 1, 2, 3, NO_LABEL]).all()
+    assert (labelled != NO_LABEL).mean() > 0.9
+    for s, tk in zip(scans, t_st):
+        assert s.start_ns < tk < s.end_ns
+    # LAS: the map with intensity, station and ASPRS classes
+    las = laspy.read(out / "map.laz")
+    mp = cloud_io.read_ply(out / "map.ply")
+    assert len(las.points) == len(mp) == res.map_points
+    xyz_las = np.stack([las.x, las.y, las.z], 1)
+    assert np.abs(xyz_las - cloud_io.xyz(mp)).max() <= 0.5e-4 + 1e-6
+    assert set(np.unique(las.point_source_id)) <= {1, 2, 3}  # station + 1
+    np.testing.assert_array_equal(np.asarray(las.point_source_id) - 1, mp["station"])
+    np.testing.assert_array_equal(labels_from_asprs(np.asarray(las.classification)), mp["label"])
+    assert np.median(las.intensity) == 100 * 256
+    # the floor (lowest points) is mostly ASPRS ground, the ceiling mostly code 64
+    z = xyz_las[:, 2]
+    cls = np.asarray(las.classification)
+    assert (cls[z < np.percentile(z, 3)] == 2).mean() > 0.7
+    assert (cls[z > np.percentile(z, 97)] == 64).mean() > 0.7
+    # tripod export rebuilds the same E57 from the folder, and LAS from map.ply
+    assert main(["export", "e57", str(out), "-o", str(tmp_path / "s.e57")]) == 0
+    again = read_e57(tmp_path / "s.e57")
+    for a, b in zip(scans, again):
+        np.testing.assert_array_equal(a.points, b.points)
+        np.testing.assert_array_equal(a.label, b.label)
+        np.testing.assert_allclose(a.T_map_station, b.T_map_station, atol=1e-6)
+    assert main(["export", "las", str(out / "map.ply"), "-o", str(tmp_path / "m.las")]) == 0
+    las2 = laspy.read(tmp_path / "m.las")
+    np.testing.assert_array_equal(np.asarray(las2.classification), cls)
+    np.testing.assert_array_equal(np.asarray(las2.point_source_id),
+                                  np.asarray(las.point_source_id))
