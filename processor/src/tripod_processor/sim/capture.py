@@ -198,15 +198,14 @@ def write_recording(out: Path, cfg: SimConfig) -> Path:
     from tripod_shared.messages import Event, ImuSample
     from tripod_shared.recording import RecordingWriter
 
-    from ..io.replay import IMU, LIDAR, POSITION, ReplaySource
+    from ..io.events import IMU, LIDAR, POSITION, folder_events
 
-    src = ReplaySource.open(out)
     first = last = None
     with RecordingWriter(out / MCAP_FILE, metadata={"source": "tripod simulate",
                                                     "seed": str(cfg.seed)}) as w:
         tp = tfp.TfpStreamParser()
         wp = witmotion.WitStreamParser()
-        for t_ns, kind, data in src.events():
+        for t_ns, kind, data in folder_events(out):
             if first is None:
                 first = t_ns
                 w.write_event(Event(t_ns, "start", "simulated capture"))
