@@ -24,10 +24,11 @@ from tripod_shared.timebase import HOUR_NS
 
 from ..io.imu_log import write_imu_log
 from ..io.pcap import PcapWriter
+from .beams import LASER_ELEVATION_DEG
 from .config import SimConfig
 from .imu import R_lidar_imu, simulate_imu, wxyz
-from .lidar import (LASER_ELEVATION_DEG, SEQUENCE_NS, Vlp16, gprmc, packet_period_ns,
-                    position_packet, position_schedule)
+from .lidar import (SEQUENCE_NS, Vlp16, gprmc, packet_period_ns, position_packet,
+                    position_schedule)
 from .motion import Trajectory
 from .scenes import (CLASS_NAMES, NO_RETURN, Scene, check_route, load_scene_file, make_scene,
                      write_mesh_ply)

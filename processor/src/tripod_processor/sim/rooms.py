@@ -15,10 +15,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .beams import RING_ELEVATION_DEG, directions
+
 CEILING, FLOOR, WALL, OTHER = 0, 1, 2, 3
 
 # VLP-16: 16 beams from -15 to +15 deg, 2 deg apart [rad]
-VLP16_ELEVATIONS = np.deg2rad(np.arange(-15.0, 16.0, 2.0))
+VLP16_ELEVATIONS = np.deg2rad(RING_ELEVATION_DEG)
 
 
 @dataclass
@@ -303,7 +305,7 @@ def scan(scene: Scene, station, *, head_steps: int = 24, azimuth_step_deg: float
     om = VLP16_ELEVATIONS
     a, o = np.meshgrid(alpha, om, indexing="ij")
     # sensor frame: spin axis z_s; lying on its side: z_s -> world x (before the head yaw)
-    d_s = np.stack([np.cos(o) * np.cos(a), np.cos(o) * np.sin(a), np.sin(o)], -1).reshape(-1, 3)
+    d_s = directions(a, o).reshape(-1, 3)
     R_side = np.array([[0, 0, 1], [0, 1, 0], [-1, 0, 0]], float)  # rotate z_s onto world x
     dirs = []
     for psi in np.linspace(0, np.pi, head_steps, endpoint=False) + rng.uniform(0, np.pi / head_steps):
