@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from tripod_shared import velodyne as vl
-from tripod_shared.recording import RecordingReader, is_mcap
+from tripod_shared.recording import is_mcap
 from tripod_shared import nmea
 from tripod_shared.timebase import (NS_PER_US, toh_us_to_unix_ns, toh_us_to_unix_ns_array,
                                     unwrap_toh_us_array)
@@ -170,74 +170,74 @@ def _concatenate(recs: list[Recording]) -> Recording:
 
 
 def _read_mcap(path: Path) -> Recording:
-    from tripod_shared import messages as msg
-    from tripod_shared import topics as t
+    from ..io.events import IMU_SAMPLE, LIDAR, MARK, POSITION, McapEvents
 
-    reader = RecordingReader(path)
-    host, payloads, gprmc = [], [], []
+    events = McapEvents(path, (LIDAR, POSITION, IMU_SAMPLE, MARK))
+    lidar = _LidarCollector()
     imu_t, imu_q, marks = [], [], []
-    skipped: dict[str, int] = {}
-    for m in reader.messages([t.TOPIC_LIDAR_PACKETS, t.TOPIC_LIDAR_POSITION, t.TOPIC_IMU,
-                              t.TOPIC_EVENTS]):
-        try:
-            if m.topic == t.TOPIC_LIDAR_PACKETS:
-                h, p = msg.decode_velodyne_packet(m.data)
-                if vl.check_data_packet(p) != vl.PacketKind.DATA:
-                    skipped["bad_lidar_packet"] = skipped.get("bad_lidar_packet", 0) + 1
-                    continue
-                host.append(h)
-                payloads.append(p)
-            elif m.topic == t.TOPIC_LIDAR_POSITION:
-                h, p = msg.decode_position_packet(m.data)
-                g = gprmc_unix_ns(p)
-                if g is not None:
-                    gprmc.append((h, g))
-            elif m.topic == t.TOPIC_IMU:
-                s = msg.decode_imu(m.data)
-                imu_t.append(s.host_ns)
-                imu_q.append((s.w, s.x, s.y, s.z))
-            elif m.topic == t.TOPIC_EVENTS:
-                e = msg.decode_event(m.data)
-                if e.kind == "mark":
-                    marks.append((e.host_ns, e.label))
-        except (ValueError, KeyError, IndexError):
-            key = f"bad_message:{m.topic}"
-            skipped[key] = skipped.get(key, 0) + 1
-    lidar, hour_source = _finish_lidar(host, payloads, gprmc)
-    rec = Recording(str(path), lidar, _imu_track(imu_t, imu_q), marks, hour_source,
-                    reader.report.truncated, skipped=skipped)
-    if reader.report.truncated:
-        rec.notes.append(f"recording is cut off ({reader.report.error}); every whole message "
+    for host_ns, kind, data in events:
+        if kind == IMU_SAMPLE:
+            imu_t.append(host_ns)
+            imu_q.append((data.w, data.x, data.y, data.z))
+        elif kind == MARK:
+            marks.append((host_ns, data))
+        else:
+            lidar.add(host_ns, kind, data)
+    skipped = dict(events.skipped)
+    for k, v in lidar.skipped.items():
+        skipped[k] = skipped.get(k, 0) + v
+    lidar_packets, hour_source = _finish_lidar(lidar.host, lidar.payloads, lidar.gprmc)
+    rec = Recording(str(path), lidar_packets, _imu_track(imu_t, imu_q), marks, hour_source,
+                    events.truncated, skipped=skipped)
+    if events.truncated:
+        rec.notes.append(f"recording is cut off ({events.error or None}); every whole message "
                          "before the cut was used")
     return rec
 
 
 def _read_pcap(path: Path) -> Recording:
+    from ..io.events import pcap_events
     from ..io.pcap import PcapFormatError, PcapReader
 
     try:
         reader = PcapReader(path)
     except PcapFormatError as exc:
         raise RecordingError(str(exc)) from None
-    host, payloads, gprmc = [], [], []
-    skipped: dict[str, int] = {}
-    for d in reader:
-        if d.dst_port == vl.POSITION_PORT and len(d.payload) == vl.POSITION_PACKET_SIZE:
-            g = gprmc_unix_ns(d.payload)
-            if g is not None:
-                gprmc.append((d.t_ns, g))
-        elif len(d.payload) == vl.DATA_PACKET_SIZE and \
-                vl.check_data_packet(d.payload) == vl.PacketKind.DATA:
-            host.append(d.t_ns)
-            payloads.append(d.payload)
-        else:
-            skipped["other_datagram"] = skipped.get("other_datagram", 0) + 1
-    lidar, hour_source = _finish_lidar(host, payloads, gprmc)
-    rec = Recording(str(path), lidar, None, [], hour_source, reader.stats.truncated,
-                    skipped=skipped)
+    lidar = _LidarCollector()
+    for host_ns, kind, payload in pcap_events(reader, skipped=lidar.skipped):
+        lidar.add(host_ns, kind, payload)
+    lidar_packets, hour_source = _finish_lidar(lidar.host, lidar.payloads, lidar.gprmc)
+    rec = Recording(str(path), lidar_packets, None, [], hour_source, reader.stats.truncated,
+                    skipped=lidar.skipped)
     if reader.stats.truncated:
         rec.notes.append("pcap is cut off mid-record; every whole packet before the cut was used")
     return rec
+
+
+class _LidarCollector:
+    """Data packets (checked: whole, VLP-16 header) and the GPRMC times of position packets."""
+
+    def __init__(self) -> None:
+        self.host: list[int] = []
+        self.payloads: list[bytes] = []
+        self.gprmc: list[tuple[int, int]] = []  # (host_ns, GPS UNIX ns)
+        self.skipped: dict[str, int] = {}
+
+    def add(self, host_ns: int, kind: int, payload: bytes) -> None:
+        from ..io.events import LIDAR
+
+        if kind == LIDAR:
+            if vl.check_data_packet(payload) != vl.PacketKind.DATA:
+                self.skipped["bad_lidar_packet"] = self.skipped.get("bad_lidar_packet", 0) + 1
+                return
+            self.host.append(host_ns)
+            self.payloads.append(payload)
+        elif len(payload) == vl.POSITION_PACKET_SIZE:
+            g = gprmc_unix_ns(payload)
+            if g is not None:
+                self.gprmc.append((host_ns, g))
+        else:
+            self.skipped["bad_position_packet"] = self.skipped.get("bad_position_packet", 0) + 1
 
 
 def _imu_track(t, q) -> ImuTrack | None:
