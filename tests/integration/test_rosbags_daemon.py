@@ -17,10 +17,8 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
-from rosbags.interfaces import ConnectionExtRosbag2  # noqa: F401  (rosbags API present)
 from rosbags.rosbag2.errors import ReaderError
 from rosbags.rosbag2.storage_mcap import McapReader
-
 from tripod_shared import messages as m
 from tripod_shared import ros2_msgs as r2
 from tripod_shared import tfp
@@ -29,7 +27,13 @@ from tripod_shared.recording import RecordingReader
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "daemon"))
 from daemon_helpers import (  # noqa: E402
-    FakePty, RunningDaemon, loopback_config, make_data_packet, send_paced, udp_sender)
+    FakePty,
+    RunningDaemon,
+    loopback_config,
+    make_data_packet,
+    send_paced,
+    udp_sender,
+)
 
 N_PACKETS = 600
 N_IMU = 40

@@ -7,13 +7,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from rosbags.highlevel import AnyReader
-
 from recon_synth import synth_capture
+from rosbags.highlevel import AnyReader
 from tripod_processor.cli import main
 from tripod_processor.export.rosbag2 import packet_azimuth_cdeg
+from tripod_shared import messages as m
+from tripod_shared import topics as t
 from tripod_shared.recording import RecordingReader
-from tripod_shared import messages as m, topics as t
 
 
 @pytest.fixture(scope="module")

@@ -7,13 +7,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-
 from tripod_processor.io.e57 import LABEL_FIELD, NO_LABEL, E57Scan, read_e57, write_e57
 from tripod_processor.io.las import LasCloud, read_las, write_las
-from tripod_processor.preprocess import (lookup_keys, voxel_downsample, voxel_keys,
-                                         voxel_majority, voxel_mean)
-from tripod_processor.reconstruction.survey import (ASPRS_CLASS, asprs_codes,
-                                                    labels_from_asprs)
+from tripod_processor.preprocess import (
+    lookup_keys,
+    voxel_downsample,
+    voxel_keys,
+    voxel_majority,
+    voxel_mean,
+)
+from tripod_processor.reconstruction.survey import ASPRS_CLASS, asprs_codes, labels_from_asprs
 
 
 def _cloud(n: int, seed: int = 0):
@@ -125,7 +128,6 @@ def test_voxel_attributes_follow_the_downsample_lattice():
 
 def test_obj_mesh_opens_in_open3d(tmp_path):
     import open3d as o3d
-
     from tripod_processor.io.mesh_obj import read_obj, write_obj
     from tripod_processor.scene.heightmaps import CLASS_COLOURS, CLASS_NAMES
 

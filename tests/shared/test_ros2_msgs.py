@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import pytest
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-
 from tripod_shared import ros2_msgs as r2
 from tripod_shared.messages import Event, Status
 

@@ -259,16 +259,29 @@ def voxel_keys(points, voxel_size: float) -> np.ndarray:
     return (idx[:, 0] << (2 * _KEY_BITS)) | (idx[:, 1] << _KEY_BITS) | idx[:, 2]
 
 
+def voxel_sums(keys: np.ndarray, values: np.ndarray, counts: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sum and count of the finite ``values`` (N,) per voxel key: (sorted unique keys (M,),
+    sums (M,) float64, counts (M,) int64). ``counts`` (N,): each entry stands for that many
+    points (to merge partial sums: pass the sums as ``values``)."""
+    v = np.asarray(values, dtype=np.float64)
+    c = np.ones(len(v), np.int64) if counts is None else np.asarray(counts, dtype=np.int64)
+    ok = np.isfinite(v)
+    if not ok.all():
+        keys, v, c = keys[ok], v[ok], c[ok]
+    if len(keys) == 0:
+        return np.zeros(0, np.int64), np.zeros(0), np.zeros(0, np.int64)
+    order = np.argsort(keys)
+    ks = keys[order]
+    start = np.flatnonzero(np.concatenate(([True], ks[1:] != ks[:-1])))
+    return ks[start], np.add.reduceat(v[order], start), np.add.reduceat(c[order], start)
+
+
 def voxel_mean(keys: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Mean of the finite ``values`` (N,) per voxel key: (sorted unique keys (M,), means (M,)
-    float32, NaN for a voxel with no finite value)."""
-    uk, inv = np.unique(keys, return_inverse=True)
-    v = np.asarray(values, dtype=np.float64)
-    ok = np.isfinite(v)
-    s = np.bincount(inv[ok], weights=v[ok], minlength=len(uk))
-    c = np.bincount(inv[ok], minlength=len(uk))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return uk, (s / c).astype(np.float32)
+    float32); a voxel with no finite value is absent."""
+    uk, s, c = voxel_sums(keys, values)
+    return uk, (s / np.maximum(c, 1)).astype(np.float32)
 
 
 def voxel_majority(keys: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -30,7 +30,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial.transform import Rotation
-
 from tripod_shared import ros2_msgs as r2
 from tripod_shared import velodyne as vl
 

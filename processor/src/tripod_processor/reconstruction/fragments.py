@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..preprocess import lookup_keys, voxel_downsample, voxel_keys, voxel_mean
+from ..preprocess import lookup_keys, voxel_downsample, voxel_keys, voxel_sums
 from .inputs import LidarPackets, decode_points
 from .placement import Extrinsic, ImuOrientation, place_points, pose_world_lidar
 from .stations import Station
@@ -49,11 +49,11 @@ def build_fragment(lidar: LidarPackets, station: Station, orient: ImuOrientation
     Decodes and places the station in chunks of ``chunk`` packets, then voxel-filters all its
     placed points at once (a 10 s station is ~3 M points, 36 MB); a long station is bounded by
     filtering what has gathered at half the voxel whenever it passes ``max_points``.
-    ``with_intensity``: also the mean intensity of each output voxel (from every placed point,
-    12 bytes a point while the station is built).
+    ``with_intensity``: also the mean intensity of each output voxel (from every placed point;
+    per-voxel sums are kept per chunk and merged at the end).
     """
     parts, raw = [], 0
-    key_parts, inten_parts = [], []
+    key_parts = []
     gathered, limit = 0, max_points
     for a in range(station.packet_start, station.packet_stop, chunk):
         b = min(station.packet_stop, a + chunk)
@@ -65,9 +65,8 @@ def build_fragment(lidar: LidarPackets, station: Station, orient: ImuOrientation
         xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=1)
         placed = place_points(xyz, pts["time_ns"], orient, ext, station.mid_ns, num_threads)
         parts.append(placed)
-        if with_intensity:
-            key_parts.append(voxel_keys(placed, voxel_m))
-            inten_parts.append(pts["intensity"].astype(np.float32))
+        if with_intensity:  # per-chunk sums: a chunk revisits its voxels every rotation
+            key_parts.append(voxel_sums(voxel_keys(placed, voxel_m), pts["intensity"]))
         gathered += len(placed)
         if gathered > limit:
             parts = [voxel_downsample(np.concatenate(parts), voxel_m * 0.5, num_threads)]
@@ -81,8 +80,9 @@ def build_fragment(lidar: LidarPackets, station: Station, orient: ImuOrientation
     intensity = None
     if with_intensity:
         if key_parts:
-            uk, mean = voxel_mean(np.concatenate(key_parts), np.concatenate(inten_parts))
-            intensity = lookup_keys(uk, mean, voxel_keys(down, voxel_m), np.float32(np.nan))
+            uk, s, c = voxel_sums(*(np.concatenate(a) for a in zip(*key_parts)))
+            intensity = lookup_keys(uk, (s / c).astype(np.float32), voxel_keys(down, voxel_m),
+                                    np.float32(np.nan))
         else:
             intensity = np.zeros(0, np.float32)
     return Fragment(station, down, R, raw, intensity)
