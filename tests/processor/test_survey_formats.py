@@ -144,3 +144,31 @@ def test_obj_mesh_opens_in_open3d(tmp_path):
     rv, rt, groups = read_obj(path)
     np.testing.assert_array_equal(rt, tri)
     assert groups == ["floor", "floor", "wall", "wall"]
+
+
+def test_cli_export_of_clouds(tmp_path, capsys):
+    import laspy
+    import pye57
+
+    from tripod_processor.cli import main
+    from tripod_processor.io.clouds import make_cloud, write_ply
+
+    pts, inten, station, label = _cloud(3000, seed=5)
+    src = tmp_path / "labelled.ply"
+    write_ply(src, make_cloud(pts, intensity=np.nan_to_num(inten), label=label.astype(np.int32)))
+    assert main(["export", "las", str(src), "-o", str(tmp_path / "c.laz")]) == 0
+    las = laspy.read(tmp_path / "c.laz")
+    np.testing.assert_array_equal(labels_from_asprs(np.asarray(las.classification)), label)
+    assert set(np.unique(las.point_source_id)) == {0}  # no station field: unknown
+    assert main(["export", "e57", str(src), "-o", str(tmp_path / "c.e57")]) == 0
+    e57 = pye57.E57(str(tmp_path / "c.e57"))
+    assert e57.scan_count == 1 and e57.get_header(0).point_count == 3000
+    e57.close()
+    np.testing.assert_array_equal(read_e57(tmp_path / "c.e57")[0].label, label)
+    # bad input: one line, exit 2
+    capsys.readouterr()
+    assert main(["export", "las", str(src), "-o", str(tmp_path / "c.txt")]) == 2
+    assert main(["export", "e57", str(tmp_path / "missing"), "-o", str(tmp_path / "x.e57")]) == 2
+    assert main(["export", "e57", str(tmp_path), "-o", str(tmp_path / "x.e57")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 3 and all(e.startswith("tripod: error:") for e in err)

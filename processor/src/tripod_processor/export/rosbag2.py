@@ -10,8 +10,8 @@ topic               type                               content
                                                        packets grouped at the azimuth wrap, each
                                                        VelodynePacket the host receive stamp and
                                                        the 1206 bytes verbatim; frame
-                                                       ``velodyne``; header stamp the middle of
-                                                       its first and last packet's stamps
+                                                       ``velodyne``; header stamp the last
+                                                       packet's (as the driver stamps it)
 /imu/data           sensor_msgs/msg/Imu                every IMU sample: orientation
                                                        q_world_imu (rates and accelerations
                                                        absent: covariance[0] = -1); frame ``imu``
@@ -103,9 +103,8 @@ def write_rosbag2(folder: str | os.PathLike, host_ns: np.ndarray, payload: np.nd
                 a, b = int(starts[i]), int(ends[i])
                 stamps = host_ns[a:b].tolist()
                 pk = [(t, payload[k].tobytes()) for t, k in zip(stamps, range(a, b))]
-                mid = stamps[0] + (stamps[-1] - stamps[0]) // 2
                 bag.write(TOPIC_SCANS, int(scan_t[i]),
-                          r2.encode_velodyne_scan(mid, FRAME_LIDAR, pk))
+                          r2.encode_velodyne_scan(stamps[-1], FRAME_LIDAR, pk))
                 i += 1
             else:
                 t = int(imu_t[j])
