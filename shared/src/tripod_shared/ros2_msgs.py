@@ -88,10 +88,10 @@ EVENT_MSGDEF = (
 #: name of the one DiagnosticStatus a daemon status becomes
 DIAGNOSTIC_NAME = "tripod: daemon"
 DIAG_OK, DIAG_WARN, DIAG_ERROR, DIAG_STALE = 0, 1, 2, 3
-_LEVELS = {"running": DIAG_OK, "ok": DIAG_OK, "recording": DIAG_OK, "idle": DIAG_OK,
-           "warn": DIAG_WARN, "warning": DIAG_WARN, "degraded": DIAG_WARN,
-           "error": DIAG_ERROR, "failed": DIAG_ERROR, "stopped": DIAG_STALE,
-           "stopping": DIAG_STALE}
+# daemon states (shared/README.md) -> DiagnosticStatus level; unknown states: WARN
+_LEVELS = {"recording": DIAG_OK, "idle": DIAG_OK, "running": DIAG_OK, "ok": DIAG_OK,
+           "stopped": DIAG_WARN, "degraded": DIAG_WARN, "warn": DIAG_WARN,
+           "error": DIAG_ERROR}
 
 
 def _time(w: CdrWriter, t_ns: int) -> None:
@@ -180,7 +180,7 @@ def encode_tf_message(transforms: list[tuple[int, str, str, tuple, tuple]]) -> b
 def encode_status_diagnostics(s: m.Status, hardware_id: str = "tripod") -> bytes:
     """CDR of a DiagnosticArray holding the status as one DiagnosticStatus.
 
-    level from ``state`` (running/ok: OK, degraded/warn: WARN, error: ERROR, stopped: STALE,
+    level from ``state`` (recording/idle: OK; stopped, e.g. disk full: WARN; error: ERROR;
     anything else WARN); values: ``state``, ``recording``, ``file`` and ``counts.<name>``,
     ``rates.<name>``, ``clocks.<device>`` with JSON-encoded values.
     """
