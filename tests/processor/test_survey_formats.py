@@ -172,3 +172,25 @@ def test_cli_export_of_clouds(tmp_path, capsys):
     assert main(["export", "e57", str(tmp_path), "-o", str(tmp_path / "x.e57")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 3 and all(e.startswith("tripod: error:") for e in err)
+
+
+def test_map_attributes_one_sort_matches_the_reference():
+    from tripod_processor.reconstruction.survey import map_attributes
+
+    rng = np.random.default_rng(11)
+    frags = [rng.uniform(-1, 1, (n, 3)).astype(np.float32) for n in (4000, 2500, 6000)]
+    inten = [rng.uniform(0, 255, len(p)).astype(np.float32) for p in frags]
+    inten[1][::5] = np.nan
+    stations = [4, 7, 9]
+    size = 0.2
+    allp = np.concatenate(frags)
+    cent = voxel_downsample(allp, size)
+    got_i, got_s = map_attributes(frags, inten, stations, cent, size)
+    # reference: voxel_mean / voxel_majority (two sorts) on the same points
+    keys = voxel_keys(allp, size)
+    uk, mean = voxel_mean(keys, np.concatenate(inten))
+    mk, major = voxel_majority(keys, np.repeat(stations, [len(p) for p in frags]))
+    ck = voxel_keys(cent, size)
+    np.testing.assert_allclose(got_i, lookup_keys(uk, mean, ck, np.float32(np.nan)), rtol=1e-6)
+    np.testing.assert_array_equal(got_s, lookup_keys(mk, major, ck, -1))
+    assert (got_s >= 0).mean() > 0.99

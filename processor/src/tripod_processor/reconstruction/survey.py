@@ -25,7 +25,7 @@ import numpy as np
 
 from ..io.e57 import NO_LABEL, E57Scan
 from ..io.las import LasCloud
-from ..preprocess import lookup_keys, voxel_keys, voxel_majority, voxel_mean
+from ..preprocess import lookup_keys, voxel_keys
 
 #: segmentation label -> ASPRS LAS classification code (LAS 1.4 R15, table 17).
 #: Indoor classes have no standard code: floor is "2 Ground" (the walkable surface, what ground
@@ -54,23 +54,82 @@ def labels_from_asprs(codes: np.ndarray) -> np.ndarray:
     return lut[np.asarray(codes, dtype=np.uint8)]
 
 
+class _FragmentVoxels:
+    """The main fragments' points (map frame) grouped by map voxel with one stable sort.
+
+    Attributes: ``keys`` (M,) sorted unique voxel keys, ``run`` (N,) each point's voxel (index
+    into ``keys``, in concatenation order), ``mean_intensity`` (M,) float32 (NaN: none),
+    ``major`` (M,) index of the fragment with the most points in the voxel (ties: the first).
+    """
+
+    def __init__(self, frag_points_map: list[np.ndarray], frag_intensity: list[np.ndarray],
+                 voxel_m: float):
+        n = [len(p) for p in frag_points_map]
+        keys = voxel_keys(np.concatenate(frag_points_map), voxel_m) if sum(n) else \
+            np.zeros(0, np.int64)
+        order = np.argsort(keys, kind="stable")  # equal keys keep the fragment order
+        ks = keys[order]
+        first = np.ones(len(ks), bool)
+        first[1:] = ks[1:] != ks[:-1]
+        run_sorted = np.cumsum(first) - 1
+        m = int(first.sum())
+        self.keys = ks[first]
+        self.run = np.empty(len(ks), np.int64)
+        self.run[order] = run_sorted
+        self.offsets = np.concatenate([[0], np.cumsum(n)]).astype(np.int64)
+        # mean intensity per voxel
+        inten = np.concatenate(frag_intensity).astype(np.float64) if sum(n) else np.zeros(0)
+        ok = np.isfinite(inten)
+        s = np.bincount(self.run[ok], weights=inten[ok], minlength=m)
+        c = np.bincount(self.run[ok], minlength=m)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            self.mean_intensity = (s / c).astype(np.float32)
+        # the fragment with the most points per voxel: (voxel, fragment) runs are contiguous
+        # in the stable order, so their lengths need no second sort
+        frag = np.repeat(np.arange(len(n)), n)[order]
+        pair = np.ones(len(ks), bool)
+        pair[1:] = first[1:] | (frag[1:] != frag[:-1])
+        starts = np.flatnonzero(pair)
+        length = np.diff(np.append(starts, len(ks)))
+        seg_voxel, seg_frag = run_sorted[starts], frag[starts]
+        best = np.full(m, -1, np.int64)
+        if m:
+            longest = np.maximum.reduceat(length, np.flatnonzero(first[starts]))
+            win = length == longest[seg_voxel]
+            # the first winning segment of each voxel (segments are in voxel order)
+            w = np.flatnonzero(win)
+            keep = np.ones(len(w), bool)
+            keep[1:] = seg_voxel[w[1:]] != seg_voxel[w[:-1]]
+            best[seg_voxel[w[keep]]] = seg_frag[w[keep]]
+        self.major = best
+
+    def at(self, query_keys: np.ndarray) -> np.ndarray:
+        """Index into :attr:`keys` of each query key, -1 where absent."""
+        return lookup_keys(self.keys, np.arange(len(self.keys)), query_keys, -1)
+
+
 def map_attributes(frag_points_map: list[np.ndarray], frag_intensity: list[np.ndarray | None],
                    stations: list[int], centroids: np.ndarray, voxel_m: float
                    ) -> tuple[np.ndarray, np.ndarray]:
     """Intensity (M,) float32 and station (M,) int32 of each map centroid (M, 3), from the
     fragments' points in the map frame, their intensities and station indices."""
-    keys = voxel_keys(np.concatenate(frag_points_map), voxel_m) if frag_points_map else \
-        np.zeros(0, np.int64)
-    inten = np.concatenate([np.full(len(p), np.nan, np.float32) if i is None else i
-                            for p, i in zip(frag_points_map, frag_intensity)]) \
-        if frag_points_map else np.zeros(0, np.float32)
-    st = np.concatenate([np.full(len(p), s, np.int64) for p, s in zip(frag_points_map, stations)]) \
-        if frag_points_map else np.zeros(0, np.int64)
-    ck = voxel_keys(centroids, voxel_m)
-    uk, mean = voxel_mean(keys, inten)
-    mk, major = voxel_majority(keys, st)
-    return (lookup_keys(uk, mean, ck, np.float32(np.nan)).astype(np.float32),
-            lookup_keys(mk, major, ck, -1).astype(np.int32))
+    fi = [np.full(len(p), np.nan, np.float32) if i is None else i
+          for p, i in zip(frag_points_map, frag_intensity)]
+    return _map_attributes(_FragmentVoxels(frag_points_map, fi, voxel_m), stations, centroids,
+                           voxel_m)
+
+
+def _map_attributes(fv: _FragmentVoxels, stations: list[int], centroids: np.ndarray,
+                    voxel_m: float) -> tuple[np.ndarray, np.ndarray]:
+    idx = fv.at(voxel_keys(centroids, voxel_m))
+    hit = idx >= 0
+    inten = np.full(len(idx), np.nan, np.float32)
+    inten[hit] = fv.mean_intensity[idx[hit]]
+    station = np.full(len(idx), -1, np.int32)
+    st = np.asarray(stations, np.int64)
+    major = fv.major[idx[hit]]
+    station[hit] = np.where(major >= 0, st[np.maximum(major, 0)], -1)
+    return inten, station
 
 
 def segment_labels(points: np.ndarray, num_threads: int = 0) -> np.ndarray:
@@ -107,17 +166,17 @@ def survey_attributes(fragments, main: list[int], frag_points_map: list[np.ndarr
     """
     frag_int = [fragments[k].intensity if fragments[k].intensity is not None else
                 np.full(len(fragments[k].points), np.nan, np.float32) for k in main]
-    inten, station = map_attributes(frag_points_map, frag_int,
-                                    [fragments[k].station.index for k in main], centroids,
-                                    voxel_m)
+    fv = _FragmentVoxels(frag_points_map, frag_int, voxel_m)
+    inten, station = _map_attributes(fv, [fragments[k].station.index for k in main], centroids,
+                                     voxel_m)
     lab = segment_labels(map_points, num_threads) if labels and len(map_points) > 10 else \
         np.full(len(map_points), NO_LABEL, np.uint8)
-    # each fragment point takes the label of the map voxel it falls in
+    # each fragment point takes the label of the map voxel it falls in (one lookup a voxel)
     ck = voxel_keys(centroids, voxel_m)
     order = np.argsort(ck, kind="stable")
-    ck, lab_sorted = ck[order], lab[order]
-    frag_lab = [lookup_keys(ck, lab_sorted, voxel_keys(p, voxel_m), np.uint8(NO_LABEL))
-                .astype(np.uint8) for p in frag_points_map]
+    vox_label = lookup_keys(ck[order], lab[order], fv.keys, np.uint8(NO_LABEL)).astype(np.uint8)
+    pt_label = vox_label[fv.run]
+    frag_lab = [pt_label[fv.offsets[i]:fv.offsets[i + 1]] for i in range(len(main))]
     return SurveyAttributes(inten, station, lab, frag_int, frag_lab)
 
 
