@@ -48,10 +48,12 @@ def main() -> int:
         t0 = time.perf_counter()
         res = reconstruct(cap, args.work / f"survey-{name.split()[0]}", cfg, quiet=True)
         wall = time.perf_counter() - t0
-        s = res.stage_s
-        print(f"{name:>22}: fragments {s['fragments']:.2f} s, outputs {s['outputs']:.2f} s, "
-              f"all stages {res.processing_s:.2f} s (call {wall:.2f} s), "
-              f"processing/recording {res.processing_s / res.recording.duration_s:.3f}; "
+        s, cpu = res.stage_s, res.stage_s["_cpu"]
+        print(f"{name:>22}: fragments {s['fragments']:.2f} s ({cpu['fragments']:.2f} CPU), "
+              f"outputs {s['outputs']:.2f} s ({cpu['outputs']:.2f} CPU), all stages "
+              f"{res.processing_s:.2f} s ({res.processing_cpu_s:.2f} CPU; call {wall:.2f} s), "
+              f"processing/recording {res.processing_s / res.recording.duration_s:.3f} "
+              f"(CPU {res.processing_cpu_s / res.recording.duration_s:.3f}); "
               f"map {res.map_points:,} points")
     return 0
 

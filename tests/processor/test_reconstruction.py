@@ -42,7 +42,10 @@ def run(capture, tmp_path_factory):
 
     path, truth = capture
     out = tmp_path_factory.mktemp("recon")
-    cfg = load_config(ReconstructConfig, overrides=_ext_overrides(truth))
+    # with the survey files (E57, LAZ): the default path (without) is the other tests' and demo's
+    cfg = load_config(ReconstructConfig, overrides={**_ext_overrides(truth),
+                                                    "output.write_e57": True,
+                                                    "output.write_las": "laz"})
     res = reconstruct(path, out, cfg, quiet=True)
     return res, truth, out
 
@@ -458,3 +461,30 @@ def test_survey_deliverables(run, tmp_path):
     np.testing.assert_array_equal(np.asarray(las2.classification), cls)
     np.testing.assert_array_equal(np.asarray(las2.point_source_id),
                                   np.asarray(las.point_source_id))
+
+
+def test_cli_survey_flag_writes_the_survey_files(capture, tmp_path):
+    import pye57
+
+    from tripod_processor.cli import main
+
+    path, truth = capture
+    cut = tmp_path / "cut.mcap"  # two stations: a short run
+    data = path.read_bytes()
+    cut.write_bytes(data[: int(len(data) * 0.62)])
+    calib = tmp_path / "calib.yaml"
+    q = _ext_overrides(truth)
+    calib.write_text(json.dumps({"q_imu_lidar": [float(v) for v in
+                                                 q["placement.extrinsic.q_imu_lidar"]],
+                                 "lever_arm_m": q["placement.extrinsic.lever_arm_m"]}))
+    out = tmp_path / "out"
+    assert main(["reconstruct", str(cut), "-o", str(out), "--survey", "--quiet", "--calibration",
+                 str(calib), "--set", "output.report=false", "--set",
+                 "output.write_mcap=false"]) == 0
+    t, _ = read_tum(out / "stations.tum")
+    e57 = pye57.E57(str(out / "stations.e57"))
+    assert e57.scan_count == len(t) >= 1
+    e57.close()
+    assert (out / "map.laz").stat().st_size > 0
+    assert set(cloud_io.read_ply(out / "map.ply").dtype.names) == {"x", "y", "z", "intensity",
+                                                                    "station", "label"}
