@@ -18,7 +18,7 @@ FORMATS = ("ply", "pcd")
 
 
 def write_frames(run, outdir: Path | None, fmt: str = "ply", progress: bool = True) -> dict:
-    """Iterate a :class:`~tripod_processor.decode.DecodeRun`, write each frame to ``outdir``
+    """Iterate a :class:`~tripod_processor.decode.decoder.DecodeRun`, write each frame to ``outdir``
     (when given) as ``frame_NNNNNN.<fmt>``; return timing figures. Raises the decoder's errors.
     """
     from tqdm import tqdm

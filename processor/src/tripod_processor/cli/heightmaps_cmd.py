@@ -34,7 +34,7 @@ def heightmaps_cmd(
     from ..scene.config import SceneConfig
     from ..scene.heightmaps import CLASS_NAMES
     from ..scene.pipeline import analyse_scene, segment_labels, write_scene
-    from ._input import read_points
+    from ._common import read_points
 
     try:
         cfg = load_config(SceneConfig, config, {"heightmaps.pixel": pixel,

@@ -9,8 +9,7 @@ from pathlib import Path
 import typer
 
 from . import app
-from ._common import console, fail
-from ._input import read_points
+from ._common import console, fail, read_points
 
 CLASS_HELP = "0 ceiling, 1 floor, 2 wall, 3 other"
 
