@@ -5,6 +5,7 @@
 #include <ceres/rotation.h>
 #include <omp.h>
 
+#include <algorithm>
 #include <cmath>
 
 #include "tripod_core/registration_internal.hpp"
@@ -75,8 +76,11 @@ ceres::LossFunction* make_loss(const RegistrationOptions& opt) {
 
 }  // namespace
 
-void register_ceres(const PreparedCloud& src, const PreparedCloud& tgt, Eigen::Isometry3d& T,
-                    const RegistrationOptions& opt, RegistrationResult& res, int num_threads) {
+void register_ceres(const Problem& P, Eigen::Isometry3d& T, RegistrationResult& res) {
+    const PreparedCloud& src = P.src;
+    const PreparedCloud& tgt = P.tgt;
+    const RegistrationOptions& opt = P.opt;
+    const int64_t need = std::max<int64_t>(6, opt.min_correspondences);
     const bool fixed_rotation = opt.has_rotation_prior && !(opt.rotation_prior_sigma > 0);
     const double inv_sigma = 1.0 / opt.point_sigma;
     std::vector<int> corr;
@@ -85,9 +89,10 @@ void register_ceres(const PreparedCloud& src, const PreparedCloud& tgt, Eigen::I
     for (size_t stage = 0; stage < opt.max_correspondence_distances.size() && ok; ++stage) {
         const double d = opt.max_correspondence_distances[stage];
         bool stage_converged = false;
+        StepTest test(opt);
         for (int it = 0; it < opt.max_iterations; ++it) {
             ++res.iterations;
-            associate(src, tgt, T, d * d, corr, num_threads);
+            associate(P, T, d * d, corr);
             Eigen::Quaterniond q(T.linear());
             q.normalize();
             Eigen::Vector3d t = T.translation();
@@ -96,12 +101,15 @@ void register_ceres(const PreparedCloud& src, const PreparedCloud& tgt, Eigen::I
             ceres::Problem problem(popt);
             std::unique_ptr<ceres::LossFunction> loss(make_loss(opt));
             int64_t m = 0;
-            for (size_t i = 0; i < corr.size(); ++i) {
+            for (int64_t i : P.rows) {
                 const int j = corr[i];
                 if (j < 0 || !tgt.normal_valid[j]) continue;
                 if (src.normal_valid[i]) {  // normal compatibility, as the Gauss-Newton methods
                     const Eigen::Vector3d ns = T.linear() * src.normals.row(i).transpose();
-                    if (std::fabs(ns.dot(tgt.normals.row(j).transpose())) < 0.5) continue;
+                    const double c = ns.dot(tgt.normals.row(j).transpose());
+                    if (!((opt.oriented ? c : std::fabs(c)) >= opt.min_normal_cos)) continue;
+                } else if (opt.oriented) {
+                    continue;
                 }
                 auto* cost = new ceres::AutoDiffCostFunction<PointToPlaneError, 1, 4, 3>(
                     new PointToPlaneError(src.points.row(i).transpose().cast<double>(),
@@ -110,7 +118,7 @@ void register_ceres(const PreparedCloud& src, const PreparedCloud& tgt, Eigen::I
                 problem.AddResidualBlock(cost, loss.get(), q.coeffs().data(), t.data());
                 ++m;
             }
-            if (m < 6) {
+            if (m < need) {
                 res.status = "too_few_correspondences";
                 ok = false;
                 break;
@@ -129,7 +137,7 @@ void register_ceres(const PreparedCloud& src, const PreparedCloud& tgt, Eigen::I
             sopt.linear_solver_type = ceres::DENSE_QR;
             sopt.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
             sopt.max_num_iterations = 10;
-            sopt.num_threads = num_threads;
+            sopt.num_threads = P.num_threads;
             sopt.logging_type = ceres::SILENT;
             sopt.minimizer_progress_to_stdout = false;
             ceres::Solver::Summary summary;
@@ -137,7 +145,7 @@ void register_ceres(const PreparedCloud& src, const PreparedCloud& tgt, Eigen::I
             Eigen::Isometry3d T_new = Eigen::Isometry3d::Identity();
             T_new.linear() = q.normalized().toRotationMatrix();
             T_new.translation() = t;
-            if (step_and_check(T, T_new, opt)) {
+            if (test.step(T, T_new)) {
                 stage_converged = true;
                 break;
             }
