@@ -17,9 +17,9 @@ Every tool gets the same settings where it allows them:
 - neighbours for normals/covariances: 20;
 - one correspondence distance, 10 voxels; VGICP voxels of that edge (tripod's VGICP uses the
   stage distance as its voxel edge, small_gicp gets ``voxel_resolution`` = the same);
-- at most 64 iterations; tripod's stopping thresholds are small_gicp's fixed defaults (0.1 deg,
-  1 mm per update: small_gicp's Python API does not expose them). Open3D stops on relative
-  fitness/RMSE change (1e-6), its only criteria;
+- at most 64 iterations; an update below 0.1 deg and 0.01 voxel stops tripod and small_gicp
+  (small_gicp's defaults are 0.1 deg and 1 mm, scaled here with the cloud). Open3D stops on a
+  relative fitness/RMSE change below 1e-6, its only criteria;
 - tripod's default two-stage schedule (10 v, 3 v) is one extra row (``gicp 2-stage``): the
   peers' Python APIs take one distance.
 
@@ -49,8 +49,8 @@ import numpy as np
 
 NEIGHBORS = 20
 MAX_ITERATIONS = 64
-ROT_EPS = np.radians(0.1)  # small_gicp's TerminationCriteria defaults
-TRANS_EPS = 1e-3  # [m]
+ROT_EPS = np.radians(0.1)  # small_gicp's default rotation threshold [rad]
+TRANS_EPS_VOXELS = 0.01  # translation threshold [voxels] (small_gicp's 1 mm on a 0.1 m voxel)
 TILTS = (-15, 0, 15)
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "registration"
 
@@ -63,6 +63,7 @@ class Pair:
         diag = float(np.linalg.norm(np.ptp(tgt, axis=0)))
         self.voxel = diag / 100
         self.dist = 10 * self.voxel
+        self.trans_eps = TRANS_EPS_VOXELS * self.voxel
         self.ok_deg, self.ok_m = ok_deg, (ok_m if ok_m is not None else self.voxel)
 
 
@@ -126,7 +127,7 @@ def run_tripod(method, pair, threads):
     r = reg.register(pair.src, pair.tgt, method=method, init=pair.init, voxel_size=pair.voxel,
                      max_correspondence_distance=schedule, num_neighbors=NEIGHBORS,
                      max_iterations=MAX_ITERATIONS, rotation_eps=ROT_EPS,
-                     translation_eps=TRANS_EPS, loss="huber" if method == "lm" else "none",
+                     translation_eps=pair.trans_eps, loss="huber" if method == "lm" else "none",
                      loss_scale=pair.voxel, num_threads=threads)
     return r.T_target_source
 
@@ -141,13 +142,14 @@ def run_small_gicp(method, pair, threads):
     if method == "VGICP":
         vox = small_gicp.GaussianVoxelMap(pair.dist)
         vox.insert(tgt)
-        r = small_gicp.align(vox, src, pair.init, registration_type="VGICP",
-                             max_correspondence_distance=pair.dist, num_threads=threads,
-                             max_iterations=MAX_ITERATIONS)
+        r = small_gicp.align(vox, src, pair.init, max_correspondence_distance=pair.dist,
+                             num_threads=threads, max_iterations=MAX_ITERATIONS,
+                             rotation_epsilon=ROT_EPS, translation_epsilon=pair.trans_eps)
     else:
         r = small_gicp.align(tgt, src, tgt_tree, pair.init, registration_type=method,
                              max_correspondence_distance=pair.dist, num_threads=threads,
-                             max_iterations=MAX_ITERATIONS)
+                             max_iterations=MAX_ITERATIONS, rotation_epsilon=ROT_EPS,
+                             translation_epsilon=pair.trans_eps)
     return r.T_target_source
 
 

@@ -77,7 +77,7 @@ TEST_P(RegistrationTest, RecoversKnownTransform) {
 INSTANTIATE_TEST_SUITE_P(
     MethodsAndThreads, RegistrationTest,
     ::testing::Combine(::testing::Values(Method::kPointToPoint, Method::kPointToPlane, Method::kGICP,
-                                         Method::kVGICP, Method::kSymmetric, Method::kCeresLM),
+                                         Method::kVGICP, Method::kSymmetric, Method::kLM),
                        ::testing::Values(1, 2, 4)));
 
 TEST(Registration, SinglePlaneIsDegenerate) {
@@ -115,8 +115,10 @@ TEST(Registration, OrientedPairsOnlySurfacesSeenFromTheSameSide) {
     EXPECT_TRUE(r.converged) << r.status;
     EXPECT_LT((r.T_target_source.topRightCorner<3, 1>().norm()), 2e-3);
     EXPECT_GT(r.residual_rmse, 0.0);
-    EXPECT_LT(r.residual_rmse, 0.005);
+    EXPECT_LT(r.residual_rmse, 0.01);
     // a normal flipped on one side is no pair when oriented, the same pair when sign-free
+    // (about 1% of the points, at edges and corners, have normals off by more than 60 deg)
+    opt.min_correspondences = 1000;
     PreparedCloud flipped;
     flipped.points = src->points;
     flipped.normals = -src->normals;

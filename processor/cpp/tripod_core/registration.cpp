@@ -98,7 +98,7 @@ void validate(const PreparedCloud& src, const PreparedCloud& tgt, const Eigen::M
     if (!(opt.min_normal_cos >= -1 && opt.min_normal_cos <= 1))
         throw std::invalid_argument("min_normal_cos must be in [-1, 1]");
     const bool needs_normals = opt.method == Method::kPointToPlane ||
-                               opt.method == Method::kSymmetric || opt.method == Method::kCeresLM;
+                               opt.method == Method::kSymmetric || opt.method == Method::kLM;
     if (needs_normals) {
         int64_t ok = 0;
         for (uint8_t v : tgt.normal_valid) ok += v;
@@ -167,6 +167,9 @@ double condition_number(const PreparedCloud& src, const Mat6& H, const std::arra
     const double hi = es.eigenvalues().maxCoeff(), lo = es.eigenvalues().minCoeff();
     return hi > 0 ? std::max(lo, 0.0) / hi : 0;
 }
+
+/// lm: Levenberg-Marquardt iterations per set of correspondences at most (Ceres' 10 before).
+constexpr int kLmInner = 10;
 
 /// One damped Gauss-Newton step from T on the normal equations `nl` (prior and locks added
 /// here): Marquardt damping, accepted only when the cost (same pairs) decreases, as small_gicp's
@@ -241,6 +244,15 @@ bool run_stage(Problem& P, double d, Eigen::Isometry3d& T, std::vector<int>& cor
             Normal nl = detail::linearize(P, T, corr, true, d * d, &mahalanobis);
             if (nl.count < need) return false;
             T_new = damped_step(P, T, std::move(nl), corr, mahalanobis, lambda);
+            // lm: the non-linear problem of these pairs solved to convergence before the
+            // next association (one damped step per association for the others)
+            for (int inner = 1; opt.method == Method::kLM && inner < kLmInner; ++inner) {
+                Eigen::Isometry3d T_prev = T_new;
+                T_new = damped_step(P, T_prev, detail::linearize(P, T_prev, corr, true), corr,
+                                    mahalanobis, lambda);
+                detail::StepTest inner_test(opt);
+                if (inner_test.step(T_prev, T_new)) break;
+            }
         }
         if (test.step(T, T_new)) {
             converged = true;
@@ -341,26 +353,22 @@ RegistrationResult register_local(const PreparedCloud& src, const PreparedCloud&
     if (opt.has_rotation_prior && !(opt.rotation_prior_sigma > 0)) T.linear() = opt.R_prior;
     Problem P(src, tgt, opt, opt.method, opt.num_threads);
     std::vector<int> corr;
-    if (opt.method == Method::kCeresLM) {
-        detail::register_ceres(P, T, res);
-    } else {
-        res.status = "max_iterations";
-        const size_t stages = opt.max_correspondence_distances.size();
-        for (size_t stage = 0; stage < stages; ++stage) {
-            bool converged = false;
-            if (!run_stage(P, opt.max_correspondence_distances[stage], T, corr, res, converged)) {
-                res.status = "too_few_correspondences";
-                break;
-            }
-            if (stage + 1 == stages) res.status = converged ? "converged" : "max_iterations";
+    res.status = "max_iterations";
+    const size_t stages = opt.max_correspondence_distances.size();
+    for (size_t stage = 0; stage < stages; ++stage) {
+        bool converged = false;
+        if (!run_stage(P, opt.max_correspondence_distances[stage], T, corr, res, converged)) {
+            res.status = "too_few_correspondences";
+            break;
         }
+        if (stage + 1 == stages) res.status = converged ? "converged" : "max_iterations";
     }
     res.converged = res.status == "converged";
     res.T_target_source = T.matrix();
-    // quality and information with the method's own residual model (Ceres: point-to-plane;
+    // quality and information with the method's own residual model (lm: point-to-plane;
     // VGICP: GICP on the points, at the final pose)
     Method model = opt.method;
-    if (model == Method::kCeresLM) model = Method::kPointToPlane;
+    if (model == Method::kLM) model = Method::kPointToPlane;
     if (model == Method::kVGICP) model = Method::kGICP;
     Problem F(src, tgt, opt, model, opt.num_threads);
     detail::finish_result(F, res, std::move(corr));

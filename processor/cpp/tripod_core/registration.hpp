@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: BSD-3-Clause
 // Local registration: point-to-point, point-to-plane (optionally over oriented normals), GICP,
-// voxelised GICP, symmetric ICP (Gauss-Newton with Levenberg damping, OpenMP reductions) and
-// robust non-linear ICP in Ceres, behind one API.
+// voxelised GICP, symmetric ICP and robust non-linear point-to-plane ICP ("lm"): one damped
+// Gauss-Newton solver with OpenMP reductions behind one API.
 #pragma once
 
 #include <Eigen/Core>
@@ -41,7 +41,8 @@ enum class Method {
     kPointToPlane,  ///< (n_q . (q - T p))^2
     kGICP,          ///< (q - T p)^T (C_q + R C_p R^T)^-1 (q - T p)
     kSymmetric,     ///< ((n_q + R n_p) . (q - T p))^2 (Rusinkiewicz 2019)
-    kCeresLM,       ///< point-to-plane in Ceres' Levenberg-Marquardt with a robust loss
+    kLM,       ///< point-to-plane, Levenberg-Marquardt to convergence on each set of
+                    ///< correspondences (use a robust loss)
     kVGICP,         ///< GICP against Gaussian voxels of the target (voxel edge = the stage's
                     ///< correspondence distance; correspondence = the voxel a point falls in)
 };

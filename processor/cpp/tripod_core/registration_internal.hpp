@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: BSD-3-Clause
-// Internals shared by registration.cpp (Gauss-Newton methods), registration_linearize.cpp (the
-// per-point hot loop) and registration_lm.cpp (Ceres).
+// Internals shared by registration.cpp (the solver) and registration_linearize.cpp (the
+// per-point hot loop).
 #pragma once
 
 #include <algorithm>
@@ -99,9 +99,6 @@ Normal linearize(const Problem& P, const Eigen::Isometry3d& T, std::vector<int>&
 /// matches, as hints for the final association, or empty). P.method: the residual model of the
 /// information.
 void finish_result(const Problem& P, RegistrationResult& res, std::vector<int> corr = {});
-
-/// Non-linear ICP in Ceres (Method::kCeresLM); fills T, iterations, status.
-void register_ceres(const Problem& P, Eigen::Isometry3d& T, RegistrationResult& res);
 
 /// Convergence test of one stage. Steps are measured against the thresholds (s = max(rotation
 /// / rotation_eps, translation / translation_eps)); a step below them (s < 1) is converged only

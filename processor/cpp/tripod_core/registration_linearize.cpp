@@ -23,7 +23,7 @@ namespace {
 int threads(int n) { return n > 0 ? n : omp_get_max_threads(); }
 
 bool is_plane_family(Method m) {
-    return m == Method::kPointToPlane || m == Method::kSymmetric || m == Method::kCeresLM;
+    return m == Method::kPointToPlane || m == Method::kSymmetric || m == Method::kLM;
 }
 
 template <Method M>
@@ -33,7 +33,7 @@ Normal linearize_model(const Problem& P, const Eigen::Isometry3d& T, std::vector
     constexpr bool kVoxels = M == Method::kVGICP;
     constexpr bool kGicp = M == Method::kGICP || kVoxels;
     constexpr bool kPlane = M == Method::kPointToPlane || M == Method::kSymmetric ||
-                            M == Method::kCeresLM;
+                            M == Method::kLM;
     const PreparedCloud& src = P.src;
     const PreparedCloud& tgt = P.tgt;
     const GaussianVoxels* vox = P.voxels;
@@ -215,7 +215,7 @@ Normal linearize(const Problem& P, const Eigen::Isometry3d& T, std::vector<int>&
             return linearize_model<Method::kSymmetric>(P, T, corr, with_jacobian,
                                                        associate_sq_dist, mahalanobis);
         case Method::kPointToPlane:
-        case Method::kCeresLM:
+        case Method::kLM:
             break;
     }
     return linearize_model<Method::kPointToPlane>(P, T, corr, with_jacobian, associate_sq_dist,

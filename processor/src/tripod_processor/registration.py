@@ -22,7 +22,7 @@ from .preprocess import as_cloud, voxel_downsample
 
 #: Local registration methods: point-to-point (closed-form SVD), point-to-plane, Generalized ICP,
 #: voxelised GICP (Gaussian voxels of the target), symmetric ICP, and robust non-linear
-#: point-to-plane ICP in Ceres' Levenberg-Marquardt.
+#: point-to-plane ICP solved by Levenberg-Marquardt on each set of correspondences.
 METHODS = ("icp", "plane", "gicp", "vgicp", "symmetric", "lm")
 #: Robust kernels, applied to the residual whitened by ``point_sigma`` (scale ``loss_scale`` [m]).
 LOSSES = ("none", "huber", "cauchy", "tukey")
@@ -250,6 +250,22 @@ def _as_pose(T, name: str) -> np.ndarray:
     return np.ascontiguousarray(a)
 
 
+def default_schedule(target: PreparedCloud, voxel_size: float | None) -> list[float]:
+    """The default coarse-to-fine correspondence distances [m].
+
+    ``(10 v, 3 v)`` with ``v`` the voxel size (the first stage at least 0.3 m, for rooms), or
+    without one ``(10 v, 3 v, v)`` with ``v`` the target's bounding-box diagonal / 100: one distance for a room and a statuette alike would
+    let a small object's every point pair with every other (the far pairs of a partial overlap
+    then hold point-to-point ICP degrees away from the truth, at its own minimum).
+    """
+    if voxel_size is not None:
+        return [max(10 * voxel_size, 0.3), 3 * voxel_size]
+    pts = target.points
+    v = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0))) / 100 if len(pts) else 0.1
+    v = v if v > 0 else 0.1
+    return [10 * v, 3 * v, v]  # dense points (no voxel): a last stage at v is still well fed
+
+
 def register(
     source,
     target,
@@ -284,8 +300,9 @@ def register(
         constrained), point-to-plane, Generalized ICP (plane-to-plane covariances), voxelised
         GICP (the target as Gaussian voxels whose edge is each stage's correspondence distance;
         a point's correspondence is the voxel it falls in: the cheapest per iteration, made for
-        coarse stages), symmetric ICP (sum of both normals), or point-to-plane solved by Ceres'
-        Levenberg-Marquardt (use it with a robust ``loss``).
+        coarse stages), symmetric ICP (sum of both normals), or point-to-plane solved to
+        convergence by Levenberg-Marquardt on each set of correspondences (use it with a
+        robust ``loss``).
     init : (4, 4) array_like, optional
         Initial T_target_source; identity if None.
     voxel_size : float, optional
@@ -300,7 +317,7 @@ def register(
         the updates shrink fast enough that the rest of the way (extrapolated from the last two)
         is below them too: a slowly creeping point-to-point ICP is not "converged".
     loss : {"none", "huber", "cauchy", "tukey"}
-        Robust kernel (iteratively reweighted for the Gauss-Newton methods, Ceres' loss for lm).
+        Robust kernel (iteratively reweighted).
     loss_scale : float
         Kernel scale [m].
     rotation_prior : (3, 3) array_like, optional
@@ -339,8 +356,9 @@ def register(
 
     Notes
     -----
-    The default correspondence distance is 1 m, or ``(10 v, 3 v)`` as a two-stage schedule when
-    ``voxel_size`` v is given; clouds at an unknown offset need :func:`register_global` first.
+    The default correspondence distances are a two-stage schedule, see :func:`default_schedule`;
+    every method takes a schedule. Clouds at an unknown offset need :func:`register_global`
+    first.
     The point-to-plane family (plane, symmetric, lm) ignores pairs whose normals differ by more
     than 60 deg. Point-to-point converges linearly: give it tight ``rotation_eps`` /
     ``translation_eps`` and more iterations.
@@ -349,14 +367,11 @@ def register(
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     if loss not in LOSSES:
         raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
-    if max_correspondence_distance is None:
-        vs = voxel_size
-        if vs is None and isinstance(source, PreparedCloud):
-            vs = source.voxel_size
-        max_correspondence_distance = [1.0] if vs is None else [max(10 * vs, 0.3), 3 * vs]
-    dists = np.atleast_1d(np.asarray(max_correspondence_distance, dtype=np.float64)).tolist()
     src = _as_prepared(source, voxel_size, num_neighbors, point_sigma, num_threads)
     tgt = _as_prepared(target, voxel_size, num_neighbors, point_sigma, num_threads)
+    if max_correspondence_distance is None:
+        max_correspondence_distance = default_schedule(tgt, voxel_size or src.voxel_size)
+    dists = np.atleast_1d(np.asarray(max_correspondence_distance, dtype=np.float64)).tolist()
     opt = _ext._RegistrationOptions()
     opt.method = method
     opt.max_correspondence_distances = dists

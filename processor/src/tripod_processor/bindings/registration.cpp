@@ -24,7 +24,7 @@ tripod::Method parse_method(const std::string& s) {
     if (s == "plane" || s == "point_to_plane") return tripod::Method::kPointToPlane;
     if (s == "gicp") return tripod::Method::kGICP;
     if (s == "symmetric") return tripod::Method::kSymmetric;
-    if (s == "lm") return tripod::Method::kCeresLM;
+    if (s == "lm") return tripod::Method::kLM;
     if (s == "vgicp") return tripod::Method::kVGICP;
     throw std::invalid_argument("unknown method '" + s +
                                 "' (icp, plane, gicp, vgicp, symmetric, lm)");
@@ -36,7 +36,7 @@ std::string method_name(tripod::Method m) {
         case tripod::Method::kGICP: return "gicp";
         case tripod::Method::kVGICP: return "vgicp";
         case tripod::Method::kSymmetric: return "symmetric";
-        case tripod::Method::kCeresLM: return "lm";
+        case tripod::Method::kLM: return "lm";
     }
     return "?";
 }
