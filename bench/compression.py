@@ -58,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="bench only the clouds whose name contains TEXT (e.g. VLP-16)")
     args = ap.parse_args(argv)
 
-    from tripod_processor.cloud_io import read_cloud, xyz
+    from tripod_processor.io.clouds import read_cloud, xyz
     from tripod_processor.compression.rd import draco_available, plot_rd, run_rd
     from tripod_processor.compression.simdata import simulated_fragments
     from tripod_processor.compression.train import HELD_OUT_SEEDS
@@ -150,7 +150,7 @@ def print_summary(curves: dict, sizes: dict, noise_m: dict, load: float | None) 
     from rich.console import Console
     from rich.table import Table
 
-    from tripod_processor.cli.compress_cmd import print_rd_tables
+    from tripod_processor.compression.rd import print_rd_tables
     from tripod_processor.compression.rd import ratio_at_equal_psnr
 
     print_rd_tables(curves)

@@ -68,7 +68,7 @@ class Pair:
 
 
 def make_pairs(data_dir: Path) -> list[Pair]:
-    from tripod_processor import cloud_io
+    from tripod_processor.io import clouds as cloud_io
     from tripod_processor.sim.scenes import make_scene
     from tripod_processor.sim.station_scan import box_room, pose, station_scan
 

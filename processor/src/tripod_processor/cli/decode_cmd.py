@@ -18,12 +18,12 @@ FORMATS = ("ply", "pcd")
 
 
 def write_frames(run, outdir: Path | None, fmt: str = "ply", progress: bool = True) -> dict:
-    """Iterate a :class:`~tripod_processor.decode.DecodeRun`, write each frame to ``outdir``
+    """Iterate a :class:`~tripod_processor.decode.decoder.DecodeRun`, write each frame to ``outdir``
     (when given) as ``frame_NNNNNN.<fmt>``; return timing figures. Raises the decoder's errors.
     """
     from tqdm import tqdm
 
-    from ..cloud_io import write_pcd, write_ply
+    from ..io.clouds import write_pcd, write_ply
 
     bar = tqdm(total=None, unit=" frames", disable=None if progress else True, file=sys.stderr,
                leave=False, desc="decode")
@@ -95,8 +95,8 @@ def run_decode(input_path: Path, outdir: Path | None, *, summary_only: bool = Fa
     """
     from tripod_shared.config_io import ConfigError, dump_config, load_config
 
-    from ..decode import DecodeConfig, DecodeError, decode_file
-    from ..packet_sources import SourceError
+    from ..decode.decoder import DecodeConfig, DecodeError, decode_file
+    from ..io.packets import SourceError
 
     if fmt not in FORMATS:
         fail(f"unknown format {fmt!r} (use {' or '.join(FORMATS)})")

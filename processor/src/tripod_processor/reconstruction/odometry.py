@@ -83,7 +83,7 @@ class CloudCache:
     def oriented(self, key, points: np.ndarray, voxel: float):
         """The cloud at ``voxel`` prepared with 12-neighbour normals facing the fragment's
         sensor (its origin), for :func:`oriented_refine`."""
-        from .. import registration as reg
+        from ..registration import pairwise as reg
 
         k = ("oriented", key, voxel)
         if k not in self._c:
@@ -96,7 +96,7 @@ class CloudCache:
         return self.down(key, points, voxel).astype(np.float64)
 
     def get(self, key, points: np.ndarray, voxel: float):
-        from .. import registration as reg
+        from ..registration import pairwise as reg
 
         k = (key, voxel)
         if k not in self._c:
@@ -112,7 +112,7 @@ def icp_refine(source: np.ndarray, target: np.ndarray, T_init: np.ndarray,
     """Coarse-to-fine registration (the core's ``cfg.method``) of ``source`` onto ``target``
     (both (N, 3) [m]) from ``T_init`` over ``voxels`` (default: the configured schedule), with
     the IMU rotation as a weighted prior."""
-    from .. import registration as reg
+    from ..registration import pairwise as reg
 
     cache = cache or CloudCache(cfg.point_sigma_m, num_threads)
     voxels = list(cfg.voxels_m if voxels is None else voxels)

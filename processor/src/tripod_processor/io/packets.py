@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from tripod_shared import velodyne as vl
+from tripod_shared.timebase import TohChunkUnwrapper
 
 from .pcap import PcapFormatError, PcapReader, sniff_format
 
@@ -189,22 +190,15 @@ class PayloadFileSource(PacketSource):
         """The file read ``max_data`` packets at a time, straight into arrays."""
         self.report = SourceReport()
         size = vl.DATA_PACKET_SIZE
-        hour_ns = 3_600_000_000_000
-        base_ns = 0
-        last_toh_ns = None
+        unwrap = TohChunkUnwrapper()  # no host time: device time since the first hour
         with open(self.path, "rb") as fh:
             while True:
                 block = fh.read(size * max_data)
                 n = len(block) // size
                 if n:
                     arr = np.frombuffer(block, np.uint8, count=n * size).reshape(n, size)
-                    toh_ns = arr[:, 1200:1204].copy().view("<u4").ravel().astype(np.int64) * 1000
-                    prev = np.empty(n, np.int64)
-                    prev[0] = toh_ns[0] if last_toh_ns is None else last_toh_ns
-                    prev[1:] = toh_ns[:-1]
-                    base = base_ns + np.cumsum(toh_ns < prev - hour_ns // 2) * hour_ns
-                    base_ns, last_toh_ns = int(base[-1]), int(toh_ns[-1])
-                    yield PacketBatch(base + toh_ns, arr, [])
+                    toh_us = arr[:, vl.TIMESTAMP_OFFSET : vl.TIMESTAMP_OFFSET + 4].copy()
+                    yield PacketBatch(unwrap(toh_us.view("<u4").ravel()), arr, [])
                 if len(block) % size:
                     self.report.truncated = True
                     self.report.detail = (
@@ -219,24 +213,17 @@ class McapSource(PacketSource):
     kind = "mcap"
 
     def __iter__(self) -> Iterator[tuple[int, bytes]]:
-        from tripod_shared import messages as m
-        from tripod_shared import topics as t
-        from tripod_shared.recording import RecordingReader
+        from .events import McapEvents
 
         self.report = SourceReport()
-        reader = RecordingReader(self.path)
-        decoders = {t.TOPIC_LIDAR_PACKETS: m.decode_velodyne_packet,
-                    t.TOPIC_LIDAR_POSITION: m.decode_position_packet}
-        for msg in reader.messages(list(decoders)):
-            try:
-                host_ns, payload = decoders[msg.topic](msg.data)
-            except Exception:  # noqa: BLE001 - a corrupt message is counted, never fatal
-                self.report.skip("bad_message")
-                continue
+        events = McapEvents(self.path)  # lidar data and position packets
+        for host_ns, _kind, payload in events:
             yield host_ns, payload
-        if reader.report.truncated:
+        for _key, n in events.skipped.items():  # a corrupt message is counted, never fatal
+            self.report.skip("bad_message", n)
+        if events.truncated:
             self.report.truncated = True
-            self.report.detail = reader.report.error or "the recording ends early"
+            self.report.detail = events.error or "the recording ends early"
 
 
 def open_source(path: str | os.PathLike, ports: set[int] | None = None) -> PacketSource:

@@ -78,8 +78,8 @@ class _Verifier:
                  num_threads: int = 0) -> None:
         from scipy.spatial import cKDTree
 
-        from ..preprocess import voxel_downsample
-        from ..registration import prepare
+        from ...preprocess import voxel_downsample
+        from ...registration.pairwise import prepare
 
         self.max_distance = max_distance
         self.threads = num_threads
@@ -136,7 +136,7 @@ class _Verifier:
         return float((dist < tol).sum() / max(len(p), 1))
 
     def polish(self, T) -> np.ndarray:
-        from ..registration import register
+        from ...registration.pairwise import register
 
         try:
             r = register(self.src, self.tgt, "plane", init=T,
@@ -153,8 +153,8 @@ class _Verifier:
         """Point-to-plane ICP on oriented normals (each facing its scan's viewpoint): a wall
         seen from both of its sides (a partition between two rooms) is two faces, and plain ICP
         would pull them together. Returns (T, fitness, inlier RMSE [m])."""
-        from ..preprocess import voxel_downsample
-        from ..registration import prepare, register
+        from ...preprocess import voxel_downsample
+        from ...registration.pairwise import prepare, register
 
         def oriented(P, v):
             return prepare(voxel_downsample(P.astype(np.float32), 0.05), num_neighbors=12,

@@ -17,8 +17,8 @@ from typing import Sequence
 
 import numpy as np
 
-from . import _ext
-from .preprocess import as_cloud, voxel_downsample
+from .. import _ext
+from ..preprocess import as_cloud, voxel_downsample
 
 #: Local registration methods: point-to-point (closed-form SVD), point-to-plane, Generalized ICP,
 #: voxelised GICP (Gaussian voxels of the target), symmetric ICP, and robust non-linear
