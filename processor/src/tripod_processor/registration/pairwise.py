@@ -1,7 +1,7 @@
 # SPDX-License-Identifier: BSD-3-Clause
 """Pairwise registration of point clouds on the native core (numpy in, numpy out, GIL released).
 
-Local registration (:func:`register`) refines an initial guess with one of five residual models;
+Local registration (:func:`register`) refines an initial guess with one of six methods (one solver);
 global registration (:func:`register_global`) finds the pose from scratch with FPFH + RANSAC,
 optionally constrained by gravity. Both return ``T_target_source``, the 4x4 rigid transform that
 maps source coordinates into the target frame (``p_target = T @ p_source``), in metres.
