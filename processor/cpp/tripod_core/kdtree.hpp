@@ -183,6 +183,30 @@ private:
         return s;
     }
 
+    /// sq(a, b), or any value > bound once the partial sum exceeds it (checked every 8
+    /// dimensions: FPFH's 33-D matching rejects most leaf points after 8 or 16). Same sum order
+    /// as sq(): a candidate that is kept has bit-identical distance.
+    static float sq_bounded(const float* a, const float* b, float bound) {
+        if constexpr (Dim <= 8) {
+            return sq(a, b);
+        } else {
+            float s = 0.f;
+            int d = 0;
+            for (; d + 8 <= Dim; d += 8) {
+                for (int j = d; j < d + 8; ++j) {
+                    const float e = a[j] - b[j];
+                    s += e * e;
+                }
+                if (s > bound) return s;
+            }
+            for (; d < Dim; ++d) {
+                const float e = a[d] - b[d];
+                s += e * e;
+            }
+            return s;
+        }
+    }
+
     // Searches descend to the near child first; the far child is visited only if its cell can
     // hold a closer point. The cell distance is tracked incrementally per axis (Arya & Mount):
     // `off[d]` is the query's offset from the cell along d, `mindist` their squared sum.
@@ -191,7 +215,7 @@ private:
         const Node& nd = nodes_[id];
         if (nd.axis < 0) {
             for (int i = nd.begin; i < nd.end; ++i) {
-                const float d = sq(q, pts_.data() + static_cast<size_t>(i) * Dim);
+                const float d = sq_bounded(q, pts_.data() + static_cast<size_t>(i) * Dim, worst);
                 if (found == k && d >= worst) continue;
                 int j = found < k ? found++ : k - 1;  // insertion into the sorted buffer
                 while (j > 0 && dist[j - 1] > d) {
@@ -222,7 +246,7 @@ private:
         const Node& nd = nodes_[id];
         if (nd.axis < 0) {
             for (int i = nd.begin; i < nd.end; ++i) {
-                const float d = sq(q, pts_.data() + static_cast<size_t>(i) * Dim);
+                const float d = sq_bounded(q, pts_.data() + static_cast<size_t>(i) * Dim, best);
                 if (d < best) {
                     best = d;
                     idx = static_cast<int>(order_[i]);
