@@ -412,6 +412,8 @@ class PcapReader:
 
     def __init__(self, path: str | os.PathLike):
         self.path = os.fspath(path)
+        if os.path.isdir(self.path):
+            raise PcapFormatError(f"{self.path}: a folder, not a capture file")
         if not os.path.isfile(self.path):
             raise FileNotFoundError(f"no such file: {self.path}")
         fmt = sniff_format(self.path)
