@@ -261,3 +261,26 @@ def test_real_decoded_rotation(calibration, velodyne_dir):
     out = decompress(data)
     assert out.shape == pts.shape
     assert np.linalg.norm(out.astype(np.float64) - pts, axis=1).max() <= step * 0.8661
+
+
+def test_old_sph1_file_still_decodes():
+    """A ``predictive-sph1`` file written by the code that wrote sph1 (commit c8984a8; see
+    tests/processor/data/sph1/README.md) decodes to what that code's decoder gave."""
+    import hashlib
+    from pathlib import Path
+
+    d = Path(__file__).parent / "data" / "sph1"
+    data = (d / "ordered_scan_2000.tpc").read_bytes()
+    header = read_info(data)
+    assert header["codec"] == "predictive-sph1" and header["n_points"] == 2000
+    out = decompress(data)
+    assert hashlib.sha256(out.tobytes()).hexdigest() == (
+        "9558233937587ef59a805a52a67dd2d10c6e6edaa491fe20c862d6c96971d150")
+    with np.load(d / "ordered_scan_2000_input.npz") as z:
+        points = z["points"]
+    err = np.linalg.norm(out.astype(np.float64) - points, axis=1)
+    assert err.max() <= 0.003 and err.max() == pytest.approx(header["max_error"], abs=1e-7)
+    damaged = bytearray(data)
+    damaged[-100] ^= 0x40  # inside the stream: the sph1 checksum still guards it
+    with pytest.raises((CodecError, ContainerError)):
+        decompress(bytes(damaged))
