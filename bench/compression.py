@@ -68,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.plot == ap.get_default("plot"):  # leave the committed picture alone
             args.plot = Path(tempfile.gettempdir()) / "tripod-bench-compression-quick.png"
 
-    from tripod_processor.cloud_io import read_cloud, xyz
+    from tripod_processor.io.clouds import read_cloud, xyz
     from tripod_processor.compression.rd import draco_available, plot_rd, run_rd
     from tripod_processor.compression.simdata import simulated_fragments
     from tripod_processor.compression.train import HELD_OUT_SEEDS
@@ -160,7 +160,7 @@ def print_summary(curves: dict, sizes: dict, noise_m: dict, load: float | None) 
     from rich.console import Console
     from rich.table import Table
 
-    from tripod_processor.cli.compress_cmd import print_rd_tables
+    from tripod_processor.compression.rd import print_rd_tables
     from tripod_processor.compression.rd import ratio_at_equal_psnr
 
     print_rd_tables(curves)

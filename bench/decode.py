@@ -44,8 +44,8 @@ from rich.console import Console
 from rich.table import Table
 from tripod_processor.cli import main as tripod_main
 from tripod_processor.decode import DecodeConfig, decode_file
-from tripod_processor.native_decoder import NativeVlp16Decoder
-from tripod_processor.pcap import PcapReader, PcapWriter
+from tripod_processor.decode.native import NativeVlp16Decoder
+from tripod_processor.io.pcap import PcapReader, PcapWriter
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_INPUT = REPO.parent / "shared" / "data" / "velodyne" / "veloview-vlp16-20hz.pcap"

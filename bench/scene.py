@@ -59,8 +59,8 @@ def rot_err_deg(R) -> float:
 def bench_segmentation(pictures: bool, split: str = "test", quick: bool = False) -> None:
     from scene_data import SCENES, SPLITS, make
 
-    from tripod_processor.segmentation import Segmenter
-    from tripod_processor.segmentation.metrics import confusion, iou
+    from tripod_processor.scene.segmentation import Segmenter
+    from tripod_processor.scene.segmentation.metrics import confusion, iou
 
     files = make(split, REPO / ".cache" / "scene_data" / split,
                  scenes=SCENES[:1] if quick else SCENES)
@@ -91,9 +91,9 @@ def bench_segmentation(pictures: bool, split: str = "test", quick: bool = False)
 
 # ---------------------------------------------------------------------------------- real
 def bench_real(pictures: bool) -> None:
-    from tripod_processor.cloud_io import read_cloud, xyz
-    from tripod_processor.planes import extract_planes, plane_inlier_share
-    from tripod_processor.segmentation import Segmenter
+    from tripod_processor.io.clouds import read_cloud, xyz
+    from tripod_processor.scene.planes import extract_planes, plane_inlier_share
+    from tripod_processor.scene.segmentation import Segmenter
 
     seg = Segmenter()
     shown = []
@@ -109,14 +109,14 @@ def bench_real(pictures: bool) -> None:
             f"{share:.1%} ({len(planes)} planes)")
         shown.append((p, lab, name))
     if pictures:
-        from tripod_processor.scene_plots import save_labels_picture
+        from tripod_processor.scene.plots import save_labels_picture
 
         save_labels_picture(DOCS / "scene_real_labels.png", shown)
 
 
 # ---------------------------------------------------------------------------------- planes
 def true_planes(scene):
-    from tripod_processor.planes import CEILING, FLOOR, WALL
+    from tripod_processor.scene.planes import CEILING, FLOOR, WALL
 
     out = [(FLOOR, np.array([0, 0, 1.0]), 0.0), (CEILING, np.array([0, 0, 1.0]), -scene.height)]
     fp = scene.footprint
@@ -130,17 +130,17 @@ def true_planes(scene):
 def bench_planes(pictures: bool) -> None:
     import open3d as o3d
 
-    from tripod_processor.heightmaps import plane_heightmap, relief_rmse
-    from tripod_processor.planes import extract_planes
-    from tripod_processor.synthetic_rooms import free_station, make_room, scan
+    from tripod_processor.scene.heightmaps import relief_rmse
+    from tripod_processor.scene.pipeline import analyse_scene
+    from tripod_processor.sim.rooms import free_station, make_room, scan
 
     scene = make_room(7, kind="box", size=(7.0, 5.5), height=2.8)
     st = free_station(scene, np.random.default_rng(3))
     p, lab = scan(scene, st, head_steps=70, noise_m=0.03, seed=7)
     row("planes", "simulated room: points, range noise", f"{len(p):,}, 3 cm")
-    t0, c0 = time.perf_counter(), time.process_time()
-    planes = extract_planes(p, lab)
-    dt, dc = time.perf_counter() - t0, time.process_time() - c0
+    res = analyse_scene(p, lab)  # the pipeline of `tripod heightmaps`, default settings
+    planes, hms = res.planes, res.heightmaps
+    dt, dc = res.seconds["planes"], res.seconds["planes_cpu"]
     worst_a, worst_o, found, expected = 0.0, 0.0, 0, 0
     for label, n, d in true_planes(scene):
         if ((lab == label) & (np.abs(p @ n + d) < 0.1)).sum() < 3000:
@@ -169,20 +169,14 @@ def bench_planes(pictures: bool) -> None:
     # heightmaps of the same room against the mesh
     rs = scene.raycasting_scene()
     rmses = []
-    hms = []
-    from tripod_processor import _ext
-
-    normals = _ext.voxel_local_shape(p, 0.05, 1, 0)[:, :3]
-    for pl in planes:
-        hm = plane_heightmap(p, pl, normals=normals)
-        hms.append(hm)
+    for hm in hms:
         r, n = relief_rmse(hm, rs)
         if n > 200:
             rmses.append(r)
     row("heightmaps", "relief RMSE vs mesh, median / worst plane [mm] (noise 30)",
         f"{np.median(rmses) * 1000:.1f} / {np.max(rmses) * 1000:.1f}")
     if pictures:
-        from tripod_processor.scene_plots import save_heightmaps_picture, save_overview
+        from tripod_processor.scene.plots import save_heightmaps_picture, save_overview
 
         save_heightmaps_picture(DOCS / "scene_heightmaps.png", hms, max_tiles=6,
                                 title="heightmaps (5 cm pixels) of a simulated room, 3 cm range noise")
@@ -217,7 +211,7 @@ def _fpfh_ransac(src, tgt, voxel=0.10):
 
 def _rand_T(rng, tilt_deg: float = 0.0):
     """A random yaw (any), x-y shift (+-5 m), height shift (+-0.3 m) and optional tilt [deg]."""
-    from tripod_processor.synthetic_rooms import _axis_angle
+    from tripod_processor.sim.rooms import _axis_angle
 
     T = np.eye(4)
     T[:3, :3] = _axis_angle([0, 0, 1], rng.uniform(-np.pi, np.pi)) @ _axis_angle(
@@ -274,11 +268,11 @@ def twin_pairs(n_pairs: int, split: str = "test", quick: bool = False):
 
 
 def synthetic_pairs(n_pairs: int):
-    """Pairs of scans of ``tripod_processor.synthetic_rooms`` (the generator the segmenter also
+    """Pairs of scans of ``tripod_processor.sim.rooms`` (the generator the segmenter also
     trains on), >= 30 % overlap, random yaw, shift and 0.3 deg levelling error."""
     from scipy.spatial import cKDTree
 
-    from tripod_processor.synthetic_rooms import free_station, make_room, scan
+    from tripod_processor.sim.rooms import free_station, make_room, scan
 
     for k in range(n_pairs):
         rng = np.random.default_rng(1000 + k)
@@ -302,7 +296,7 @@ def synthetic_pairs(n_pairs: int):
 
 def bench_registration(n_pairs: int, source: str = "twin", baselines: bool = True,
                        split: str = "test", quick: bool = False) -> None:
-    from tripod_processor.heightmap_registration import register_by_heightmaps
+    from tripod_processor.scene.heightmap_registration import register_by_heightmaps
 
     def errors(T, T_true):
         E = np.linalg.inv(T_true) @ T

@@ -24,7 +24,7 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
-from tripod_processor.replay import Replayer, ReplaySource
+from tripod_processor.io.replay import Replayer, ReplaySource
 from tripod_processor.sim import SCENE_NAMES, SimConfig, simulate
 from tripod_processor.sim import fidelity as F
 

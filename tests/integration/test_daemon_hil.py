@@ -21,9 +21,9 @@ from tripod_shared.recording import RecordingReader
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "daemon"))
 from daemon_helpers import RunningDaemon, free_tcp_port, loopback_config  # noqa: E402
 
-from tripod_processor.imu_log import ImuLogReader  # noqa: E402
-from tripod_processor.pcap import PcapReader  # noqa: E402
-from tripod_processor.replay import PtyImuSink, Replayer, ReplaySource  # noqa: E402
+from tripod_processor.io.imu_log import ImuLogReader  # noqa: E402
+from tripod_processor.io.pcap import PcapReader  # noqa: E402
+from tripod_processor.io.replay import PtyImuSink, Replayer, ReplaySource  # noqa: E402
 from tripod_processor.sim import SimConfig, simulate  # noqa: E402
 
 

@@ -7,7 +7,7 @@ import functools
 
 import numpy as np
 
-from tripod_processor.synthetic_rooms import free_station, make_room, scan
+from tripod_processor.sim.rooms import free_station, make_room, scan
 
 
 @functools.lru_cache(maxsize=None)

@@ -4,7 +4,7 @@
 import numpy as np
 import pytest
 
-from tripod_processor import cloud_io
+from tripod_processor.io import clouds as cloud_io
 
 
 def _cloud(n=1000, seed=0):

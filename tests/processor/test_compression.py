@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from tripod_processor.cli import main
-from tripod_processor.cloud_io import read_cloud, xyz
+from tripod_processor.io.clouds import read_cloud, xyz
 from tripod_processor.compression import (CodecError, ContainerError, compress,
                                           compress_with_info, decompress, read_info)
 from tripod_processor.compression import container
@@ -248,7 +248,7 @@ def test_cli_round_trip_and_errors(tmp_path, registration_dir, capsys):
     out = xyz(read_cloud(ply))
     assert len(out) == read_info(tpc.read_bytes())["n_voxels"]
     # a cloud with intensity keeps it through the round trip
-    from tripod_processor.cloud_io import make_cloud, write_cloud
+    from tripod_processor.io.clouds import make_cloud, write_cloud
 
     src_i = tmp_path / "with_i.ply"
     pts = random_fragment(7, n_revolutions=1)

@@ -163,7 +163,7 @@ def test_damaged_stream_with_fresh_checksums_is_rejected(small_file):
 
 def test_cli_modes_and_pcd_viewpoint(tmp_path, scan, capsys):
     from tripod_processor.cli import main
-    from tripod_processor.cloud_io import make_cloud, pcd_viewpoint, read_cloud, write_cloud, xyz
+    from tripod_processor.io.clouds import make_cloud, pcd_viewpoint, read_cloud, write_cloud, xyz
 
     shift = np.array([2.0, -1.5, 0.75])
     src = tmp_path / "scan.pcd"

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import velodyne_decoder as vd
 from tripod_processor.cli import main
-from tripod_processor.cloud_io import read_ply
+from tripod_processor.io.clouds import read_ply
 from tripod_processor.decode import (
     POINT_DTYPE,
     DecodeConfig,
@@ -23,7 +23,7 @@ from tripod_processor.decode import (
     identify_sensor,
     to_veloview_xyz,
 )
-from tripod_processor.pcap import PcapReader, PcapWriter
+from tripod_processor.io.pcap import PcapReader, PcapWriter
 
 ISSUE_KEYS = ["frames", "points_per_frame", "sensor", "return_mode", "packets", "skipped"]
 

@@ -11,9 +11,9 @@ import json
 import numpy as np
 import pytest
 
-from tripod_processor import heightmap_registration as hr
+from tripod_processor.scene import heightmap_registration as hr
 from tripod_processor.cli import main
-from tripod_processor.cloud_io import make_cloud, write_ply
+from tripod_processor.io.clouds import make_cloud, write_ply
 from tripod_processor.sim.scenes import make_scene
 from tripod_processor.sim.station_scan import box_room, pose, station_scan
 
@@ -40,8 +40,8 @@ def _turn(points, yaw, t):
 
 @pytest.mark.parametrize("seed", [41, 42])
 def test_register_by_heightmaps(seed):
-    from tripod_processor.heightmap_registration import register_by_heightmaps
-    from tripod_processor.synthetic_rooms import free_station, make_room, scan
+    from tripod_processor.scene.heightmap_registration import register_by_heightmaps
+    from tripod_processor.sim.rooms import free_station, make_room, scan
 
     scene = make_room(seed)
     rng = np.random.default_rng(seed)
@@ -114,7 +114,7 @@ def test_range_image_free_space():
     wall was not; a direction without returns is no evidence."""
     yy, zz = np.meshgrid(np.linspace(-3, 3, 300), np.linspace(-1, 1, 100))
     wall = np.stack([np.full(yy.size, 4.0), yy.ravel(), zz.ravel()], 1)
-    from tripod_processor.heightmap_registration.verification import _RangeImage as RangeImage
+    from tripod_processor.scene.heightmap_registration.verification import _RangeImage as RangeImage
 
     ri = RangeImage(wall, (0.0, 0.0, 0.0))
     probe = np.array([[2.0, 0.0, 0.0], [4.0, 0.5, 0.0], [6.0, 0.0, 0.0], [-2.0, 0.0, 0.0]])
@@ -124,7 +124,7 @@ def test_range_image_free_space():
 def test_keypoints_and_shapes_on_a_plan_image():
     """ORB finds corners on a plan heightmap; the shape blobs of the furniture carry Hu moments
     that do not change when the room turns."""
-    from tripod_processor.synthetic_rooms import free_station, make_room, scan
+    from tripod_processor.sim.rooms import free_station, make_room, scan
 
     scene = make_room(42)
     st = free_station(scene, np.random.default_rng(42))
@@ -146,7 +146,7 @@ def test_keypoints_and_shapes_on_a_plan_image():
 def test_hu_moments_are_rotation_invariant():
     from scipy import ndimage
 
-    from tripod_processor.heightmap_registration import hu_moments
+    from tripod_processor.scene.heightmap_registration import hu_moments
 
     m = np.zeros((200, 200), bool)
     m[50:150, 80:120] = True
@@ -157,7 +157,7 @@ def test_hu_moments_are_rotation_invariant():
 
 
 def test_cli_register_heightmaps_method(tmp_path, capsys):
-    from tripod_processor.synthetic_rooms import free_station, make_room, scan
+    from tripod_processor.sim.rooms import free_station, make_room, scan
 
     scene = make_room(43)
     rng = np.random.default_rng(43)

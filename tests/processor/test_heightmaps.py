@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from tripod_processor.cli import main
-from tripod_processor.cloud_io import make_cloud, write_ply
-from tripod_processor.heightmaps import (Heightmap, low_poly_mesh, plane_heightmap, relief_rmse,
+from tripod_processor.io.clouds import make_cloud, write_ply
+from tripod_processor.scene.heightmaps import (Heightmap, low_poly_mesh, plane_heightmap, relief_rmse,
                                          truth_heightmap, write_mesh_ply)
-from tripod_processor.planes import WALL, extract_planes
+from tripod_processor.scene.planes import WALL, extract_planes
 
 from scene_fixtures import room_scan
 

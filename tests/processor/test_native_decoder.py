@@ -1,5 +1,5 @@
 # SPDX-License-Identifier: BSD-3-Clause
-"""The native batch VLP-16 decoder (``tripod_processor.native_decoder``) against its oracle,
+"""The native batch VLP-16 decoder (``tripod_processor.decode.native``) against its oracle,
 velodyne-decoder 3.1: the same points, bit for bit, on every real VLP-16 capture in
 ``../shared/data/velodyne/``, with every calibration kind, in strongest, last and dual return,
 with range and angle filters, and on malformed packets."""
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import velodyne_decoder as vd
 from tripod_processor.decode import DecodeConfig, DecodeError, FrameDecoder, identify_sensor
-from tripod_processor.native_decoder import (
+from tripod_processor.decode.native import (
     POINT_DTYPE,
     STATUS_BAD_BLOCK_HEADER,
     STATUS_OK,
@@ -20,7 +20,7 @@ from tripod_processor.native_decoder import (
     NativeVlp16Decoder,
     calibration_table,
 )
-from tripod_processor.packet_sources import open_source
+from tripod_processor.io.packets import open_source
 
 _PRODUCT = {vd.Model.VLP16: 0x22, vd.Model.PuckHiRes: 0x24}
 

@@ -8,8 +8,8 @@ import struct
 
 import numpy as np
 import pytest
-from tripod_processor.packet_sources import PayloadFileSource, PcapSource, open_source
-from tripod_processor.pcap import PcapFormatError, PcapReader, PcapWriter
+from tripod_processor.io.packets import PayloadFileSource, PcapSource, open_source
+from tripod_processor.io.pcap import PcapFormatError, PcapReader, PcapWriter
 
 
 def _flatten(batches):

@@ -3,7 +3,7 @@
 
 import pytest
 
-from tripod_processor.pcap import PcapFormatError, PcapReader, PcapWriter
+from tripod_processor.io.pcap import PcapFormatError, PcapReader, PcapWriter
 
 
 def test_veloview_counts(velodyne_dir):

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tripod_processor.planes import CEILING, FLOOR, WALL, extract_planes, plane_inlier_share
+from tripod_processor.scene.planes import CEILING, FLOOR, WALL, extract_planes, plane_inlier_share
 
 from scene_fixtures import room_scan
 

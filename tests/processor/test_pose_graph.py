@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from tripod_processor import pose_graph as pg
+from tripod_processor.registration import pose_graph as pg
 
 
 def _T(rotvec, t):

@@ -13,7 +13,7 @@ import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
 from recon_synth import synth_capture
-from tripod_processor import cloud_io
+from tripod_processor.io import clouds as cloud_io
 from tripod_processor.reconstruction import evaluation as ev
 from tripod_processor.reconstruction.config import ReconstructConfig
 from tripod_processor.reconstruction.inputs import RecordingError, read_recording

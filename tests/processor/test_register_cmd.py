@@ -7,7 +7,7 @@ import json
 
 import numpy as np
 
-from tripod_processor import cloud_io
+from tripod_processor.io import clouds as cloud_io
 from tripod_processor.cli import main
 
 

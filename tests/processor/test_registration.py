@@ -7,7 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tripod_processor import cloud_io, registration as reg
+from tripod_processor.io import clouds as cloud_io
+
+from tripod_processor import registration as reg
 from tripod_processor.sim.scenes import make_scene
 from tripod_processor.sim.station_scan import box_room, pose, station_scan
 

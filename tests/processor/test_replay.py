@@ -14,9 +14,9 @@ import time
 import pytest
 from sim_fixtures import make_capture
 
-from tripod_processor.imu_log import ImuLogReader
-from tripod_processor.pcap import PcapReader
-from tripod_processor.replay import (BrickdImuSink, PtyImuSink, Replayer, ReplayInputError,
+from tripod_processor.io.imu_log import ImuLogReader
+from tripod_processor.io.pcap import PcapReader
+from tripod_processor.io.replay import (BrickdImuSink, PtyImuSink, Replayer, ReplayInputError,
                                      ReplaySource, open_imu_sink)
 from tripod_shared import tfp
 from tripod_shared import velodyne as v

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from tripod_processor.cli import main
-from tripod_processor.segmentation.s3dis import (S3DIS_CLASSES, S3DIS_TO_TRIPOD, S3DISError,
+from tripod_processor.scene.segmentation.s3dis import (S3DIS_CLASSES, S3DIS_TO_TRIPOD, S3DISError,
                                                  area5_split, evaluate, iter_rooms, load_room,
                                                  parse_annotation, room_dirs, six_fold_splits)
 
@@ -128,9 +128,9 @@ def test_splits():
 def test_area5_and_six_fold_evaluation(s3dis_root):
     """Train the real model per fold (few steps) and score the held-out area; the confusion is
     summed over rooms and folds."""
-    from tripod_processor.segmentation import Segmenter
-    from tripod_processor.segmentation.metrics import iou
-    from tripod_processor.segmentation.train import features_of, train
+    from tripod_processor.scene.segmentation import Segmenter
+    from tripod_processor.scene.segmentation.metrics import iou
+    from tripod_processor.scene.segmentation.train import features_of, train
 
     trained_on = []
 
@@ -143,7 +143,7 @@ def test_area5_and_six_fold_evaluation(s3dis_root):
     def predict_fn(model, points):
         import torch
 
-        from tripod_processor.segmentation.features import voxel_features
+        from tripod_processor.scene.segmentation.features import voxel_features
 
         f, point_voxel = voxel_features(points)
         with torch.inference_mode():
@@ -164,7 +164,7 @@ def test_cli_train_segmenter_on_s3dis(s3dis_root, tmp_path):
     out = tmp_path / "w.npz"
     assert main(["train-segmenter", "-o", str(out), "--s3dis", str(s3dis_root), "--steps", "40",
                  "--batch", "512", "--copies", "1", "--threads", "1"]) == 0
-    from tripod_processor.segmentation.model import load_model
+    from tripod_processor.scene.segmentation.model import load_model
 
     _, meta = load_model(out)
     assert meta["s3dis_areas"] == "1,2,3,4,6" and meta["steps"] == 40

@@ -8,11 +8,11 @@ import pytest
 
 from tripod_processor import _ext
 from tripod_processor.cli import main
-from tripod_processor.cloud_io import make_cloud, read_cloud, write_ply
-from tripod_processor.segmentation import DEFAULT_WEIGHTS, Segmenter, point_features
-from tripod_processor.segmentation.features import FEATURE_NAMES, floor_and_ceiling
-from tripod_processor.segmentation.metrics import confusion, iou, overall_accuracy
-from tripod_processor.segmentation.segments import planar_segments, segment_consistent
+from tripod_processor.io.clouds import make_cloud, read_cloud, write_ply
+from tripod_processor.scene.segmentation import DEFAULT_WEIGHTS, Segmenter, point_features
+from tripod_processor.scene.segmentation.features import FEATURE_NAMES, floor_and_ceiling
+from tripod_processor.scene.segmentation.metrics import confusion, iou, overall_accuracy
+from tripod_processor.scene.segmentation.segments import planar_segments, segment_consistent
 
 from scene_fixtures import room_scan
 
@@ -182,8 +182,8 @@ def test_segmenter_is_invariant_to_yaw_and_position():
 
 
 def test_training_learns_and_is_seeded(tmp_path):
-    from tripod_processor.segmentation.model import load_model, save_weights
-    from tripod_processor.segmentation.train import features_of, train
+    from tripod_processor.scene.segmentation.model import load_model, save_weights
+    from tripod_processor.scene.segmentation.train import features_of, train
 
     clouds = [room_scan(s, head_steps=6)[:2] for s in (11, 12)]
     F, L = features_of(clouds, copies=1, seed=0, keep_per_copy=40_000)

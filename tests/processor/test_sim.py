@@ -9,8 +9,8 @@ import struct
 import numpy as np
 import pytest
 
-from tripod_processor.imu_log import ImuLogError, ImuLogReader
-from tripod_processor.pcap import PcapReader
+from tripod_processor.io.imu_log import ImuLogError, ImuLogReader
+from tripod_processor.io.pcap import PcapReader
 from tripod_processor.sim import fidelity
 from tripod_processor.sim.capture import build_rig
 from tripod_shared import tfp

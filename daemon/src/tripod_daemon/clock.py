@@ -17,34 +17,8 @@ from __future__ import annotations
 
 from collections import deque
 
-from tripod_shared.timebase import HOUR_US, NS_PER_S, NS_PER_US, toh_us_to_unix_ns
-
-
-class TohUnwrapper:
-    """µs-past-the-hour stamps -> a continuous device time [ns] (lidar_toh, unwrapped).
-
-    A backward step of more than half an hour is a rollover (+1 h); a forward step of more than
-    half an hour right after a rollover is a late packet from the previous hour (-1 h for it).
-    """
-
-    def __init__(self):
-        self.hours = 0
-        self.rollovers = 0
-        self._prev: int | None = None
-
-    def __call__(self, toh_us: int) -> int:
-        prev = self._prev
-        hours = self.hours
-        if prev is not None:
-            if prev - toh_us > HOUR_US // 2:
-                self.hours = hours = hours + 1
-                self.rollovers += 1
-            elif toh_us - prev > HOUR_US // 2:
-                # reordered packet from before the rollover: place it in the previous hour,
-                # but keep the current hour for what follows
-                return ((hours - 1) * HOUR_US + toh_us) * NS_PER_US
-        self._prev = toh_us
-        return (hours * HOUR_US + toh_us) * NS_PER_US
+from tripod_shared.timebase import (HOUR_US, NS_PER_S, NS_PER_US, TohUnwrapper,
+                                    toh_us_to_unix_ns)
 
 
 class ClockMapper:

@@ -202,6 +202,41 @@ def compute_fpfh(points, normals, radius: float, max_neighbors: int = 100,
     return _ext.compute_fpfh(pts, nrm, float(radius), int(max_neighbors), int(num_threads))
 
 
+def local_shape(points, voxel_size: float, num_threads: int = 0,
+                radius_voxels: int = 1) -> np.ndarray:
+    """Per-point local shape from voxel moments (the one Python owner of
+    ``_ext.voxel_local_shape``).
+
+    Parameters
+    ----------
+    points : (N, 3) array_like of float [m]
+    voxel_size : voxel edge [m]; the neighbourhood is the ``radius_voxels`` ring of voxels
+    num_threads : 0 uses every core
+
+    Returns
+    -------
+    (N, 7) float32: normal nx ny nz, covariance eigenvalues l0 <= l1 <= l2 [m^2], neighbour count.
+    """
+    return _ext.voxel_local_shape(as_cloud(points), float(voxel_size), int(radius_voxels),
+                                  int(num_threads))
+
+
+def voxel_assign(points, voxel_size: float, num_threads: int = 0):
+    """Group points by voxel (the one Python owner of ``_ext.voxel_assign``).
+
+    Returns
+    -------
+    centroids (M, 3) float32 [m], point_voxel (N,) int32 (-1 for non-finite points),
+    counts (M,) int32.
+    """
+    return _ext.voxel_assign(as_cloud(points), float(voxel_size), int(num_threads))
+
+
+def point_normals(points, voxel_size: float = 0.05, num_threads: int = 0) -> np.ndarray:
+    """(N, 3) float32 unit normals (sign arbitrary) from the voxel moments of :func:`local_shape`."""
+    return local_shape(points, voxel_size, num_threads)[:, :3]
+
+
 def _finite_cloud(points) -> np.ndarray:
     pts = as_cloud(points)
     if not np.isfinite(pts).all():

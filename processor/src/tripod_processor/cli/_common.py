@@ -1,10 +1,11 @@
 # SPDX-License-Identifier: BSD-3-Clause
 """Helpers shared by the subcommands: one-line errors (exit code 2 for bad input, 1 for a job
-that ran and failed), console."""
+that ran and failed), console, cloud input."""
 
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 from typing import NoReturn
 
 import typer
@@ -44,3 +45,18 @@ def unit_hint(src, tgt) -> str:
                 "millimetres give a ratio near 1000)")
     return ""
 
+
+def read_points(path: Path):
+    """The cloud at ``path`` (structured array) and its (N, 3) float32 xyz; a bad file is one
+    line and exit code 2."""
+    from ..io.clouds import CloudFormatError, read_cloud, xyz
+
+    try:
+        cloud = read_cloud(path)
+    except FileNotFoundError:
+        fail(f"no such file: {path}")
+    except (CloudFormatError, ValueError, OSError) as exc:
+        fail(f"{path}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}")
+    if cloud.dtype.names is None or not {"x", "y", "z"} <= set(cloud.dtype.names):
+        fail(f"{path}: the cloud has no x, y, z fields")
+    return cloud, xyz(cloud, dtype="float32")

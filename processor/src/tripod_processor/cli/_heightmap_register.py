@@ -15,8 +15,8 @@ def register_heightmaps_cmd(source: Path, target: Path, output: Path | None, thr
     """Segment both clouds, match their plan heightmaps, print the JSON result."""
     import numpy as np
 
-    from .. import cloud_io
-    from ..heightmap_registration import register_by_heightmaps
+    from ..io import clouds as cloud_io
+    from ..scene.heightmap_registration import register_by_heightmaps
 
     try:
         src = cloud_io.xyz(cloud_io.read_cloud(source), dtype=np.float32)

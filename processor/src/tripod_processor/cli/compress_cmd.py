@@ -30,7 +30,7 @@ def parse_length(text: str) -> float:
 
 
 def _read_cloud(path: Path):
-    from ..cloud_io import read_cloud
+    from ..io.clouds import read_cloud
 
     try:
         return read_cloud(path)
@@ -41,7 +41,7 @@ def _read_cloud(path: Path):
 def _read_points(path: Path):
     import numpy as np
 
-    from ..cloud_io import xyz
+    from ..io.clouds import xyz
 
     return xyz(_read_cloud(path), np.float32)
 
@@ -70,7 +70,7 @@ def compress_cmd(
     predictive coding of an ordered scan: the smaller of the two by default)."""
     import numpy as np
 
-    from ..cloud_io import pcd_viewpoint, xyz
+    from ..io.clouds import pcd_viewpoint, xyz
     from ..compression import MODES, CodecError, compress_with_info
     from ..compression.model import load_table
 
@@ -122,7 +122,7 @@ def decompress_cmd(
 ) -> None:
     """Decompress a .tpc file to a PLY/PCD cloud (octree: one point per occupied voxel;
     predictive: every point, in the original order)."""
-    from ..cloud_io import make_cloud, write_cloud
+    from ..io.clouds import make_cloud, write_cloud
     from ..compression import CodecError, ContainerError
     from ..compression.codec import decode_cloud
     from ..compression.model import load_table
@@ -160,9 +160,9 @@ def rd_cmd(
     (the 'mode' column says which geometry mode auto chose at each step)."""
     from tqdm import tqdm
 
-    from ..cloud_io import pcd_viewpoint
+    from ..io.clouds import pcd_viewpoint
     from ..compression import MODES
-    from ..compression.rd import draco_available, plot_rd, run_rd
+    from ..compression.rd import draco_available, plot_rd, print_rd_tables, run_rd
 
     if not 2 <= q_min <= q_max <= 20:
         fail("need 2 <= --q-min <= --q-max <= 20")
@@ -186,30 +186,6 @@ def rd_cmd(
     plot.with_suffix(".json").write_text(json.dumps(
         {k: [r.as_dict() for r in v] for k, v in curves.items()}, indent=1))
     console.print(f"plot: {plot}")
-
-
-def print_rd_tables(curves: dict) -> None:
-    """One rich table per cloud: both codecs side by side at each q, and the rate ratio."""
-    from rich.console import Console
-    from rich.table import Table
-
-    from ..compression.rd import ratio_at_equal_psnr
-
-    out = Console(width=max(Console().width, 150))
-    for name, rows in curves.items():
-        ratio = ratio_at_equal_psnr(rows)
-        table = Table(title=f"{name}: rate-distortion (bpp per input point, D1 PSNR, speed M pts/s)")
-        for col in ("codec", "mode", "q", "step mm", "bpp", "RMSE mm", "PSNR diag", "PSNR mpeg10",
-                    "enc M/s", "dec M/s", "enc M/cpu-s", "dec M/cpu-s", "bpp ratio @ equal PSNR"):
-            table.add_column(col, justify="right")
-        for r in sorted(rows, key=lambda r: (r.q_bits, r.codec)):
-            table.add_row(r.codec, r.mode, str(r.q_bits), f"{1e3 * r.step_m:.2f}", f"{r.bpp:.3f}",
-                          f"{r.rmse_mm:.2f}", f"{r.psnr_diag_db:.2f}", f"{r.psnr_mpeg10_db:.2f}",
-                          f"{r.encode_mpts_s:.2f}", f"{r.decode_mpts_s:.2f}",
-                          f"{r.encode_mpts_cpu_s:.2f}", f"{r.decode_mpts_cpu_s:.2f}",
-                          f"{ratio[r.q_bits]:.2f}" if r.codec == "draco" and r.q_bits in ratio
-                          else "")
-        out.print(table)
 
 
 @app.command("train-compressor", rich_help_panel=_PANEL)

@@ -23,7 +23,7 @@ OWN_FILES = ("summary.json", "decode_config.yaml")
 
 
 def _write_frame(path: Path, frame, sensor: str, fmt: str) -> None:
-    from ..cloud_io import write_pcd, write_ply
+    from ..io.clouds import write_pcd, write_ply
 
     if fmt == "ply":
         write_ply(path, frame.points, comments=[
@@ -52,7 +52,8 @@ def clear_old_output(outdir: Path) -> int:
 
 def write_frames(run, outdir: Path | None, fmt: str = "ply", progress: bool = True,
                  on_first_frame=None) -> dict:
-    """Iterate a :class:`~tripod_processor.decode.DecodeRun`, write each frame to ``outdir``
+    """Iterate a :class:`~tripod_processor.decode.decoder.DecodeRun`, write each frame to
+    ``outdir``
     (when given) as ``frame_NNNNNN.<fmt>``; return timing figures. Raises the decoder's errors.
 
     ``on_first_frame()`` is called once the decoder has accepted the input (the sensor is
@@ -122,8 +123,8 @@ def run_decode(input_path: Path, outdir: Path | None, *, summary_only: bool = Fa
     """
     from tripod_shared.config_io import ConfigError, dump_config, load_config
 
-    from ..decode import DecodeConfig, DecodeError, decode_file
-    from ..packet_sources import SourceError
+    from ..decode.decoder import DecodeConfig, DecodeError, decode_file
+    from ..io.packets import SourceError
 
     if fmt not in FORMATS:
         fail(f"unknown format {fmt!r} (use {' or '.join(FORMATS)})")

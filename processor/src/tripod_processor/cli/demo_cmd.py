@@ -132,7 +132,7 @@ def demo_command(
     from ..reconstruction.inputs import RecordingError
     from ..reconstruction.pipeline import reconstruct, summary
     from ..reconstruction.placement import load_extrinsic_file
-    from ..replay import PtyImuSink, Replayer, ReplaySource
+    from ..io.replay import PtyImuSink, Replayer, ReplaySource
     from ..sim import SimConfig, simulate
     from .reconstruct_cmd import results_table
     from tripod_shared.config_io import load_config

@@ -48,7 +48,8 @@ def register_cmd(
     """Register SOURCE onto TARGET; prints JSON: the 4x4 T_target_source and quality figures."""
     import numpy as np
 
-    from .. import cloud_io, registration as reg
+    from ..io import clouds as cloud_io
+    from ..registration import pairwise as reg
 
     if method == "heightmaps":  # scene understanding's global method (no initial guess needed)
         from ._heightmap_register import register_heightmaps_cmd

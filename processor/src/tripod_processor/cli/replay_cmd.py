@@ -66,9 +66,9 @@ def replay_cmd(
 
     from tripod_shared import tfp
 
-    from ..imu_log import ImuLogError
-    from ..pcap import PcapFormatError
-    from ..replay import ReplayInputError, Replayer, ReplaySource, open_imu_sink, parse_addr
+    from ..io.imu_log import ImuLogError
+    from ..io.pcap import PcapFormatError
+    from ..io.replay import ReplayInputError, Replayer, ReplaySource, open_imu_sink, parse_addr
 
     r = _parse_rate(rate)
     if loop < 0:

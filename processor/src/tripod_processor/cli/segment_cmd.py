@@ -9,23 +9,9 @@ from pathlib import Path
 import typer
 
 from . import app
-from ._common import console, fail
+from ._common import console, fail, read_points
 
 CLASS_HELP = "0 ceiling, 1 floor, 2 wall, 3 other"
-
-
-def _read_points(path: Path):
-    from ..cloud_io import CloudFormatError, read_cloud, xyz
-
-    try:
-        cloud = read_cloud(path)
-    except FileNotFoundError:
-        fail(f"no such file: {path}")
-    except (CloudFormatError, ValueError, OSError) as exc:
-        fail(f"{path}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}")
-    if cloud.dtype.names is None or not {"x", "y", "z"} <= set(cloud.dtype.names):
-        fail(f"{path}: the cloud has no x, y, z fields")
-    return cloud, xyz(cloud, dtype="float32")
 
 
 @app.command("segment", rich_help_panel="Scene understanding")
@@ -44,14 +30,14 @@ def segment_cmd(
     import numpy as np
     from rich.table import Table
 
-    from ..cloud_io import write_cloud
-    from ..scene_config import SceneConfig, SegmentConfig
-    from ..segmentation import CLASS_NAMES, Segmenter
-    from ..segmentation.metrics import confusion, iou
+    from ..io.clouds import write_cloud
+    from ..scene.config import SceneConfig, SegmentConfig
+    from ..scene.segmentation import CLASS_NAMES, Segmenter
+    from ..scene.segmentation.metrics import confusion, iou
 
     if output.suffix.lower() not in (".ply", ".pcd"):
         fail(f"output must end in .ply or .pcd, not {output.suffix!r}")
-    src, pts = _read_points(cloud)
+    src, pts = read_points(cloud)
     if truth_field and truth_field not in src.dtype.names:
         fail(f"{cloud}: no field {truth_field!r} to score against")
     try:
@@ -96,7 +82,7 @@ def _labelled_cloud(path: Path, label_field: str):
     and ``labels``, or a ``tripod simulate`` capture folder (true poses and labels)."""
     import numpy as np
 
-    from ..cloud_io import read_cloud, xyz
+    from ..io.clouds import read_cloud, xyz
 
     if path.is_dir():
         from ..sim.fidelity import labeled_points
@@ -138,8 +124,8 @@ def train_segmenter_cmd(
     from rich.table import Table
     from tqdm import tqdm
 
-    from ..segmentation.model import save_weights
-    from ..segmentation.train import features_of, train
+    from ..scene.segmentation.model import save_weights
+    from ..scene.segmentation.train import features_of, train
 
     files: list[Path] = []
     for d in data or []:
@@ -160,7 +146,7 @@ def train_segmenter_cmd(
         except Exception as exc:  # noqa: BLE001 - any unreadable input is one line
             fail(f"{f}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}")
     if s3dis is not None:
-        from ..segmentation.s3dis import S3DISError, iter_rooms
+        from ..scene.segmentation.s3dis import S3DISError, iter_rooms
 
         try:
             areas = [int(a) for a in s3dis_areas.split(",") if a.strip()]
@@ -169,7 +155,7 @@ def train_segmenter_cmd(
         except (S3DISError, ValueError) as exc:
             fail(str(exc))
     if synthetic:
-        from ..synthetic_rooms import scan_room
+        from ..sim.rooms import scan_room
 
         rng = np.random.default_rng(seed)
         for k in tqdm(range(synthetic), desc="synthetic rooms", unit="room"):
@@ -231,11 +217,11 @@ def s3dis_eval_cmd(
     or each area in turn for 6-fold); per-class IoU from the confusion summed over rooms/folds."""
     from rich.table import Table
 
-    from ..segmentation import Segmenter
-    from ..segmentation.metrics import iou, overall_accuracy
-    from ..segmentation.model import CLASS_NAMES
-    from ..segmentation.s3dis import S3DISError, area5_split, evaluate, six_fold_splits
-    from ..segmentation.train import features_of, train
+    from ..scene.segmentation import Segmenter
+    from ..scene.segmentation.metrics import iou, overall_accuracy
+    from ..scene.segmentation.model import CLASS_NAMES
+    from ..scene.segmentation.s3dis import S3DISError, area5_split, evaluate, six_fold_splits
+    from ..scene.segmentation.train import features_of, train
 
     if protocol not in ("area5", "6fold"):
         fail(f"unknown protocol {protocol!r} (area5 or 6fold)")

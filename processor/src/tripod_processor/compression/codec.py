@@ -79,6 +79,17 @@ def grid_for(points: np.ndarray, voxel_size: float) -> tuple[np.ndarray, int]:
     return lo, depth
 
 
+def voxel_codes(points: np.ndarray, voxel_size: float, num_threads: int = 0
+                ) -> tuple[np.ndarray, np.ndarray, int]:
+    """Sorted unique Morton codes (uint64) of the occupied voxels of the grid of
+    :func:`grid_for`, its origin (3,) float64 [m] and depth: the one Python owner of
+    ``_ext.voxelize_morton``. ``points`` (N, 3) float32 C-contiguous [m]."""
+    from .. import _ext
+
+    origin, depth = grid_for(points, voxel_size)
+    return _ext.voxelize_morton(points, origin, voxel_size, depth, num_threads), origin, depth
+
+
 def _finite(points: np.ndarray, intensity: np.ndarray | None = None
             ) -> tuple[np.ndarray, np.ndarray | None]:
     p = np.ascontiguousarray(np.asarray(points, dtype=np.float32)[:, :3])
@@ -228,8 +239,7 @@ def _encode_octree(p: np.ndarray, inten: np.ndarray | None, voxel_size: float, a
         header.update(origin=[0.0, 0.0, 0.0], depth=1, n_voxels=0)
         data = pack(header, [b""], version=1)
         return data, EncodeInfo(voxel_size, 1, 0, 0, len(data))
-    origin, depth = grid_for(p, voxel_size)
-    codes = _ext.voxelize_morton(p, origin, voxel_size, depth, num_threads)
+    codes, origin, depth = voxel_codes(p, voxel_size, num_threads)
     stream = _ext.octree_encode(codes, depth, table.p0, int(adapt_shift), int(adapt_prior))
     header.update(origin=[float(v) for v in origin], depth=depth, n_voxels=int(len(codes)))
     sections = [stream]

@@ -157,3 +157,25 @@ def plot_rd(curves: dict[str, list[RDPoint]], path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
+
+
+def print_rd_tables(curves: dict) -> None:
+    """One rich table per cloud: both codecs side by side at each q, and the rate ratio."""
+    from rich.console import Console
+    from rich.table import Table
+
+    out = Console(width=max(Console().width, 150))
+    for name, rows in curves.items():
+        ratio = ratio_at_equal_psnr(rows)
+        table = Table(title=f"{name}: rate-distortion (bpp per input point, D1 PSNR, speed M pts/s)")
+        for col in ("codec", "mode", "q", "step mm", "bpp", "RMSE mm", "PSNR diag", "PSNR mpeg10",
+                    "enc M/s", "dec M/s", "enc M/cpu-s", "dec M/cpu-s", "bpp ratio @ equal PSNR"):
+            table.add_column(col, justify="right")
+        for r in sorted(rows, key=lambda r: (r.q_bits, r.codec)):
+            table.add_row(r.codec, r.mode, str(r.q_bits), f"{1e3 * r.step_m:.2f}", f"{r.bpp:.3f}",
+                          f"{r.rmse_mm:.2f}", f"{r.psnr_diag_db:.2f}", f"{r.psnr_mpeg10_db:.2f}",
+                          f"{r.encode_mpts_s:.2f}", f"{r.decode_mpts_s:.2f}",
+                          f"{r.encode_mpts_cpu_s:.2f}", f"{r.decode_mpts_cpu_s:.2f}",
+                          f"{ratio[r.q_bits]:.2f}" if r.codec == "draco" and r.q_bits in ratio
+                          else "")
+        out.print(table)

@@ -30,15 +30,14 @@ def count_contexts(clouds: Iterable[np.ndarray], quant_bits=(8, 9, 10, 11, 12),
                    log: Callable[[str], None] = print) -> np.ndarray:
     """(2^22, 2) int64 counts of coded bits 0 / 1 per context over all clouds and voxel sizes."""
     from .. import _ext
-    from .codec import grid_for
+    from .codec import voxel_codes
 
     counts = np.zeros((N_CONTEXTS, 2), np.int64)
     for k, pts in enumerate(clouds):
         pts = np.ascontiguousarray(pts, np.float32)
         ext = float((pts.max(0) - pts.min(0)).max())
         for q in quant_bits:
-            origin, depth = grid_for(pts, ext / (2**q - 1))
-            codes = _ext.voxelize_morton(pts, origin, ext / (2**q - 1), depth)
+            codes, _, depth = voxel_codes(pts, ext / (2**q - 1))
             ctx, bits = _ext.octree_contexts(codes, depth)
             counts[:, 1] += np.bincount(ctx[bits == 1], minlength=N_CONTEXTS)
             counts[:, 0] += np.bincount(ctx[bits == 0], minlength=N_CONTEXTS)
@@ -108,7 +107,7 @@ def train(out: Path, clouds: list[Path] | None = None, n_fragments: int = DEFAUL
     """
     t0 = time.time()
     if clouds:
-        from ..cloud_io import read_cloud, xyz
+        from ..io.clouds import read_cloud, xyz
 
         data = (xyz(read_cloud(p), np.float32) for p in clouds)
         source = [str(p) for p in clouds]

@@ -135,7 +135,7 @@ def calibrate_mount(lidar: LidarPackets, stations: list[Station], orient: ImuOri
     """
     from scipy.spatial.transform import Rotation
 
-    from .. import registration as reg
+    from ..registration import pairwise as reg
 
     st = most_turning_station(stations, orient)
     t0 = st.start_ns

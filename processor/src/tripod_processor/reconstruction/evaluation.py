@@ -170,10 +170,11 @@ def same_hour(truth_t_ns: np.ndarray, t_ns: np.ndarray) -> np.ndarray:
     clock. A capture recorded by the daemon later (a replay) keeps every µs-past-the-hour but
     gets the replay's hour, so truth and result differ by a whole number of hours.
     """
-    hour = 3_600_000_000_000
-    k = int(np.round((int(t_ns[0]) - int(truth_t_ns[0])) / hour)) if len(t_ns) else 0
+    from tripod_shared.timebase import same_hour_shift_ns
+
+    shift = same_hour_shift_ns(int(truth_t_ns[0]), int(t_ns[0])) if len(t_ns) else 0
     inside = truth_t_ns[0] <= t_ns[0] <= truth_t_ns[-1]
-    return truth_t_ns if inside else truth_t_ns + k * hour
+    return truth_t_ns if inside else truth_t_ns + shift
 
 
 def evaluate_run(outdir, truth_t_ns: np.ndarray, truth_T: np.ndarray,
@@ -182,7 +183,7 @@ def evaluate_run(outdir, truth_t_ns: np.ndarray, truth_T: np.ndarray,
     true trajectory on the lidar time line (and the scene mesh, when given)."""
     from pathlib import Path
 
-    from .. import cloud_io
+    from ..io import clouds as cloud_io
     from .outputs import read_tum
 
     out = Path(outdir)

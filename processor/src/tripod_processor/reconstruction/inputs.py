@@ -10,7 +10,6 @@ host receive clock.
 
 from __future__ import annotations
 
-import datetime as _dt
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,7 +18,9 @@ import numpy as np
 
 from tripod_shared import velodyne as vl
 from tripod_shared.recording import RecordingReader, is_mcap
-from tripod_shared.timebase import HOUR_NS, NS_PER_US
+from tripod_shared import nmea
+from tripod_shared.timebase import (NS_PER_US, toh_us_to_unix_ns, toh_us_to_unix_ns_array,
+                                    unwrap_toh_us_array)
 
 
 class RecordingError(ValueError):
@@ -82,28 +83,7 @@ class Recording:
 def gprmc_unix_ns(payload: bytes) -> int | None:
     """UNIX time [ns] of a position packet's GPRMC sentence (whole seconds), or None."""
     raw = bytes(payload[vl.POS_NMEA_OFFSET : vl.POS_NMEA_OFFSET + vl.POS_NMEA_SIZE])
-    text = raw.split(b"\x00", 1)[0].decode("ascii", "replace")
-    if "RMC" not in text[:6]:
-        return None
-    f = text.split(",")
-    try:
-        if len(f) < 10 or len(f[1]) < 6 or len(f[9]) != 6:
-            return None
-        hh, mm, ss = int(f[1][0:2]), int(f[1][2:4]), int(float(f[1][4:]))
-        d, mo, y = int(f[9][0:2]), int(f[9][2:4]), 2000 + int(f[9][4:6])
-        t = _dt.datetime(y, mo, d, hh, mm, ss, tzinfo=_dt.timezone.utc)
-    except ValueError:
-        return None
-    return int(t.timestamp()) * 1_000_000_000
-
-
-def _toh_to_unix_ns(toh_us: np.ndarray, reference_ns: np.ndarray) -> np.ndarray:
-    """Vectorised ``timebase.toh_us_to_unix_ns``: the hour nearest each reference."""
-    ref = reference_ns.astype(np.int64)
-    t = ref - ref % HOUR_NS + toh_us.astype(np.int64) * NS_PER_US
-    t = np.where(t - ref > HOUR_NS // 2, t - HOUR_NS, t)
-    t = np.where(ref - t > HOUR_NS // 2, t + HOUR_NS, t)
-    return t
+    return nmea.rmc_unix_ns(raw.split(b"\x00", 1)[0].decode("ascii", "replace"))
 
 
 def _lidar_time(host_ns: np.ndarray, toh_us: np.ndarray, gprmc: list[tuple[int, int]]):
@@ -112,13 +92,10 @@ def _lidar_time(host_ns: np.ndarray, toh_us: np.ndarray, gprmc: list[tuple[int, 
         # offset between the host clock and GPS time, from the position packets (robust median)
         offs = np.array([g - h for h, g in gprmc], dtype=np.int64)
         ref = host_ns + int(np.median(offs))
-        return _toh_to_unix_ns(toh_us, ref), "gprmc"
+        return toh_us_to_unix_ns_array(toh_us, ref), "gprmc"
     # one reference for the whole file, unwrapped, so jitter never flips an hour mid-recording
-    t0 = _toh_to_unix_ns(toh_us[:1], host_ns[:1])[0]
-    d = np.diff(toh_us.astype(np.int64))
-    d = np.where(d < -1800 * 10**6, d + 3600 * 10**6, d)
-    d = np.where(d > 1800 * 10**6, d - 3600 * 10**6, d)
-    return t0 + np.concatenate([[0], np.cumsum(d)]) * NS_PER_US, "host"
+    t0 = toh_us_to_unix_ns(int(toh_us[0]), int(host_ns[0]))
+    return t0 + (unwrap_toh_us_array(toh_us) - int(toh_us[0])) * NS_PER_US, "host"
 
 
 def _finish_lidar(host, payloads, gprmc, rec: Recording | None = None) -> tuple[LidarPackets, str]:
@@ -236,7 +213,7 @@ def _read_mcap(path: Path) -> Recording:
 
 
 def _read_pcap(path: Path) -> Recording:
-    from ..pcap import PcapFormatError, PcapReader
+    from ..io.pcap import PcapFormatError, PcapReader
 
     try:
         reader = PcapReader(path)
@@ -281,7 +258,7 @@ def read_imu_log(path: str | os.PathLike) -> ImuTrack:
     with host read times), or text lines ``host_time_s w x y z`` (or ``host_ns,w,x,y,z``;
     ``#`` comments). Times are host_realtime, like the pcap's capture stamps.
     """
-    from ..imu_log import MAGIC, ImuLogError, ImuLogReader
+    from ..io.imu_log import MAGIC, ImuLogError, ImuLogReader
 
     path = Path(path)
     if not path.is_file():
@@ -331,7 +308,7 @@ def decode_points(lidar: LidarPackets, start: int, stop: int, *, min_range: floa
                   ) -> np.ndarray:
     """Decode packets ``[start, stop)`` into points in the lidar frame with per-point lidar time.
 
-    Decoding is the C++ core's batch VLP-16 decoder (:mod:`tripod_processor.native_decoder`,
+    Decoding is the C++ core's batch VLP-16 decoder (:mod:`tripod_processor.decode.native`,
     point for point equal to velodyne-decoder's): one call per chunk of packets, the GIL
     released, OpenMP over packets. The product byte is not looked at (an early VLP-16 says
     0x21). Times are exact integer ns: the packet's lidar time plus the firing offset.
@@ -347,7 +324,7 @@ def decode_points(lidar: LidarPackets, start: int, stop: int, *, min_range: floa
     structured ndarray (N,) of POINT_DTYPE: x, y, z [m] (float32, lidar frame), intensity,
     ring, return_type, time_ns (int64, lidar time, UNIX ns).
     """
-    from ..native_decoder import NativeVlp16Decoder
+    from ..decode.native import NativeVlp16Decoder
 
     dec = NativeVlp16Decoder(min_range_m=float(max(min_range, 0.0)), max_range_m=float(max_range),
                              num_threads=num_threads)

@@ -83,7 +83,7 @@ class CloudCache:
     def oriented(self, key, points: np.ndarray, voxel: float):
         """The cloud at ``voxel`` prepared with 12-neighbour normals facing the fragment's
         sensor (its origin), for :func:`oriented_refine`."""
-        from .. import registration as reg
+        from ..registration import pairwise as reg
 
         k = ("oriented", key, voxel)
         if k not in self._c:
@@ -96,7 +96,7 @@ class CloudCache:
         return self.down(key, points, voxel).astype(np.float64)
 
     def get(self, key, points: np.ndarray, voxel: float):
-        from .. import registration as reg
+        from ..registration import pairwise as reg
 
         k = (key, voxel)
         if k not in self._c:
@@ -112,7 +112,7 @@ def icp_refine(source: np.ndarray, target: np.ndarray, T_init: np.ndarray,
     """Coarse-to-fine registration (the core's ``cfg.method``) of ``source`` onto ``target``
     (both (N, 3) [m]) from ``T_init`` over ``voxels`` (default: the configured schedule), with
     the IMU rotation as a weighted prior."""
-    from .. import registration as reg
+    from ..registration import pairwise as reg
 
     cache = cache or CloudCache(cfg.point_sigma_m, num_threads)
     voxels = list(cfg.voxels_m if voxels is None else voxels)
@@ -157,16 +157,14 @@ def oriented_refine(source: np.ndarray, target: np.ndarray, T_init: np.ndarray,
     Returns (T_target_source, information (6, 6) in the pose graph's convention, fitness,
     inlier RMSE [m]).
     """
-    from .. import _ext
+    from ..registration.pairwise import oriented_point_to_plane
 
     cache = cache or CloudCache(cfg.point_sigma_m, num_threads)
     src = cache.oriented(keys[0], source, voxel)
     tgt = cache.oriented(keys[1], target, voxel)
     sigma = cfg.point_sigma_m
-    r = _ext.oriented_point_to_plane(src._native, tgt._native,
-                                     np.ascontiguousarray(T_init, dtype=np.float64),
-                                     float(max_dist), int(iterations), float(sigma), 0.5,
-                                     int(max_source), int(num_threads))
+    r = oriented_point_to_plane(src, tgt, T_init, max_dist, iterations, sigma, 0.5, max_source,
+                                num_threads)
     T = np.asarray(r["T_target_source"], dtype=np.float64)
     if not r["linearized"]:
         return T, np.zeros((6, 6)), 0.0, np.inf

@@ -17,7 +17,7 @@ from tqdm import tqdm
 
 from tripod_shared.config_io import dump_config
 
-from .. import cloud_io
+from ..io import clouds as cloud_io
 from ..preprocess import mls_smooth, voxel_downsample
 from . import outputs
 from .calibration import estimate_time_offset
@@ -188,7 +188,7 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
         from .report import write_report
 
         with _Stage(times, "report", None, quiet):
-            res.files["report"] = str(write_report(res, cfg))
+            res.files["report"] = str(write_report(res, cfg, summary(res)))
     outputs.write_json(out / "result.json", summary(res))
     res.files["result"] = str(out / "result.json")
     return res

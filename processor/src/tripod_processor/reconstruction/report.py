@@ -133,14 +133,15 @@ def plot_plane_violins(path: Path, errors: list[dict[str, np.ndarray]]) -> dict:
     return stats
 
 
-def write_report(res, cfg: ReconstructConfig) -> Path:
-    """Write ``report.md`` and its PNGs into the run's output folder; return the report path."""
-    from .pipeline import summary
+def write_report(res, cfg: ReconstructConfig, s: dict) -> Path:
+    """Write ``report.md`` and its PNGs into the run's output folder; return the report path.
 
+    ``res`` is the run's ``pipeline.ReconstructResult``, ``s`` its ``pipeline.summary`` (passed
+    in, so that this module does not import the pipeline that calls it)."""
     out = res.outdir
     slam = res.slam
     main = [k for k in range(len(res.fragments)) if slam.component[k] == 0]
-    from .. import cloud_io
+    from ..io import clouds as cloud_io
     from .outputs import read_tum
 
     map_xyz = cloud_io.xyz(cloud_io.read_ply(out / "map.ply"))
@@ -162,7 +163,6 @@ def write_report(res, cfg: ReconstructConfig) -> Path:
     errors = [plane_fit_errors(sample(f.points), f.up_in_lidar, min_inliers=60, seed=k)
               for k, f in enumerate(res.fragments)]
     stats = plot_plane_violins(out / "report_planes.png", errors)
-    s = summary(res)
 
     def med(kind):
         v = [x["median"] for x in stats[kind]]

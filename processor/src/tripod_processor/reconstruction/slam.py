@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .. import pose_graph as pg
+from ..registration import pose_graph as pg
 from .config import OdometryConfig, SlamConfig
 from .fragments import Fragment
 from .odometry import CloudCache, PairResult, register_fragments

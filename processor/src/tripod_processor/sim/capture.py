@@ -22,8 +22,8 @@ import yaml
 from tripod_shared import velodyne as v
 from tripod_shared.timebase import HOUR_NS
 
-from ..imu_log import write_imu_log
-from ..pcap import PcapWriter
+from ..io.imu_log import write_imu_log
+from ..io.pcap import PcapWriter
 from .config import SimConfig
 from .imu import R_lidar_imu, simulate_imu, wxyz
 from .lidar import (LASER_ELEVATION_DEG, SEQUENCE_NS, Vlp16, gprmc, packet_period_ns,
@@ -198,7 +198,7 @@ def write_recording(out: Path, cfg: SimConfig) -> Path:
     from tripod_shared.messages import Event, ImuSample
     from tripod_shared.recording import RecordingWriter
 
-    from ..replay import IMU, LIDAR, POSITION, ReplaySource
+    from ..io.replay import IMU, LIDAR, POSITION, ReplaySource
 
     src = ReplaySource.open(out)
     first = last = None

@@ -17,10 +17,10 @@ import numpy as np
 
 from tripod_shared import tfp
 from tripod_shared import velodyne as v
-from tripod_shared.timebase import HOUR_NS, unwrap_toh_us
+from tripod_shared.timebase import HOUR_NS, toh_ns_to_unix_ns, unwrap_toh_us
 
-from ..imu_log import ImuLogReader
-from ..pcap import PcapReader
+from ..io.imu_log import ImuLogReader
+from ..io.pcap import PcapReader
 from .capture import CAPTURE_FILE, IMU_FILE, LABELS_FILE, META_FILE, build_rig
 from .config import SimConfig
 from .lidar import FIRING_NS, LASER_RING, LASER_VERT_OFFSET_M, SEQUENCE_NS, sequences_per_packet
@@ -83,11 +83,7 @@ def decode_capture(capture_dir: str | Path, max_packets: int | None = None) -> D
         rel_ns = np.round(pts[:, 4].astype(np.float64) * 1e9).astype(np.int64)
         if dev_s < 3600.0:  # seconds past the hour: put the hour back using the host stamp
             ref = int(round(host_s * 1e9)) + off
-            stamp_ns = ref - ref % HOUR_NS + int(round(dev_s * 1e9))
-            if stamp_ns - ref > HOUR_NS // 2:
-                stamp_ns -= HOUR_NS
-            elif ref - stamp_ns > HOUR_NS // 2:
-                stamp_ns += HOUR_NS
+            stamp_ns = toh_ns_to_unix_ns(int(round(dev_s * 1e9)), ref)
         else:  # velodyne-decoder 3 already resolved the hour: UNIX time on the lidar clock
             stamp_ns = int(round(dev_s * 1e9))
         lidar_ns = stamp_ns + rel_ns

@@ -314,24 +314,11 @@ class Vlp16:
 # ------------------------------------------------------------------------- position packets
 
 
-def _nmea_checksum(body: str) -> str:
-    c = 0
-    for ch in body.encode("ascii"):
-        c ^= ch
-    return f"{c:02X}"
-
-
 def gprmc(unix_ns: int, lat_deg: float, lon_deg: float) -> str:
     """A GPRMC sentence for UTC time ``unix_ns`` at a fixed position (speed 0)."""
-    import datetime as _dt
+    from tripod_shared.nmea import format_rmc
 
-    t = _dt.datetime.fromtimestamp(unix_ns / 1e9, tz=_dt.timezone.utc)
-    la, lo = abs(lat_deg), abs(lon_deg)
-    lat = f"{int(la):02d}{(la - int(la)) * 60:010.7f}"
-    lon = f"{int(lo):03d}{(lo - int(lo)) * 60:010.7f}"
-    body = (f"GPRMC,{t:%H%M%S}.{t.microsecond // 10000:02d},A,{lat},{'N' if lat_deg >= 0 else 'S'},"
-            f"{lon},{'E' if lon_deg >= 0 else 'W'},0.000,0.0,{t:%d%m%y},0.0,E,A")
-    return f"${body}*{_nmea_checksum(body)}"
+    return format_rmc(unix_ns, lat_deg, lon_deg)
 
 
 def position_packet(toh_us: int, pps_state: int, nmea: str) -> bytes:

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from tripod_shared import velodyne as vl
+from tripod_shared.timebase import TohChunkUnwrapper
 
 from .pcap import PcapFormatError, PcapReader, sniff_format
 
@@ -190,22 +191,15 @@ class PayloadFileSource(PacketSource):
         """The file read ``max_data`` packets at a time, straight into arrays."""
         self.report = SourceReport()
         size = vl.DATA_PACKET_SIZE
-        hour_ns = 3_600_000_000_000
-        base_ns = 0
-        last_toh_ns = None
+        unwrap = TohChunkUnwrapper()  # no host time: device time since the first hour
         with open(self.path, "rb") as fh:
             while True:
                 block = fh.read(size * max_data)
                 n = len(block) // size
                 if n:
                     arr = np.frombuffer(block, np.uint8, count=n * size).reshape(n, size)
-                    toh_ns = arr[:, 1200:1204].copy().view("<u4").ravel().astype(np.int64) * 1000
-                    prev = np.empty(n, np.int64)
-                    prev[0] = toh_ns[0] if last_toh_ns is None else last_toh_ns
-                    prev[1:] = toh_ns[:-1]
-                    base = base_ns + np.cumsum(toh_ns < prev - hour_ns // 2) * hour_ns
-                    base_ns, last_toh_ns = int(base[-1]), int(toh_ns[-1])
-                    yield PacketBatch(base + toh_ns, arr, [])
+                    toh_us = arr[:, vl.TIMESTAMP_OFFSET : vl.TIMESTAMP_OFFSET + 4].copy()
+                    yield PacketBatch(unwrap(toh_us.view("<u4").ravel()), arr, [])
                 if len(block) % size:
                     self.report.truncated = True
                     self.report.detail = (

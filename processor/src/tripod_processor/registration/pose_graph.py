@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import _ext
+from .. import _ext
 
 LOSSES = ("none", "huber", "cauchy", "soft_l1")
 

@@ -337,7 +337,7 @@ def _iter_pcap_batches(fh: BinaryIO, head: bytes, stats: PcapStats, data_size: i
     """Batch path of :func:`_iter_pcap_payloads`: 1 MiB of records at a time, scanned in C++
     (``tripod_core/pcap_scan``: the same plain Ethernet/IPv4/UDP rules), data payloads copied
     out into one array; records off the plain path go through :func:`_parse_frame`."""
-    from . import _ext
+    from .. import _ext
 
     e = "<" if struct.unpack_from("<I", head)[0] in (PCAP_MAGIC_US, PCAP_MAGIC_NS) else ">"
     magic = struct.unpack_from(e + "I", head)[0]

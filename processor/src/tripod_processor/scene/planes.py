@@ -23,8 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import _ext
-from .preprocess import as_cloud
+from ..preprocess import as_cloud, local_shape
 
 CEILING, FLOOR, WALL, OTHER = 0, 1, 2, 3
 PLANAR_CLASSES = (CEILING, FLOOR, WALL)
@@ -218,7 +217,7 @@ def extract_planes(points, labels, *, classes=PLANAR_CLASSES, min_points: int = 
         if len(idx_all) < min_points:
             continue
         P = p32[idx_all].astype(np.float64)
-        ls = _ext.voxel_local_shape(np.ascontiguousarray(p32[idx_all]), 0.05, 1, int(num_threads))
+        ls = local_shape(p32[idx_all], 0.05, num_threads)
         N = ls[:, :3].astype(np.float64)
         planar = (ls[:, 4] - ls[:, 3]) / np.maximum(ls[:, 5], 1e-12) > 0.5
         # search on a random subset (fast), then give each segment all its points (accurate)

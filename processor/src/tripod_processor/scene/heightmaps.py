@@ -118,9 +118,9 @@ def plane_heightmap(points, plane: Plane, *, pixel: float = 0.05, behind: float 
     d = plane.distance(P)
     near = np.flatnonzero((d > -behind) & (d < relief))
     if normals is None:
-        from . import _ext
+        from ..preprocess import point_normals
 
-        nrm = _ext.voxel_local_shape(np.ascontiguousarray(P[near], np.float32), 0.05, 1, 0)[:, :3]
+        nrm = point_normals(P[near].astype(np.float32), 0.05)
     else:
         nrm = np.asarray(normals)[near]
     near = near[np.abs(nrm @ plane.normal) > np.cos(np.deg2rad(facing_deg))]
@@ -300,7 +300,7 @@ def relief_rmse(hm: Heightmap, raycasting_scene, behind: float = 0.10, relief: f
 
 def register_by_heightmaps(source, target, **kwargs):
     """Registration by heightmap matching; see
-    :func:`tripod_processor.heightmap_registration.register_by_heightmaps` (re-exported here)."""
+    :func:`tripod_processor.scene.heightmap_registration.register_by_heightmaps` (re-exported here)."""
     from .heightmap_registration import register_by_heightmaps as _register
 
     return _register(source, target, **kwargs)

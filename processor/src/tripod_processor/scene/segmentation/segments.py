@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import _ext
+from ...preprocess import local_shape, voxel_assign
 
 SEGMENT_VOXEL = 0.10  # [m] grid of the region growing; normals from its 3x3x3 (30 cm) cube
 MIN_PLANARITY = 0.5  # (l1 - l0) / l2 of a voxel's neighbourhood to take part
@@ -57,11 +57,11 @@ def planar_segments(points, num_threads: int = 0, voxel: float = SEGMENT_VOXEL,
     segment = np.full(n, -1, np.int64)
     if n == 0:
         return stats, normal_z, segment
-    cen, point_voxel, counts = _ext.voxel_assign(p, voxel, int(num_threads))
+    cen, point_voxel, counts = voxel_assign(p, voxel, num_threads)
     m = len(cen)
     if m == 0:
         return stats, normal_z, segment
-    ls = _ext.voxel_local_shape(cen, voxel, 1, int(num_threads))
+    ls = local_shape(cen, voxel, num_threads)
     nrm = ls[:, :3].astype(np.float64)
     l0, l1, l2 = ls[:, 3], ls[:, 4], np.maximum(ls[:, 5], 1e-12)
     planar = ((l1 - l0) / l2 > min_planarity) & (ls[:, 6] >= 4)

@@ -78,8 +78,8 @@ class _Verifier:
                  num_threads: int = 0) -> None:
         from scipy.spatial import cKDTree
 
-        from ..preprocess import voxel_downsample
-        from ..registration import prepare
+        from ...preprocess import voxel_downsample
+        from ...registration.pairwise import prepare
 
         self.max_distance = max_distance
         self.threads = num_threads
@@ -136,7 +136,7 @@ class _Verifier:
         return float((dist < tol).sum() / max(len(p), 1))
 
     def polish(self, T) -> np.ndarray:
-        from ..registration import register
+        from ...registration.pairwise import register
 
         try:
             r = register(self.src, self.tgt, "plane", init=T,
@@ -153,9 +153,8 @@ class _Verifier:
         """Point-to-plane ICP on oriented normals (each facing its scan's viewpoint): a wall
         seen from both of its sides (a partition between two rooms) is two faces, and plain ICP
         would pull them together. Returns (T, fitness, inlier RMSE [m])."""
-        from .. import _ext
-        from ..preprocess import voxel_downsample
-        from ..registration import prepare
+        from ...preprocess import voxel_downsample
+        from ...registration.pairwise import oriented_point_to_plane, prepare
 
         def oriented(P, v):
             return prepare(voxel_downsample(P.astype(np.float32), 0.05), num_neighbors=12,
@@ -165,8 +164,7 @@ class _Verifier:
         T2 = np.ascontiguousarray(T, dtype=np.float64)
         r = None
         for dist in (0.15, 0.08):
-            r = _ext.oriented_point_to_plane(src._native, tgt._native, T2, dist, 15, 0.03, 0.5,
-                                             60_000, int(self.threads))
+            r = oriented_point_to_plane(src, tgt, T2, dist, 15, 0.03, 0.5, 60_000, self.threads)
             T2 = np.asarray(r["T_target_source"], np.float64)
         if not r["linearized"] or not _same_pose(T2, T, 2.0, 0.3):  # ran away: keep verified
             return np.asarray(T), float("nan"), float("nan")

@@ -17,8 +17,8 @@ from typing import Sequence
 
 import numpy as np
 
-from . import _ext
-from .preprocess import as_cloud, voxel_downsample
+from .. import _ext
+from ..preprocess import as_cloud, voxel_downsample
 
 #: Local registration methods: point-to-point (closed-form SVD), point-to-plane, Generalized ICP,
 #: symmetric ICP, and robust non-linear point-to-plane ICP in Ceres' Levenberg-Marquardt.
@@ -424,3 +424,29 @@ def register_global(
         float(rotation_tolerance), int(seed), int(num_threads),
     )
     return GlobalResult(**d)
+
+
+def oriented_point_to_plane(source: PreparedCloud, target: PreparedCloud, T_init,
+                            max_distance: float, iterations: int, point_sigma: float,
+                            min_normal_dot: float = 0.5, max_source: int = 0,
+                            num_threads: int = 0) -> dict:
+    """Point-to-plane ICP over oriented normals (pairs whose normals disagree by more than
+    ``min_normal_dot`` are not matched): the one Python owner of
+    ``_ext.oriented_point_to_plane``.
+
+    Parameters
+    ----------
+    source, target : :class:`PreparedCloud` with viewpoint-oriented normals
+    T_init : (4, 4) initial T_target_source
+    max_distance : correspondence distance [m]; point_sigma : point noise [m]
+    max_source : at most this many source points (0: all)
+
+    Returns
+    -------
+    dict: ``T_target_source`` (4, 4), ``H`` (6, 6) Gauss-Newton Hessian, ``fitness``, ``rmse`` [m],
+    ``linearized`` (False when too few pairs were found).
+    """
+    return _ext.oriented_point_to_plane(source._native, target._native,
+                                        np.ascontiguousarray(T_init, dtype=np.float64),
+                                        float(max_distance), int(iterations), float(point_sigma),
+                                        float(min_normal_dot), int(max_source), int(num_threads))

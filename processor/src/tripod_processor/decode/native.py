@@ -28,7 +28,7 @@ import numpy as np
 import velodyne_decoder as vd
 import yaml
 
-from . import _ext
+from .. import _ext
 
 #: Per-point fields of a frame: packed little-endian, 20 bytes (4-byte fields aligned); the
 #: layout of the C++ ``tripod::Vlp16Point``; a PLY/PCD body is this array's bytes.

@@ -57,16 +57,17 @@ from typing import Literal
 import numpy as np
 import velodyne_decoder as vd
 from pydantic import Field
+from tripod_shared import nmea as nmea_
 from tripod_shared import velodyne as vl
+from tripod_shared.timebase import TohChunkUnwrapper, nearest_hour_ns
 from tripod_shared.config_io import StrictModel
 
-from .native_decoder import POINT_DTYPE, CalibrationError, NativeVlp16Decoder
-from .packet_sources import PacketBatch, PacketSource, SourceError, group_packets, open_source
+from .native import POINT_DTYPE, CalibrationError, NativeVlp16Decoder
+from ..io.packets import PacketBatch, PacketSource, SourceError, group_packets, open_source
 
 #: VLP-16 firing order of each ring: lasers alternate -15°, +1°, -13°, +3°, ...
 _LASER_OF_RING = np.array([0, 2, 4, 6, 8, 10, 12, 14, 1, 3, 5, 7, 9, 11, 13, 15], np.uint8)
 
-HOUR_NS = 3_600_000_000_000
 _FIRST_CAPACITY = 32_768  # points; a VLP-16 rotation holds up to 28,800 (5 Hz, single return)
 _I32_MAX = 2**31 - 1
 _BLOCK_NS = 110_592  # one VLP-16 data block: two firing sequences of 55.296 µs
@@ -335,19 +336,6 @@ def _calibration(name: str, sensor: str):
         raise DecodeError(f"cannot read the calibration {name!r}: {exc}") from None
 
 
-def _nmea_checksum_ok(sentence: str) -> bool:
-    if not sentence.startswith("$") or "*" not in sentence:
-        return False
-    body, _, cs = sentence[1:].partition("*")
-    x = 0
-    for ch in body:
-        x ^= ord(ch)
-    try:
-        return int(cs[:2], 16) == x
-    except ValueError:
-        return False
-
-
 class FrameDecoder:
     """Streaming decoder: feed ``(host_ns, payload)`` packets, get :class:`Frame` objects.
 
@@ -421,8 +409,7 @@ class FrameDecoder:
         self._patch_product = False
         self._prev_az = -1  # azimuth of the last block seen
         self._prev_dev_ns = None  # lidar clock of the last packet (unwrapped, absolute)
-        self._prev_toh_ns = None
-        self._hour_base_ns = None
+        self._unwrap: TohChunkUnwrapper | None = None  # lidar_toh -> host_realtime's hours
         self._packet_index = 0
         self._frame_index = 0
         self._buf = np.empty(_FIRST_CAPACITY, POINT_DTYPE)  # points of the open frame
@@ -513,8 +500,8 @@ class FrameDecoder:
     @staticmethod
     def _parse_nmea(nmea: str, payload: bytes) -> tuple[str, bool, tuple | None, str]:
         """(sentence type or 'bad_checksum', has a fix, (lon, lat, alt), ISO UTC time)."""
-        kind = nmea[1:6] if nmea.startswith("$") else "unknown"
-        if not _nmea_checksum_ok(nmea):
+        kind = nmea_.sentence_type(nmea)
+        if not nmea_.checksum_ok(nmea):
             return "bad_checksum", False, None, ""
         try:
             info = vd.TelemetryPacket(payload).parse_nmea()
@@ -555,19 +542,11 @@ class FrameDecoder:
         if (ret != self._return_mode_byte).any():
             rep.warn("the return mode changes within the capture")
         # ---- device clock, unwrapped over hours and put on the host's hour -------------------
-        toh_ns = arr[:, 1200:1204].copy().view("<u4").ravel().astype(np.int64) * 1000
-        if self._hour_base_ns is None:
-            h0 = int(host_ns[0])
-            self._hour_base_ns = ((h0 - int(toh_ns[0]) + HOUR_NS // 2) // HOUR_NS) * HOUR_NS
-            self._t0_ns = self._hour_base_ns
-            self._prev_toh_ns = int(toh_ns[0])
-        prev = np.empty(k, np.int64)
-        prev[0] = self._prev_toh_ns
-        prev[1:] = toh_ns[:-1]
-        wraps = np.cumsum(toh_ns < prev - HOUR_NS // 2)
-        dev_ns = self._hour_base_ns + toh_ns + wraps * HOUR_NS
-        self._hour_base_ns += int(wraps[-1]) * HOUR_NS
-        self._prev_toh_ns = int(toh_ns[-1])
+        toh_us = arr[:, vl.TIMESTAMP_OFFSET : vl.TIMESTAMP_OFFSET + 4].copy().view("<u4").ravel()
+        if self._unwrap is None:
+            self._unwrap = TohChunkUnwrapper(nearest_hour_ns(int(toh_us[0]), int(host_ns[0])))
+            self._t0_ns = self._unwrap.base_ns
+        dev_ns = self._unwrap(toh_us)
         if rep.first_device_ns is None:
             rep.first_device_ns = int(dev_ns[0])
             self._prev_dev_ns = int(dev_ns[0]) - self._period_ns

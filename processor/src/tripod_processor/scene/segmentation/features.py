@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import _ext
-from ..preprocess import as_cloud
+from ... import _ext
+from ...preprocess import as_cloud, local_shape, voxel_assign
 from .segments import planar_segments
 
 FEATURE_NAMES = (
@@ -88,11 +88,11 @@ def point_features(points, num_threads: int = 0, return_segments: bool = False):
     """
     p = as_cloud(points)
     nt = int(num_threads)
-    ls_s = _ext.voxel_local_shape(p, SMALL_VOXEL, 1, nt)
-    ls_l = _ext.voxel_local_shape(p, LARGE_VOXEL, 1, nt)
+    ls_s = local_shape(p, SMALL_VOXEL, nt)
+    ls_l = local_shape(p, LARGE_VOXEL, nt)
     nz_s, lin_s, pla_s, sca_s = _shape(ls_s)
     nz_l, lin_l, pla_l, sca_l = _shape(ls_l)
-    xl = _shape(_ext.voxel_local_shape(p, XL_VOXEL, 1, nt))
+    xl = _shape(local_shape(p, XL_VOXEL, nt))
     z = p[:, 2]
     z_floor, z_ceil = floor_and_ceiling(z, nz_s)
     room_h = z_ceil - z_floor
@@ -141,7 +141,7 @@ def voxel_features(points, num_threads: int = 0, return_segments: bool = False):
     segment : (M,) int64 planar segment of every voxel, only with ``return_segments``
     """
     p = as_cloud(points)
-    centroids, point_voxel, _ = _ext.voxel_assign(p, LABEL_VOXEL, int(num_threads))
+    centroids, point_voxel, _ = voxel_assign(p, LABEL_VOXEL, num_threads)
     if return_segments:
         f, segment = point_features(centroids, num_threads, return_segments=True)
         return f, point_voxel, segment

@@ -1,0 +1,15 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""Decoding: lidar packets → frames of points, with a report of what the capture held.
+
+:mod:`.decoder` is the streaming frame decoder (packets from :mod:`tripod_processor.io`, one
+frame per revolution, gaps, position packets); :mod:`.native` is the C++ core's batch VLP-16
+decoder it calls.
+"""
+
+from .decoder import (DecodeConfig, DecodeError, DecodeReport, DecodeRun, Frame, FrameDecoder,
+                      Gap, PositionReport, decode_file, identify_sensor, to_veloview_xyz)
+from .native import POINT_DTYPE, CalibrationError, NativeVlp16Decoder
+
+__all__ = ["CalibrationError", "DecodeConfig", "DecodeError", "DecodeReport", "DecodeRun",
+           "Frame", "FrameDecoder", "Gap", "NativeVlp16Decoder", "POINT_DTYPE",
+           "PositionReport", "decode_file", "identify_sensor", "to_veloview_xyz"]
