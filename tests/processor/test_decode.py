@@ -491,3 +491,36 @@ def test_cut_pcapng_is_called_a_pcapng_block(velodyne_dir, tmp_path, capsys):
     code, out, err = _cli(capsys, ng, "--summary")
     assert code == 0 and json.loads(out)["truncated"]
     assert "ends inside a pcapng block" in err and "pcap record" not in err
+
+
+def test_azimuth_filter_keeps_the_view_width(velodyne_dir, capsys):
+    path = velodyne_dir / "mrpt-vlp16-gps.pcap"
+    full = np.concatenate([f.points for f in decode_file(path)])
+
+    def points(lo, hi, decoder="native"):
+        cfg = DecodeConfig(azimuth_min_deg=lo, azimuth_max_deg=hi, decoder=decoder)
+        return np.concatenate([f.points for f in decode_file(path, cfg)])
+
+    def azimuth_deg(p):  # the sensor's azimuth: 0 along +x, clockwise seen from above
+        return np.degrees(np.arctan2(-p["y"], p["x"])) % 360
+
+    # a range within one turn: velodyne-decoder's filter, point for point
+    a, b = points(0, 180), points(0, 180, "velodyne_decoder")
+    np.testing.assert_array_equal(a[["x", "y", "z", "intensity", "ring"]],
+                                  b[["x", "y", "z", "intensity", "ring"]])
+    # (a laser's own azimuth offset puts a few returns up to ~1.5 deg past the block's)
+    assert 0.3 * len(full) < len(a) < 0.7 * len(full)
+    az = azimuth_deg(a)
+    assert ((az <= 182) | (az >= 358)).all()
+    # across 0: the front half (x >= 0), which velodyne-decoder cannot give
+    front = points(270, 90)
+    az = azimuth_deg(front)
+    assert ((az <= 92) | (az >= 268)).all() and (front["x"] > -0.1).all()
+    assert 0.3 * len(full) < len(front) < 0.7 * len(full)
+    with pytest.raises(DecodeError, match="needs decoder: native"):
+        points(270, 90, "velodyne_decoder")
+    code, out, _err = _cli(capsys, path, "--summary", "--azimuth-min", "270",
+                           "--azimuth-max", "90")
+    assert code == 0 and json.loads(out)["points"] == len(front)
+    code, _out, err = _cli(capsys, path, "--summary", "--azimuth-min", "-5")
+    assert code == 2 and "azimuth_min_deg" in err

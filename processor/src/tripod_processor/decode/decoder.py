@@ -94,12 +94,12 @@ class DecodeConfig(StrictModel):
         "is always dropped; the default keeps every other return, like VeloView)")
     max_range_m: float = Field(200.0, gt=0, description="drop returns farther than this [m]")
     azimuth_min_deg: float = Field(
-        0.0, description="keep only returns with azimuth in [azimuth_min_deg, azimuth_max_deg] "
+        0.0, ge=0, le=360, description="keep only returns with azimuth in [azimuth_min_deg, azimuth_max_deg] "
         "[deg] (the view width; velodyne-decoder's min_angle). Azimuth is the sensor's own: "
         "0 along +x (forward), growing clockwise seen from above (90 = -y, right); a range "
         "that crosses 0 (e.g. 270 to 90) keeps the front half. Equal values keep everything")
     azimuth_max_deg: float = Field(
-        360.0, description="end of the kept azimuth range [deg] (velodyne-decoder's max_angle)")
+        360.0, ge=0, le=360, description="end of the kept azimuth range [deg] (velodyne-decoder's max_angle)")
     max_gap_in_frame_s: float = Field(
         0.2, gt=0, description="a silence longer than this [s] starts a new frame")
     gap_factor: float = Field(
@@ -463,6 +463,9 @@ class FrameDecoder:
             except CalibrationError as exc:
                 raise DecodeError(str(exc)) from None
         else:
+            if cfg.azimuth_min_deg > cfg.azimuth_max_deg:
+                raise DecodeError("an azimuth range across 0 needs decoder: native "
+                                  "(velodyne-decoder keeps [max, min] instead)")
             self._scan_decoder = vd.ScanDecoder(vd.Config(
                 model=self._model, calibration=calibration, min_range=cfg.min_range_m,
                 max_range=cfg.max_range_m, min_angle=cfg.azimuth_min_deg,
