@@ -55,7 +55,9 @@ T* data_of(std::unique_ptr<T[]>& c) {
 /// Eigen matrix or a std::unique_ptr<T[]>) to the heap and return a numpy array of `shape` over
 /// its storage, owned by a capsule that deletes it when the array dies (no copy). `Extra` adds
 /// nanobind ndarray annotations (nb::shape<-1, 3>, nb::ndim<1>) for the stubs. The registration
-/// bindings may adopt it too; keep the name stable.
+/// bindings may adopt it too; keep the name stable. A result class that holds such arrays
+/// exposes them with nb::rv_policy::reference (the array has its owner already; the default
+/// reference_internal would refuse it).
 template <typename... Extra, typename Container>
 auto owned_array(Container&& container, std::initializer_list<size_t> shape) {
     using C = std::decay_t<Container>;

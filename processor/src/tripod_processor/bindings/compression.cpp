@@ -2,6 +2,7 @@
 // Bindings: the geometry codecs, octree (tripod_core/octree_codec.hpp) and predictive scan
 // coding (tripod_core/predictive_codec.hpp). Conversions and docstrings only. Python owners:
 // tripod_processor.compression.codec (octree) and .predictive.
+#include <nanobind/stl/array.h>
 #include <nanobind/stl/tuple.h>
 #include <nanobind/stl/vector.h>
 

@@ -126,14 +126,14 @@ void bind_pcap_scan(nb::module_& m) {
         .def_ro("oversize_bytes", &PcapScanArrays::oversize_bytes,
                 "bytes claimed by the record that stopped the scan as corrupt, or 0")
         .def_ro("data", &PcapScanArrays::data, "(n, data_size) uint8 payloads of plain "
-                "Ethernet/IPv4/UDP records")
-        .def_ro("data_t_ns", &PcapScanArrays::data_t_ns, "(n,) int64 capture time [ns]")
-        .def_ro("data_port", &PcapScanArrays::data_port, "(n,) uint16 UDP destination port")
-        .def_ro("data_record", &PcapScanArrays::data_record, "(n,) int64 record index")
+                "Ethernet/IPv4/UDP records", nb::rv_policy::reference)
+        .def_ro("data_t_ns", &PcapScanArrays::data_t_ns, "(n,) int64 capture time [ns]", nb::rv_policy::reference)
+        .def_ro("data_port", &PcapScanArrays::data_port, "(n,) uint16 UDP destination port", nb::rv_policy::reference)
+        .def_ro("data_record", &PcapScanArrays::data_record, "(n,) int64 record index", nb::rv_policy::reference)
         .def_ro("other", &PcapScanArrays::other, "(k, 4) int64 [t_ns, payload offset, length, "
-                "port] of other plain payloads")
+                "port] of other plain payloads", nb::rv_policy::reference)
         .def_ro("slow", &PcapScanArrays::slow, "(m, 4) int64 [t_ns, frame offset, length, "
-                "record index] of records to parse in Python");
+                "record index] of records to parse in Python", nb::rv_policy::reference);
     m.def("_scan_pcap_records", &scan_records, nb::arg("buf"), nb::arg("layout"),
           nb::arg("data_size"), nb::arg("max_record_bytes"),
           "Scan the whole classic-pcap records at the start of buf (uint8) (private: use "
@@ -198,13 +198,13 @@ void bind_vlp16_decoder(nb::module_& m) {
         .def_rw("max_angle_deg", &tripod::Vlp16DecoderConfig::max_angle_deg,
                 "... clockwise to here [deg]; across 0 when min > max");
     nb::class_<DecodedChunk>(m, "_DecodedChunk", "What one _Vlp16Decoder.decode call gave")
-        .def_ro("points", &DecodedChunk::points, "(M, 20) uint8 = POINT_DTYPE records")
+        .def_ro("points", &DecodedChunk::points, "(M, 20) uint8 = POINT_DTYPE records", nb::rv_policy::reference)
         .def_ro("time_s", &DecodedChunk::time_s,
-                "(M,) float32 velodyne-decoder time since packet 0 [s], or empty")
+                "(M,) float32 velodyne-decoder time since packet 0 [s], or empty", nb::rv_policy::reference)
         .def_ro("block_first_point", &DecodedChunk::block_first_point,
-                "(N*12+1,) int64 first point of each flat block")
+                "(N*12+1,) int64 first point of each flat block", nb::rv_policy::reference)
         .def_ro("status", &DecodedChunk::status,
-                "(N,) uint8 per packet: 0 ok, 1 bad block header (the blocks before it kept)")
+                "(N,) uint8 per packet: 0 ok, 1 bad block header (the blocks before it kept)", nb::rv_policy::reference)
         .def_ro("time_offset_clipped", &DecodedChunk::time_offset_clipped)
         .def_ro("return_type_after", &DecodedChunk::return_type_after,
                 "pass it as return_type_before of the next chunk");

@@ -44,10 +44,10 @@ TRIPOD_BINDING(local_shape) {
         "points: (N,3) float32 [m]; returns (N,7) float32: nx ny nz l0 l1 l2 count.");
 
     nb::class_<VoxelAssignment>(m, "_VoxelAssignment", "What voxel_assign found")
-        .def_ro("centroids", &VoxelAssignment::centroids, "(M, 3) float32 voxel centroids [m]")
+        .def_ro("centroids", &VoxelAssignment::centroids, "(M, 3) float32 voxel centroids [m]", nb::rv_policy::reference)
         .def_ro("point_voxel", &VoxelAssignment::point_voxel,
-                "(N,) int32 voxel of each point (-1 for non-finite points)")
-        .def_ro("counts", &VoxelAssignment::counts, "(M,) int32 points per voxel");
+                "(N,) int32 voxel of each point (-1 for non-finite points)", nb::rv_policy::reference)
+        .def_ro("counts", &VoxelAssignment::counts, "(M,) int32 points per voxel", nb::rv_policy::reference);
     m.def(
         "voxel_assign",
         [](CloudIn points, double voxel_size, int num_threads) {

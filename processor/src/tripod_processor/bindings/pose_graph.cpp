@@ -87,18 +87,18 @@ TRIPOD_BINDING(pose_graph) {
 
     using Res = tripod::PoseGraphResult;
     nb::class_<Res>(m, "_PoseGraphResult", "What optimize_pose_graph found")
-        .def_prop_ro("T_world_node", &poses_array, "(n, 4, 4) float64 optimised poses")
+        .def_prop_ro("T_world_node", &poses_array, "(n, 4, 4) float64 optimised poses", nb::rv_policy::reference)
         .def_prop_ro(
             "edge_chi2",
             [](const Res& r) { return owned_array(std::vector<double>(r.edge_chi2)); },
-            "(m,) float64 whitened squared error of each edge")
+            "(m,) float64 whitened squared error of each edge", nb::rv_policy::reference)
         .def_prop_ro(
             "edge_inlier",
             [](const Res& r) {
                 return owned_array(
                     std::vector<uint8_t>(r.edge_inlier.begin(), r.edge_inlier.end()));
             },
-            "(m,) uint8: 0 for rejected edges")
+            "(m,) uint8: 0 for rejected edges", nb::rv_policy::reference)
         .def_ro("initial_cost", &Res::initial_cost)
         .def_ro("final_cost", &Res::final_cost)
         .def_ro("iterations", &Res::iterations, "summed over all solves")

@@ -30,10 +30,10 @@ nb::ndarray<nb::numpy, float, nb::shape<-1, 33>> fpfh_to_numpy(tripod::MatrixX33
 
 TRIPOD_BINDING(preprocess) {
     nb::class_<Normals>(m, "_Normals", "What estimate_normals found")
-        .def_ro("normals", &Normals::normals, "(N, 3) float64 unit normals towards the viewpoint")
-        .def_ro("covariances", &Normals::covariances, "(N, 9) float64 row-major 3x3 [m^2]")
-        .def_ro("curvature", &Normals::curvature, "(N,) float64 lambda_min / sum (0 = flat)")
-        .def_ro("valid", &Normals::valid, "(N,) bool: >= 3 non-collinear neighbours");
+        .def_ro("normals", &Normals::normals, "(N, 3) float64 unit normals towards the viewpoint", nb::rv_policy::reference)
+        .def_ro("covariances", &Normals::covariances, "(N, 9) float64 row-major 3x3 [m^2]", nb::rv_policy::reference)
+        .def_ro("curvature", &Normals::curvature, "(N,) float64 lambda_min / sum (0 = flat)", nb::rv_policy::reference)
+        .def_ro("valid", &Normals::valid, "(N,) bool: >= 3 non-collinear neighbours", nb::rv_policy::reference);
     m.def(
         "voxel_downsample",
         [](CloudIn points, double voxel_size, int num_threads, bool align_min_bound) {

@@ -463,9 +463,9 @@ class FrameDecoder:
             except CalibrationError as exc:
                 raise DecodeError(str(exc)) from None
         else:
-            if cfg.azimuth_min_deg > cfg.azimuth_max_deg:
-                raise DecodeError("an azimuth range across 0 needs decoder: native "
-                                  "(velodyne-decoder keeps [max, min] instead)")
+            if cfg.azimuth_min_deg % 360 > cfg.azimuth_max_deg % 360:  # 360 is 0 to it
+                raise DecodeError("an azimuth range across 0 (or ending at 360) needs decoder: "
+                                  "native (velodyne-decoder keeps [max, min] instead)")
             self._scan_decoder = vd.ScanDecoder(vd.Config(
                 model=self._model, calibration=calibration, min_range=cfg.min_range_m,
                 max_range=cfg.max_range_m, min_angle=cfg.azimuth_min_deg,
