@@ -58,7 +58,9 @@ def test_column_context_is_the_same_on_every_side_of_the_grid():
     z = np.full_like(t, 1.0)
     walls = [np.c_[t, 0 * t, z], np.c_[t, 0 * t + 4, z], np.c_[0 * t, t, z], np.c_[0 * t + 4, t, z]]
     p = np.concatenate(walls).astype(np.float32)
-    cc = _ext.column_context(p, np.ones(len(p), np.uint8), 0.1, 0.2, 2.5, 16, 0.25, 100.0, 1)
+    opt = _ext._ColumnContextOptions()
+    opt.cell_size, opt.z_low, opt.z_high, opt.max_range, opt.num_threads = 0.1, 0.2, 2.5, 100.0, 1
+    cc = _ext.column_context(p, np.ones(len(p), np.uint8), opt)
     mid = [200, 600, 1000, 1400]  # the middle of each wall
     assert np.ptp(cc[mid, 0]) == 0.0, cc[mid, 0]
     assert 0.3 < cc[mid[0], 0] < 0.6  # about half of the rays leave the room outward
