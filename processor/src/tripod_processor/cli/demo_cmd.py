@@ -125,8 +125,6 @@ def demo_command(
                                                   "time)"),
 ) -> None:
     """Simulate a capture, record it with the daemon over loopback, reconstruct it, check it."""
-    from rich.table import Table
-
     from ..reconstruction.config import ReconstructConfig
     from ..reconstruction.evaluation import evaluate_run, load_sim_truth
     from ..reconstruction.inputs import RecordingError
@@ -134,7 +132,6 @@ def demo_command(
     from ..reconstruction.placement import load_extrinsic_file
     from ..io.replay import PtyImuSink, Replayer, ReplaySource
     from ..sim import SimConfig, simulate
-    from .reconstruct_cmd import results_table
     from tripod_shared.config_io import load_config
 
     output.mkdir(parents=True, exist_ok=True)
@@ -209,7 +206,15 @@ def demo_command(
     s.update(acc)
     (recon_dir / "accuracy.json").write_text(json.dumps(acc, indent=2) + "\n")
 
+    _print_results(steps, time.perf_counter() - t_all, s, acc, res, recon_dir)
+
+
+def _print_results(steps, total_s: float, s: dict, acc: dict, res, recon_dir: Path) -> None:
+    """The demo's tables: steps and times, the run's results, accuracy against the truth."""
     from rich.console import Console
+    from rich.table import Table
+
+    from .reconstruct_cmd import results_table
 
     out = Console()
     t = Table(title="tripod demo: simulate → daemon → replay → reconstruct")
@@ -218,7 +223,7 @@ def demo_command(
     t.add_column("wall [s]", justify="right")
     for name, what, dt in steps:
         t.add_row(name, what, f"{dt:.1f}")
-    t.add_row("total", "", f"{time.perf_counter() - t_all:.1f}")
+    t.add_row("total", "", f"{total_s:.1f}")
     out.print(t)
     out.print(results_table(s, "reconstruction of the daemon's recording"))
     a = Table(title="accuracy against the simulator's truth")

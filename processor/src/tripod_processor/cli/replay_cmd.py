@@ -62,8 +62,6 @@ def replay_cmd(
     """Replay packets and IMU bytes with the original timing; print counts, rate and jitter."""
     import time
 
-    from rich.table import Table
-
     from tripod_shared import tfp
 
     from ..io.imu_log import ImuLogError
@@ -110,14 +108,21 @@ def replay_cmd(
     finally:
         if sink is not None:
             sink.close()
-    t = Table(title=f"tripod replay {input}")
+    _print_stats(stats, str(input), sink is not None)
+
+
+def _print_stats(stats, source: str, with_imu: bool) -> None:
+    """The replay's results table, on stdout."""
+    from rich.table import Table
+
+    t = Table(title=f"tripod replay {source}")
     t.add_column("quantity")
     t.add_column("value", justify="right")
     for k, n in stats.sent.items():
         t.add_row(f"{k} sent", str(n))
     if stats.send_errors:
         t.add_row("send errors", str(stats.send_errors))
-    if sink is not None:
+    if with_imu:
         t.add_row("IMU bytes sent / dropped", f"{stats.imu_bytes_sent} / {stats.imu_bytes_dropped}")
     t.add_row("capture span (s)", f"{stats.capture_span_s:.3f}")
     t.add_row("wall time (s)", f"{stats.wall_s:.3f}")

@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-VLP16_ELEVATIONS_DEG = np.arange(-15.0, 16.0, 2.0)  # 16 beams
+from ..sim.beams import LASER_ELEVATION_DEG, RING_ELEVATION_DEG, directions
+
+VLP16_ELEVATIONS_DEG = RING_ELEVATION_DEG  # 16 beams
 VLP16_AZIMUTH_STEP_DEG = 0.2
 
 
@@ -96,8 +98,7 @@ def vlp16_fragment(mesh, station: np.ndarray, rng: np.random.Generator, n_revolu
     el = np.deg2rad(VLP16_ELEVATIONS_DEG)
     az = np.deg2rad(np.arange(0.0, 360.0, VLP16_AZIMUTH_STEP_DEG))
     ee, aa = np.meshgrid(el, az, indexing="ij")
-    dirs_lidar = np.stack([np.cos(ee) * np.cos(aa), np.cos(ee) * np.sin(aa), np.sin(ee)], -1)
-    dirs_lidar = dirs_lidar.reshape(-1, 3)
+    dirs_lidar = directions(aa, ee).reshape(-1, 3)
     out = []
     for _ in range(n_revolutions):
         tilt, yaw = rng.uniform(-np.pi / 2, np.pi / 2), rng.uniform(0, 2 * np.pi)
@@ -123,7 +124,7 @@ def random_fragment(seed: int, n_revolutions: int = 24) -> np.ndarray:
 
 
 # VLP-16 firing order: lasers 0..15 fire in this sequence of elevations [deg]
-VLP16_FIRING_ORDER_DEG = (-15, 1, -13, 3, -11, 5, -9, 7, -7, 9, -5, 11, -3, 13, -1, 15)
+VLP16_FIRING_ORDER_DEG = tuple(int(e) for e in LASER_ELEVATION_DEG)
 
 
 def ordered_scan(seed: int, n_revolutions: float = 1.0, room=(6.0, 4.5, 2.8),
@@ -149,7 +150,7 @@ def ordered_scan(seed: int, n_revolutions: float = 1.0, room=(6.0, 4.5, 2.8),
     az = np.deg2rad(np.arange(0.0, 360.0 * n_revolutions, 0.2) + rng.uniform(0, 360))
     el = np.deg2rad(np.asarray(VLP16_FIRING_ORDER_DEG, np.float64))
     aa, ee = np.meshgrid(az, el, indexing="ij")  # azimuth-major: firing after firing
-    d = np.stack([np.cos(ee) * np.cos(aa), np.cos(ee) * np.sin(aa), np.sin(ee)], -1).reshape(-1, 3)
+    d = directions(aa, ee).reshape(-1, 3)
     o = np.zeros((len(az), len(el), 3))
     if laser_z_m is not None:
         o[:, :, 2] = np.asarray(laser_z_m, np.float64).reshape(len(el))

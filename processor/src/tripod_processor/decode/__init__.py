@@ -3,7 +3,8 @@
 
 :mod:`.decoder` is the streaming frame decoder (packets from :mod:`tripod_processor.io`, one
 frame per revolution, gaps, position packets); :mod:`.native` is the C++ core's batch VLP-16
-decoder it calls.
+decoder it calls; :mod:`.timed` decodes packet ranges into points with their own lidar time
+(the reconstruction's decoding).
 """
 
 from .decoder import (DecodeConfig, DecodeError, DecodeReport, DecodeRun, Frame, FrameDecoder,

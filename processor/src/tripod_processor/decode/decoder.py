@@ -522,7 +522,36 @@ class FrameDecoder:
     def _process(self, host_ns: np.ndarray, arr: np.ndarray) -> Iterator[Frame]:
         """Decode one chunk of data packets ((k,) int64 host_ns, (k, 1206) uint8) and emit the
         frames it completes."""
-        rep, cfg = self.report, self.config
+        kept = self._valid_packets(host_ns, arr)
+        if kept is None:
+            return
+        host_ns, arr, blocks = kept
+        k = len(arr)
+        dev_ns = self._device_clock(host_ns, arr)
+        dt, gap_idx = self._gaps(dev_ns)
+        az_flat, split = self._frame_boundaries(blocks, dt)
+        # ---- decode --------------------------------------------------------------------------
+        dual = self._return_mode_byte == vl.RETURN_DUAL
+        split_blocks = np.flatnonzero(split)
+        starts = np.concatenate(([0], split_blocks))  # segments: [starts[s], ends[s]) blocks
+        ends = np.concatenate((split_blocks, [k * 12]))
+        continued = self._frame_open  # the first segment goes on with a frame of the last chunk
+        if self._native is not None:
+            raw, pstarts, pends = self._decode_native(arr, dev_ns, starts, ends, dual, continued)
+            ordered = True
+            t_s = None
+        else:
+            raw, t_s, pstarts, pends, ordered = self._decode_velodyne_decoder(
+                arr, dev_ns, split_blocks, dual)
+        yield from self._cut_frames(host_ns, dev_ns, az_flat, gap_idx, starts, ends, pstarts,
+                                    pends, raw, t_s, ordered, dual, continued)
+        self._packet_index += k
+        self.report.packets += k
+
+    def _valid_packets(self, host_ns, arr):
+        """The chunk without packets of a bad header, return mode or other product (counted as
+        skipped): (host_ns, arr, blocks (k, 12, 100)), or None when nothing is left."""
+        rep = self.report
         blocks = arr[:, :1200].reshape(-1, 12, 100)
         ok = (blocks[:, :, 0] == 0xFF).all(1) & (blocks[:, :, 1] == 0xEE).all(1)
         ret = arr[:, vl.RETURN_MODE_OFFSET]
@@ -539,12 +568,16 @@ class FrameDecoder:
             arr = arr[keep]
             blocks = blocks[keep]
             ret = ret[keep]
-        k = len(arr)
-        if k == 0:
-            return
+        if len(arr) == 0:
+            return None
         if (ret != self._return_mode_byte).any():
             rep.warn("the return mode changes within the capture")
-        # ---- device clock, unwrapped over hours and put on the host's hour -------------------
+        return host_ns, arr, blocks
+
+    def _device_clock(self, host_ns, arr) -> np.ndarray:
+        """(k,) int64 lidar time [ns] of each packet: µs past the hour unwrapped over hours and
+        put on the host's hour."""
+        rep = self.report
         toh_us = arr[:, vl.TIMESTAMP_OFFSET : vl.TIMESTAMP_OFFSET + 4].copy().view("<u4").ravel()
         if self._unwrap is None:
             self._unwrap = TohChunkUnwrapper(nearest_hour_ns(int(toh_us[0]), int(host_ns[0])))
@@ -554,7 +587,12 @@ class FrameDecoder:
             rep.first_device_ns = int(dev_ns[0])
             self._prev_dev_ns = int(dev_ns[0]) - self._period_ns
         rep.last_device_ns = int(dev_ns[-1])
-        # ---- gaps -------------------------------------------------------------------------
+        return dev_ns
+
+    def _gaps(self, dev_ns):
+        """(dt (k,) ns since the packet before, indices of the packets after a gap); the gaps
+        are counted in the report."""
+        rep, cfg = self.report, self.config
         dt = np.diff(dev_ns, prepend=self._prev_dev_ns)
         if self._packet_index == 0:
             dt[0] = self._period_ns
@@ -571,7 +609,12 @@ class FrameDecoder:
                 rep.gaps.append(Gap(self._packet_index + int(g) - 1, after_dev, int(dt[g]),
                                     missing))
         self._prev_dev_ns = int(dev_ns[-1])
-        # ---- frame boundaries at block level ------------------------------------------------
+        return dt, gap_idx
+
+    def _frame_boundaries(self, blocks, dt):
+        """(azimuth of every block (k * 12,), True where a block starts a new frame): at the
+        azimuth wrap, and after a gap longer than ``max_gap_in_frame_s``."""
+        rep, cfg = self.report, self.config
         az = blocks[:, :, 2].astype(np.int32) | (blocks[:, :, 3].astype(np.int32) << 8)
         az_flat = az.ravel()
         prev_az = np.empty_like(az_flat)
@@ -583,31 +626,27 @@ class FrameDecoder:
         long_gap = np.flatnonzero(dt > cfg.max_gap_in_frame_s * 1e9)
         split[long_gap * 12] = True  # (a no-op at the stream start: no frame is open)
         self._prev_az = int(az_flat[-1])
-        # ---- decode --------------------------------------------------------------------------
-        dual = self._return_mode_byte == vl.RETURN_DUAL
-        split_blocks = np.flatnonzero(split)
-        starts = np.concatenate(([0], split_blocks))  # segments: [starts[s], ends[s]) blocks
-        ends = np.concatenate((split_blocks, [k * 12]))
-        continued = self._frame_open  # the first segment goes on with a frame of the last chunk
-        if self._native is not None:
-            # one call for the chunk; every point is attributed to its block, so the frames
-            # are cut at block boundaries exactly, whatever the packet order, and each point's
-            # time offset comes out relative to its frame's first firing (exact integer ns)
-            blk = starts % 12
-            seg_ref_ns = dev_ns[starts // 12] + ((blk // 2) if dual else blk) * _BLOCK_NS
-            if continued:
-                seg_ref_ns[0] = self._frame_dev_ns
-            out = self._native.decode(arr, dev_ns, starts, seg_ref_ns)
-            raw = out.points
-            pstarts = out.block_first_point[starts]
-            pends = out.block_first_point[ends]
-            if out.time_offset_clipped:
-                rep.warn("a frame spans more than 2.1 s: its time offsets are clipped")
-            ordered = True
-            t_s = None
-        else:
-            raw, t_s, pstarts, pends, ordered = self._decode_velodyne_decoder(
-                arr, dev_ns, split_blocks, dual)
+        return az_flat, split
+
+    def _decode_native(self, arr, dev_ns, starts, ends, dual, continued):
+        """The chunk through the native decoder: (points, first point of each segment, end
+        point of each segment)."""
+        # one call for the chunk; every point is attributed to its block, so the frames
+        # are cut at block boundaries exactly, whatever the packet order, and each point's
+        # time offset comes out relative to its frame's first firing (exact integer ns)
+        blk = starts % 12
+        seg_ref_ns = dev_ns[starts // 12] + ((blk // 2) if dual else blk) * _BLOCK_NS
+        if continued:
+            seg_ref_ns[0] = self._frame_dev_ns
+        out = self._native.decode(arr, dev_ns, starts, seg_ref_ns)
+        if out.time_offset_clipped:
+            self.report.warn("a frame spans more than 2.1 s: its time offsets are clipped")
+        return out.points, out.block_first_point[starts], out.block_first_point[ends]
+
+    def _cut_frames(self, host_ns, dev_ns, az_flat, gap_idx, starts, ends, pstarts, pends, raw,
+                    t_s, ordered, dual, continued) -> Iterator[Frame]:
+        """Cut the decoded points into frames: emit each frame closed in this chunk, keep the
+        open one's points."""
         # ---- cut into frames (points come in packet, block, firing order) --------------------
         chunk_dev0 = int(dev_ns[0])
         last_seg = len(starts) - 1
@@ -636,35 +675,36 @@ class FrameDecoder:
                 self._view = raw[q0:q1]
                 continue
             if q1 > q0:
-                # one copy per point: the decoder's output straight into the frame
-                n, m = self._n, q1 - q0
-                if n + m > len(self._buf):
-                    grown = np.empty(max(2 * len(self._buf), n + m), POINT_DTYPE)
-                    grown[:n] = self._buf[:n]
-                    self._buf = grown
-                part = self._buf[n : n + m]
-                if t_s is None:
-                    part[...] = raw[q0:q1]
-                    self._n = n + m
-                    continue
-                src = raw[q0:q1]
-                part["x"], part["y"], part["z"] = src["x"], src["y"], src["z"]
-                part["intensity"] = src["intensity"]  # 0..255: velodyne-decoder clamps it
-                ring = src["ring"]
-                part["ring"] = ring
-                part["laser"] = _LASER_OF_RING[ring]
-                part["return_type"] = src["return_type"]
-                t = t_s[q0:q1]
-                off = (t - t.dtype.type((self._frame_dev_ns - chunk_dev0) * 1e-9)) * 1e9
-                np.rint(off, out=off)
-                hi, lo = (off[-1], off[0]) if ordered else (off.max(), off.min())
-                if hi > _I32_MAX or lo < -_I32_MAX:
-                    rep.warn("a frame spans more than 2.1 s: its time offsets are clipped")
-                    np.clip(off, -_I32_MAX, _I32_MAX, out=off)
-                part["time_offset_ns"] = off
-                self._n = n + m
-        self._packet_index += k
-        rep.packets += k
+                self._append(raw[q0:q1], None if t_s is None else t_s[q0:q1], ordered,
+                             chunk_dev0)
+
+    def _append(self, src, t, ordered: bool, chunk_dev0: int) -> None:
+        """Copy decoded points into the open frame's buffer (once per point); ``t`` the float32
+        times [s] of velodyne-decoder's points, None for the native decoder's."""
+        n, m = self._n, len(src)
+        if n + m > len(self._buf):
+            grown = np.empty(max(2 * len(self._buf), n + m), POINT_DTYPE)
+            grown[:n] = self._buf[:n]
+            self._buf = grown
+        part = self._buf[n : n + m]
+        if t is None:
+            part[...] = src
+            self._n = n + m
+            return
+        part["x"], part["y"], part["z"] = src["x"], src["y"], src["z"]
+        part["intensity"] = src["intensity"]  # 0..255: velodyne-decoder clamps it
+        ring = src["ring"]
+        part["ring"] = ring
+        part["laser"] = _LASER_OF_RING[ring]
+        part["return_type"] = src["return_type"]
+        off = (t - t.dtype.type((self._frame_dev_ns - chunk_dev0) * 1e-9)) * 1e9
+        np.rint(off, out=off)
+        hi, lo = (off[-1], off[0]) if ordered else (off.max(), off.min())
+        if hi > _I32_MAX or lo < -_I32_MAX:
+            self.report.warn("a frame spans more than 2.1 s: its time offsets are clipped")
+            np.clip(off, -_I32_MAX, _I32_MAX, out=off)
+        part["time_offset_ns"] = off
+        self._n = n + m
 
     def _decode_velodyne_decoder(self, arr, dev_ns, split_blocks, dual):
         """The chunk through velodyne-decoder: points, their float32 time [s] since packet 0,

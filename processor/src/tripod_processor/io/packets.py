@@ -214,24 +214,17 @@ class McapSource(PacketSource):
     kind = "mcap"
 
     def __iter__(self) -> Iterator[tuple[int, bytes]]:
-        from tripod_shared import messages as m
-        from tripod_shared import topics as t
-        from tripod_shared.recording import RecordingReader
+        from .events import McapEvents
 
         self.report = SourceReport()
-        reader = RecordingReader(self.path)
-        decoders = {t.TOPIC_LIDAR_PACKETS: m.decode_velodyne_packet,
-                    t.TOPIC_LIDAR_POSITION: m.decode_position_packet}
-        for msg in reader.messages(list(decoders)):
-            try:
-                host_ns, payload = decoders[msg.topic](msg.data)
-            except Exception:  # noqa: BLE001 - a corrupt message is counted, never fatal
-                self.report.skip("bad_message")
-                continue
+        events = McapEvents(self.path)  # lidar data and position packets
+        for host_ns, _kind, payload in events:
             yield host_ns, payload
-        if reader.report.truncated:
+        for _key, n in events.skipped.items():  # a corrupt message is counted, never fatal
+            self.report.skip("bad_message", n)
+        if events.truncated:
             self.report.truncated = True
-            self.report.detail = reader.report.error or "the recording ends early"
+            self.report.detail = events.error or "the recording ends early"
 
 
 def open_source(path: str | os.PathLike, ports: set[int] | None = None) -> PacketSource:

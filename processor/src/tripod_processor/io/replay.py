@@ -26,7 +26,6 @@ import abc
 
 import errno
 import gc
-import heapq
 import os
 import selectors
 import socket
@@ -41,10 +40,10 @@ import numpy as np
 from tripod_shared import tfp
 from tripod_shared import velodyne as v
 
+from .events import IMU, LIDAR, POSITION, Event, McapEvents, imu_log_events, merge, pcap_events
 from .imu_log import ImuLogReader
 from .pcap import PcapReader
 
-LIDAR, POSITION, IMU = 0, 1, 2
 KIND_NAMES = ("lidar", "position", "imu")
 
 
@@ -53,40 +52,6 @@ class ReplayInputError(ValueError):
 
 
 # ----------------------------------------------------------------------------- sources
-
-
-def _pcap_events(path: Path, lidar_port: int,
-                 position_port: int) -> Iterator[tuple[int, int, bytes]]:
-    for d in PcapReader(path):
-        if d.dst_port == lidar_port or (d.dst_port != position_port
-                                        and len(d.payload) == v.DATA_PACKET_SIZE):
-            yield d.t_ns, LIDAR, d.payload
-        elif d.dst_port == position_port or len(d.payload) == v.POSITION_PACKET_SIZE:
-            yield d.t_ns, POSITION, d.payload
-
-
-def _imu_log_events(path: Path) -> Iterator[tuple[int, int, bytes]]:
-    for rec in ImuLogReader(path):
-        yield rec.host_ns, IMU, rec.data
-
-
-def _mcap_events(path: Path) -> Iterator[tuple[int, int, bytes]]:
-    from tripod_shared import messages as m
-    from tripod_shared import topics as t
-    from tripod_shared.recording import RecordingReader
-
-    reader = RecordingReader(path)
-    for msg in reader.messages([t.TOPIC_LIDAR_PACKETS, t.TOPIC_LIDAR_POSITION, t.TOPIC_IMU]):
-        if msg.topic == t.TOPIC_LIDAR_PACKETS:
-            host, payload = m.decode_velodyne_packet(msg.data)
-            yield host, LIDAR, payload
-        elif msg.topic == t.TOPIC_LIDAR_POSITION:
-            host, payload = m.decode_position_packet(msg.data)
-            yield host, POSITION, payload
-        else:
-            s = m.decode_imu(msg.data)
-            if s.raw:
-                yield s.host_ns, IMU, s.raw
 
 
 @dataclass
@@ -134,16 +99,16 @@ class ReplaySource:
             src.imu_log = Path(imu_log)
         return src
 
-    def events(self) -> Iterator[tuple[int, int, bytes]]:
+    def events(self) -> Iterator[Event]:
         """(host_ns, kind, bytes) of every event, in time order (streams merged lazily)."""
         streams = []
         if self.pcap is not None:
-            streams.append(_pcap_events(self.pcap, self.lidar_port, self.position_port))
+            streams.append(pcap_events(PcapReader(self.pcap), self.lidar_port, self.position_port))
         if self.mcap is not None:
-            streams.append(_mcap_events(self.mcap))
+            streams.append(McapEvents(self.mcap, (LIDAR, POSITION, IMU)))
         if self.imu_log is not None:
-            streams.append(_imu_log_events(self.imu_log))
-        return heapq.merge(*streams, key=lambda e: e[0])
+            streams.append(imu_log_events(self.imu_log))
+        return merge(*streams)
 
 
 # ----------------------------------------------------------------------------- IMU sinks

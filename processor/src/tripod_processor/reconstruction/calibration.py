@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .inputs import LidarPackets, decode_points
+from ..decode.timed import decode_timed_points
+from .inputs import LidarPackets
 from .placement import Extrinsic, ImuOrientation, place_points
 from .stations import Station
 
@@ -29,7 +30,8 @@ def plane_spread(points: np.ndarray, n_query: int = 4000, k: int = 12, seed: int
 
 
 def _station_sample(lidar: LidarPackets, st: Station, max_points: int):
-    pts = decode_points(lidar, st.packet_start, st.packet_stop, min_range=0.5, max_range=30.0)
+    pts = decode_timed_points(lidar.payload, lidar.lidar_ns, st.packet_start, st.packet_stop,
+                              min_range=0.5, max_range=30.0)
     if len(pts) > max_points:
         pts = pts[np.random.default_rng(1).choice(len(pts), max_points, replace=False)]
     xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=1).astype(np.float64)
@@ -143,7 +145,8 @@ def calibrate_mount(lidar: LidarPackets, stations: list[Station], orient: ImuOri
     clouds = []
     for t in times:
         a, b = np.searchsorted(lidar.lidar_ns, [t, t + int(window_s * 1e9)])
-        pts = decode_points(lidar, int(a), int(b), min_range=0.5, max_range=40.0)
+        pts = decode_timed_points(lidar.payload, lidar.lidar_ns, int(a), int(b), min_range=0.5,
+                                  max_range=40.0)
         clouds.append(np.stack([pts["x"], pts["y"], pts["z"]], 1))
     A_list, B_list = [], []
     for k in range(min(len(times) - 1, max_pairs)):

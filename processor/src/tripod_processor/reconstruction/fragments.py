@@ -8,8 +8,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..decode.timed import decode_timed_points
 from ..preprocess import voxel_downsample
-from .inputs import LidarPackets, decode_points
+from .inputs import LidarPackets
 from .placement import Extrinsic, ImuOrientation, place_points, pose_world_lidar
 from .stations import Station
 
@@ -51,8 +52,8 @@ def build_fragment(lidar: LidarPackets, station: Station, orient: ImuOrientation
     gathered, limit = 0, max_points
     for a in range(station.packet_start, station.packet_stop, chunk):
         b = min(station.packet_stop, a + chunk)
-        pts = decode_points(lidar, a, b, min_range=min_range, max_range=max_range,
-                           num_threads=num_threads)
+        pts = decode_timed_points(lidar.payload, lidar.lidar_ns, a, b, min_range=min_range,
+                                  max_range=max_range, num_threads=num_threads)
         if len(pts) == 0:
             continue
         raw += len(pts)

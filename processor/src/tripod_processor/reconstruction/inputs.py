@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from tripod_shared import velodyne as vl
-from tripod_shared.recording import RecordingReader, is_mcap
+from tripod_shared.recording import is_mcap
 from tripod_shared import nmea
 from tripod_shared.timebase import (NS_PER_US, toh_us_to_unix_ns, toh_us_to_unix_ns_array,
                                     unwrap_toh_us_array)
@@ -170,74 +170,74 @@ def _concatenate(recs: list[Recording]) -> Recording:
 
 
 def _read_mcap(path: Path) -> Recording:
-    from tripod_shared import messages as msg
-    from tripod_shared import topics as t
+    from ..io.events import IMU_SAMPLE, LIDAR, MARK, POSITION, McapEvents
 
-    reader = RecordingReader(path)
-    host, payloads, gprmc = [], [], []
+    events = McapEvents(path, (LIDAR, POSITION, IMU_SAMPLE, MARK))
+    lidar = _LidarCollector()
     imu_t, imu_q, marks = [], [], []
-    skipped: dict[str, int] = {}
-    for m in reader.messages([t.TOPIC_LIDAR_PACKETS, t.TOPIC_LIDAR_POSITION, t.TOPIC_IMU,
-                              t.TOPIC_EVENTS]):
-        try:
-            if m.topic == t.TOPIC_LIDAR_PACKETS:
-                h, p = msg.decode_velodyne_packet(m.data)
-                if vl.check_data_packet(p) != vl.PacketKind.DATA:
-                    skipped["bad_lidar_packet"] = skipped.get("bad_lidar_packet", 0) + 1
-                    continue
-                host.append(h)
-                payloads.append(p)
-            elif m.topic == t.TOPIC_LIDAR_POSITION:
-                h, p = msg.decode_position_packet(m.data)
-                g = gprmc_unix_ns(p)
-                if g is not None:
-                    gprmc.append((h, g))
-            elif m.topic == t.TOPIC_IMU:
-                s = msg.decode_imu(m.data)
-                imu_t.append(s.host_ns)
-                imu_q.append((s.w, s.x, s.y, s.z))
-            elif m.topic == t.TOPIC_EVENTS:
-                e = msg.decode_event(m.data)
-                if e.kind == "mark":
-                    marks.append((e.host_ns, e.label))
-        except (ValueError, KeyError, IndexError):
-            key = f"bad_message:{m.topic}"
-            skipped[key] = skipped.get(key, 0) + 1
-    lidar, hour_source = _finish_lidar(host, payloads, gprmc)
-    rec = Recording(str(path), lidar, _imu_track(imu_t, imu_q), marks, hour_source,
-                    reader.report.truncated, skipped=skipped)
-    if reader.report.truncated:
-        rec.notes.append(f"recording is cut off ({reader.report.error}); every whole message "
+    for host_ns, kind, data in events:
+        if kind == IMU_SAMPLE:
+            imu_t.append(host_ns)
+            imu_q.append((data.w, data.x, data.y, data.z))
+        elif kind == MARK:
+            marks.append((host_ns, data))
+        else:
+            lidar.add(host_ns, kind, data)
+    skipped = dict(events.skipped)
+    for k, v in lidar.skipped.items():
+        skipped[k] = skipped.get(k, 0) + v
+    lidar_packets, hour_source = _finish_lidar(lidar.host, lidar.payloads, lidar.gprmc)
+    rec = Recording(str(path), lidar_packets, _imu_track(imu_t, imu_q), marks, hour_source,
+                    events.truncated, skipped=skipped)
+    if events.truncated:
+        rec.notes.append(f"recording is cut off ({events.error or None}); every whole message "
                          "before the cut was used")
     return rec
 
 
 def _read_pcap(path: Path) -> Recording:
+    from ..io.events import pcap_events
     from ..io.pcap import PcapFormatError, PcapReader
 
     try:
         reader = PcapReader(path)
     except PcapFormatError as exc:
         raise RecordingError(str(exc)) from None
-    host, payloads, gprmc = [], [], []
-    skipped: dict[str, int] = {}
-    for d in reader:
-        if d.dst_port == vl.POSITION_PORT and len(d.payload) == vl.POSITION_PACKET_SIZE:
-            g = gprmc_unix_ns(d.payload)
-            if g is not None:
-                gprmc.append((d.t_ns, g))
-        elif len(d.payload) == vl.DATA_PACKET_SIZE and \
-                vl.check_data_packet(d.payload) == vl.PacketKind.DATA:
-            host.append(d.t_ns)
-            payloads.append(d.payload)
-        else:
-            skipped["other_datagram"] = skipped.get("other_datagram", 0) + 1
-    lidar, hour_source = _finish_lidar(host, payloads, gprmc)
-    rec = Recording(str(path), lidar, None, [], hour_source, reader.stats.truncated,
-                    skipped=skipped)
+    lidar = _LidarCollector()
+    for host_ns, kind, payload in pcap_events(reader, skipped=lidar.skipped):
+        lidar.add(host_ns, kind, payload)
+    lidar_packets, hour_source = _finish_lidar(lidar.host, lidar.payloads, lidar.gprmc)
+    rec = Recording(str(path), lidar_packets, None, [], hour_source, reader.stats.truncated,
+                    skipped=lidar.skipped)
     if reader.stats.truncated:
         rec.notes.append("pcap is cut off mid-record; every whole packet before the cut was used")
     return rec
+
+
+class _LidarCollector:
+    """Data packets (checked: whole, VLP-16 header) and the GPRMC times of position packets."""
+
+    def __init__(self) -> None:
+        self.host: list[int] = []
+        self.payloads: list[bytes] = []
+        self.gprmc: list[tuple[int, int]] = []  # (host_ns, GPS UNIX ns)
+        self.skipped: dict[str, int] = {}
+
+    def add(self, host_ns: int, kind: int, payload: bytes) -> None:
+        from ..io.events import LIDAR
+
+        if kind == LIDAR:
+            if vl.check_data_packet(payload) != vl.PacketKind.DATA:
+                self.skipped["bad_lidar_packet"] = self.skipped.get("bad_lidar_packet", 0) + 1
+                return
+            self.host.append(host_ns)
+            self.payloads.append(payload)
+        elif len(payload) == vl.POSITION_PACKET_SIZE:
+            g = gprmc_unix_ns(payload)
+            if g is not None:
+                self.gprmc.append((host_ns, g))
+        else:
+            self.skipped["bad_position_packet"] = self.skipped.get("bad_position_packet", 0) + 1
 
 
 def _imu_track(t, q) -> ImuTrack | None:
@@ -296,49 +296,3 @@ def read_imu_log(path: str | os.PathLike) -> ImuTrack:
     if track is None:
         raise RecordingError(f"{path}: no valid IMU quaternions")
     return track
-
-
-# ---- decoding --------------------------------------------------------------------------------
-POINT_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4"),
-                        ("ring", "u1"), ("return_type", "u1"), ("time_ns", "<i8")])
-
-
-def decode_points(lidar: LidarPackets, start: int, stop: int, *, min_range: float = 0.0,
-                  max_range: float = 200.0, chunk: int = 1000, num_threads: int = 0
-                  ) -> np.ndarray:
-    """Decode packets ``[start, stop)`` into points in the lidar frame with per-point lidar time.
-
-    Decoding is the C++ core's batch VLP-16 decoder (:mod:`tripod_processor.decode.native`,
-    point for point equal to velodyne-decoder's): one call per chunk of packets, the GIL
-    released, OpenMP over packets. The product byte is not looked at (an early VLP-16 says
-    0x21). Times are exact integer ns: the packet's lidar time plus the firing offset.
-
-    Parameters
-    ----------
-    chunk : int
-        Packets per call; a call's time offsets are int32 ns from its first packet, so a chunk
-        must span less than 2.1 s (1000 VLP-16 packets are 1.33 s).
-
-    Returns
-    -------
-    structured ndarray (N,) of POINT_DTYPE: x, y, z [m] (float32, lidar frame), intensity,
-    ring, return_type, time_ns (int64, lidar time, UNIX ns).
-    """
-    from ..decode.native import NativeVlp16Decoder
-
-    dec = NativeVlp16Decoder(min_range_m=float(max(min_range, 0.0)), max_range_m=float(max_range),
-                             num_threads=num_threads)
-    out = []
-    for s in range(start, stop, chunk):
-        e = min(stop, s + chunk)
-        pts = dec.decode(lidar.payload[s:e], lidar.lidar_ns[s:e]).points
-        if len(pts) == 0:
-            continue
-        c = np.empty(len(pts), dtype=POINT_DTYPE)
-        for f in ("x", "y", "z", "intensity", "ring", "return_type"):
-            c[f] = pts[f]
-        c["time_ns"] = lidar.lidar_ns[s] + pts["time_offset_ns"].astype(np.int64)
-        out.append(c)
-    if not out:
-        return np.empty(0, dtype=POINT_DTYPE)
-    return np.concatenate(out)

@@ -152,7 +152,7 @@ def oriented_refine(source: np.ndarray, target: np.ndarray, T_init: np.ndarray,
     difference. Normals here face each fragment's sensor (the fragment origin), and a pair
     whose normals disagree (dot < 0.5) is no correspondence. Huber weights at 2 sigma; at most
     ``max_source`` source points (an even stride), the target stays dense. Runs in the native
-    core (``_ext.oriented_point_to_plane``, OpenMP over points).
+    core (``registration.pairwise.oriented_point_to_plane``, OpenMP over points).
 
     Returns (T_target_source, information (6, 6) in the pose graph's convention, fitness,
     inlier RMSE [m]).

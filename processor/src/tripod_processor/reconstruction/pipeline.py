@@ -131,23 +131,8 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
 
     # 3b. the mount rotation from the data (hand-eye) when not given; the segmentation above
     # used identity, good enough to find still periods when the IMU sits near the lidar's axes
-    calib_info: dict = {}
     if pc.extrinsic.q_imu_lidar is None:
-        from .calibration import calibrate_mount
-
-        with _Stage(times, "mount calib", None, quiet):
-            try:
-                cal, calib_info = calibrate_mount(rec.lidar, seg.stations, orient, threads)
-                ext = Extrinsic(cal.R_imu_lidar, ext.lever_arm_m, "calibrated rotation")
-                notes.append("lidar-IMU mount rotation calibrated from the data (hand-eye, "
-                             f"median residual {calib_info['rotation_residual_deg_median']:.2f}°)"
-                             "; lever arm " + ("from the config" if pc.extrinsic.lever_arm_m
-                                               else "not given: 0 (fragments blur by up to "
-                                               "twice the real lever arm)"))
-            except ValueError as exc:
-                ext.source = "default"
-                notes.append(f"mount calibration failed ({exc}): identity assumed")
-        orient = ImuOrientation(rec.imu, clock, orient.time_offset_ns)
+        ext, orient = _calibrate_mount(rec, seg, orient, ext, pc, threads, times, quiet, notes)
 
     # 4. IMU time offset (from the data unless configured)
     info: dict = {}
@@ -231,6 +216,26 @@ def trajectory(res: ReconstructResult, orient: ImuOrientation, hz: float
     Cs[:, :3, 3] = p
     out = Cs @ T_imu
     return t, out
+
+
+def _calibrate_mount(rec, seg, orient, ext, pc, threads, times, quiet, notes):
+    """(extrinsic, orientation) with the mount rotation calibrated from the data (hand-eye);
+    identity, and a note, when that fails."""
+    from .calibration import calibrate_mount
+
+    with _Stage(times, "mount calib", None, quiet):
+        try:
+            cal, calib_info = calibrate_mount(rec.lidar, seg.stations, orient, threads)
+            ext = Extrinsic(cal.R_imu_lidar, ext.lever_arm_m, "calibrated rotation")
+            notes.append("lidar-IMU mount rotation calibrated from the data (hand-eye, "
+                         f"median residual {calib_info['rotation_residual_deg_median']:.2f}°)"
+                         "; lever arm " + ("from the config" if pc.extrinsic.lever_arm_m
+                                           else "not given: 0 (fragments blur by up to "
+                                           "twice the real lever arm)"))
+        except ValueError as exc:
+            ext.source = "default"
+            notes.append(f"mount calibration failed ({exc}): identity assumed")
+    return ext, ImuOrientation(rec.imu, orient.clock, orient.time_offset_ns)
 
 
 def _write_outputs(res: ReconstructResult, cfg: ReconstructConfig, orient: ImuOrientation) -> None:

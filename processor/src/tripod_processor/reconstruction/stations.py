@@ -18,8 +18,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..decode.timed import decode_timed_points
 from .config import StationConfig
-from .inputs import LidarPackets, decode_points
+from .inputs import LidarPackets
 from .placement import Extrinsic, ImuOrientation, place_points, pose_world_lidar
 
 
@@ -56,7 +57,7 @@ class Segmentation:
 def _window_cloud(lidar: LidarPackets, a: int, b: int, orient: ImuOrientation, ext: Extrinsic,
                   n_max: int, rng: np.random.Generator) -> np.ndarray:
     """Points of packets [a, b) in the head-pivot frame, at most n_max (random subset)."""
-    pts = decode_points(lidar, a, b, min_range=0.5)
+    pts = decode_timed_points(lidar.payload, lidar.lidar_ns, a, b, min_range=0.5)
     if len(pts) == 0:
         return np.zeros((0, 3))
     order = None

@@ -210,42 +210,58 @@ def extract_planes(points, labels, *, classes=PLANAR_CLASSES, min_points: int = 
     rng = np.random.default_rng(seed)
     finite = np.isfinite(p32).all(1)
     centre = np.median(p32[finite], 0).astype(np.float64) if finite.any() else np.zeros(3)
-    cos_tol = np.cos(np.deg2rad(normal_deg))
+    search = _Search(rng, np.cos(np.deg2rad(normal_deg)), min_points, min_area, max_band,
+                     min_band, hypotheses, sample, cell, gap, max_planes, max_search, centre)
     planes: list[Plane] = []
     for c in classes:
         idx_all = np.flatnonzero((labels == c) & finite)
         if len(idx_all) < min_points:
             continue
-        P = p32[idx_all].astype(np.float64)
         ls = local_shape(p32[idx_all], 0.05, num_threads)
+        found = search.class_planes(int(c), idx_all, p32[idx_all].astype(np.float64), ls)
+        found.sort(key=lambda pl: -len(pl.indices))
+        planes += found
+    return planes
+
+
+@dataclass
+class _Search:
+    """The plane search of :func:`extract_planes` (its parameters, see there)."""
+
+    rng: np.random.Generator
+    cos_tol: float
+    min_points: int
+    min_area: float
+    max_band: float
+    min_band: float
+    hypotheses: int
+    sample: int
+    cell: float
+    gap: float
+    max_planes: int
+    max_search: int
+    centre: np.ndarray  # (3,) median of the cloud: walls are oriented towards it
+
+    def class_planes(self, c: int, idx_all, P, ls) -> list[Plane]:
+        """Planes of class ``c``: points ``P`` (indices ``idx_all`` in the cloud), local shape
+        ``ls`` of :func:`~tripod_processor.preprocess.local_shape`."""
+        rng, cos_tol, max_band, min_band = self.rng, self.cos_tol, self.max_band, self.min_band
         N = ls[:, :3].astype(np.float64)
         planar = (ls[:, 4] - ls[:, 3]) / np.maximum(ls[:, 5], 1e-12) > 0.5
         # search on a random subset (fast), then give each segment all its points (accurate)
-        S = np.sort(rng.choice(len(P), max_search, replace=False)) if len(P) > max_search \
-            else np.arange(len(P))
+        S = np.sort(rng.choice(len(P), self.max_search, replace=False)) \
+            if len(P) > self.max_search else np.arange(len(P))
         frac = len(S) / len(P)
-        min_sub = max(30, int(min_points * frac))
+        min_sub = max(30, int(self.min_points * frac))
         PS, NS, planar_S = P[S], N[S], planar[S]
         alive = np.ones(len(S), bool)
         assigned = np.zeros(len(P), bool)
         found: list[Plane] = []
         failures = 0
-        while alive.sum() >= min_sub and len(found) < max_planes and failures < 3:
+        while alive.sum() >= min_sub and len(found) < self.max_planes and failures < 3:
             live = np.flatnonzero(alive)
-            sub = live if len(live) <= sample else rng.choice(live, sample, replace=False)
-            seeds_pool = sub[planar_S[sub]]
-            if len(seeds_pool) == 0:
-                break
-            Ps, Ns = PS[sub], NS[sub]
-            cand = rng.choice(seeds_pool, min(hypotheses, len(seeds_pool)), replace=False)
-            # all hypotheses at once: (S, H) distance and normal tests in two matrix products
-            Hn = NS[cand]
-            Hd = -np.einsum("ij,ij->i", Hn, PS[cand])
-            ok = (np.abs(Ps @ Hn.T + Hd) < max_band) & (np.abs(Ns @ Hn.T) > cos_tol)
-            scores = ok.sum(0)
-            k = int(np.argmax(scores))
-            best, best_score = (Hn[k], float(Hd[k])), int(scores[k])
-            if best_score * len(live) / len(sub) < min_sub:
+            best = self._best_hypothesis(PS, NS, planar_S, live, min_sub)
+            if best is None:
                 break
             Pl, Nl = PS[live], NS[live]
             near = np.abs(Pl @ best[0] + best[1]) < 2 * max_band
@@ -261,56 +277,87 @@ def extract_planes(points, labels, *, classes=PLANAR_CLASSES, min_points: int = 
                 failures += 1
                 continue
             alive[members] = False
-            axes = _plane_axes(n)
-            o = PS[members].mean(0)
-            uv = (PS[members] - o) @ axes.T
-            # full-resolution candidates of this plane, once for all its pieces
-            free = np.flatnonzero(~assigned)
-            cand_full = free[(np.abs(P[free] @ n + d) < band) & (np.abs(N[free] @ n) > cos_tol * 0.9)]
-            uv_full = (P[cand_full] - o) @ axes.T
-            r = max(1, int(np.ceil(gap / cell / 2)))
-            from scipy import ndimage
+            found += self._pieces(c, idx_all, P, N, PS[members], n, d, band, assigned, min_sub)
+        return found
 
-            for m, occ, lo in _components(uv, cell, gap):
-                area = float(occ.sum()) * cell * cell
-                if m.sum() < min_sub or area < min_area:
-                    continue
-                grown = ndimage.binary_dilation(occ, iterations=r)
-                ij = np.floor((uv_full - lo) / cell).astype(np.int64)
-                inside = (ij >= 0).all(1) & (ij[:, 0] < occ.shape[0]) & (ij[:, 1] < occ.shape[1])
-                inside[inside] = grown[ij[inside, 0], ij[inside, 1]]
-                seg = cand_full[inside & ~assigned[cand_full]]
-                if len(seg) < min_points:
-                    continue
-                n2, d2, mask2, sig2 = _robust_refine(P[seg], n, d, min_band, max_band, iters=3)
-                seg = seg[mask2]
-                assigned[seg] = True
-                # orient into the room
-                if c == FLOOR:
-                    flip = n2[2] < 0
-                elif c == CEILING:
-                    flip = n2[2] > 0
-                else:
-                    flip = (n2 @ centre + d2) < 0
-                if flip:
-                    n2, d2 = -n2, -d2
-                origin = P[seg].mean(0)
-                origin = origin - (n2 @ origin + d2) * n2
-                ax = _plane_axes(n2)
-                uv2 = (P[seg] - origin) @ ax.T
-                outline2 = np.zeros((0, 2))
-                area = 0.0
-                for _, occ2, lo2 in _components(uv2, cell, gap):
-                    outline2 = _outline(occ2, lo2, cell, tol=cell,
-                                        close=max(1, int(np.ceil(gap / cell / 2))))
-                    area = float(occ2.sum()) * cell * cell
-                    break
-                outline = origin + outline2 @ ax
-                found.append(Plane(int(c), n2, float(d2), idx_all[seg], origin, ax, outline,
-                                   float(sig2), area))
-        found.sort(key=lambda pl: -len(pl.indices))
-        planes += found
-    return planes
+    def _best_hypothesis(self, PS, NS, planar_S, live, min_sub):
+        """(normal, offset) of the best of the RANSAC hypotheses seeded at planar live points,
+        or None when none is supported by enough points."""
+        rng = self.rng
+        sub = live if len(live) <= self.sample else rng.choice(live, self.sample, replace=False)
+        seeds_pool = sub[planar_S[sub]]
+        if len(seeds_pool) == 0:
+            return None
+        Ps, Ns = PS[sub], NS[sub]
+        cand = rng.choice(seeds_pool, min(self.hypotheses, len(seeds_pool)), replace=False)
+        # all hypotheses at once: (S, H) distance and normal tests in two matrix products
+        Hn = NS[cand]
+        Hd = -np.einsum("ij,ij->i", Hn, PS[cand])
+        ok = (np.abs(Ps @ Hn.T + Hd) < self.max_band) & (np.abs(Ns @ Hn.T) > self.cos_tol)
+        scores = ok.sum(0)
+        k = int(np.argmax(scores))
+        if int(scores[k]) * len(live) / len(sub) < min_sub:
+            return None
+        return Hn[k], float(Hd[k])
+
+    def _pieces(self, c, idx_all, P, N, members_xyz, n, d, band, assigned, min_sub) -> list[Plane]:
+        """The connected pieces of one found plane, each given its full-resolution points (not
+        yet ``assigned`` to another plane; marked assigned here)."""
+        from scipy import ndimage
+
+        cell, gap = self.cell, self.gap
+        axes = _plane_axes(n)
+        o = members_xyz.mean(0)
+        uv = (members_xyz - o) @ axes.T
+        # full-resolution candidates of this plane, once for all its pieces
+        free = np.flatnonzero(~assigned)
+        cand_full = free[(np.abs(P[free] @ n + d) < band)
+                         & (np.abs(N[free] @ n) > self.cos_tol * 0.9)]
+        uv_full = (P[cand_full] - o) @ axes.T
+        r = max(1, int(np.ceil(gap / cell / 2)))
+        out = []
+        for m, occ, lo in _components(uv, cell, gap):
+            area = float(occ.sum()) * cell * cell
+            if m.sum() < min_sub or area < self.min_area:
+                continue
+            grown = ndimage.binary_dilation(occ, iterations=r)
+            ij = np.floor((uv_full - lo) / cell).astype(np.int64)
+            inside = (ij >= 0).all(1) & (ij[:, 0] < occ.shape[0]) & (ij[:, 1] < occ.shape[1])
+            inside[inside] = grown[ij[inside, 0], ij[inside, 1]]
+            seg = cand_full[inside & ~assigned[cand_full]]
+            if len(seg) < self.min_points:
+                continue
+            n2, d2, mask2, sig2 = _robust_refine(P[seg], n, d, self.min_band, self.max_band,
+                                                 iters=3)
+            seg = seg[mask2]
+            assigned[seg] = True
+            out.append(self._oriented_plane(c, idx_all, P, seg, n2, d2, sig2))
+        return out
+
+    def _oriented_plane(self, c, idx_all, P, seg, n2, d2, sig2) -> Plane:
+        """The :class:`Plane` of points ``seg``, its normal into the room, with its outline."""
+        if c == FLOOR:
+            flip = n2[2] < 0
+        elif c == CEILING:
+            flip = n2[2] > 0
+        else:
+            flip = (n2 @ self.centre + d2) < 0
+        if flip:
+            n2, d2 = -n2, -d2
+        origin = P[seg].mean(0)
+        origin = origin - (n2 @ origin + d2) * n2
+        ax = _plane_axes(n2)
+        uv2 = (P[seg] - origin) @ ax.T
+        outline2 = np.zeros((0, 2))
+        area = 0.0
+        cell, gap = self.cell, self.gap
+        for _, occ2, lo2 in _components(uv2, cell, gap):
+            outline2 = _outline(occ2, lo2, cell, tol=cell,
+                                close=max(1, int(np.ceil(gap / cell / 2))))
+            area = float(occ2.sum()) * cell * cell
+            break
+        outline = origin + outline2 @ ax
+        return Plane(int(c), n2, float(d2), idx_all[seg], origin, ax, outline, float(sig2), area)
 
 
 def plane_inlier_share(points, labels, planes: list[Plane], tolerance: float = 0.05,

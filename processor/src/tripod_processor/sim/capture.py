@@ -24,10 +24,11 @@ from tripod_shared.timebase import HOUR_NS
 
 from ..io.imu_log import write_imu_log
 from ..io.pcap import PcapWriter
+from .beams import LASER_ELEVATION_DEG
 from .config import SimConfig
 from .imu import R_lidar_imu, simulate_imu, wxyz
-from .lidar import (LASER_ELEVATION_DEG, SEQUENCE_NS, Vlp16, gprmc, packet_period_ns,
-                    position_packet, position_schedule)
+from .lidar import (SEQUENCE_NS, Vlp16, gprmc, packet_period_ns, position_packet,
+                    position_schedule)
 from .motion import Trajectory
 from .scenes import (CLASS_NAMES, NO_RETURN, Scene, check_route, load_scene_file, make_scene,
                      write_mesh_ply)
@@ -198,15 +199,14 @@ def write_recording(out: Path, cfg: SimConfig) -> Path:
     from tripod_shared.messages import Event, ImuSample
     from tripod_shared.recording import RecordingWriter
 
-    from ..io.replay import IMU, LIDAR, POSITION, ReplaySource
+    from ..io.events import IMU, LIDAR, POSITION, folder_events
 
-    src = ReplaySource.open(out)
     first = last = None
     with RecordingWriter(out / MCAP_FILE, metadata={"source": "tripod simulate",
                                                     "seed": str(cfg.seed)}) as w:
         tp = tfp.TfpStreamParser()
         wp = witmotion.WitStreamParser()
-        for t_ns, kind, data in src.events():
+        for t_ns, kind, data in folder_events(out):
             if first is None:
                 first = t_ns
                 w.write_event(Event(t_ns, "start", "simulated capture"))

@@ -23,7 +23,8 @@ from ..io.imu_log import ImuLogReader
 from ..io.pcap import PcapReader
 from .capture import CAPTURE_FILE, IMU_FILE, LABELS_FILE, META_FILE, build_rig
 from .config import SimConfig
-from .lidar import FIRING_NS, LASER_RING, LASER_VERT_OFFSET_M, SEQUENCE_NS, sequences_per_packet
+from .beams import LASER_RING, LASER_VERT_OFFSET_M
+from .lidar import FIRING_NS, SEQUENCE_NS, sequences_per_packet
 
 #: velodyne-decoder return_type values
 DEC_STRONGEST, DEC_LAST, DEC_BOTH = 1, 2, 3

@@ -31,18 +31,9 @@ import numpy as np
 from tripod_shared import velodyne as v
 from tripod_shared.timebase import HOUR_NS
 
+from .beams import LASER_VERT_OFFSET_M, firing_directions
 from .config import LidarConfig
 from .scenes import NO_RETURN, OTHER, Scene
-
-#: laser elevation [deg] by laser id (firing order), VLP-16 manual table 9-1
-LASER_ELEVATION_DEG = np.array([-15, 1, -13, 3, -11, 5, -9, 7, -7, 9, -5, 11, -3, 13, -1, 15],
-                               dtype=np.float64)
-#: vertical offset of each laser's origin along the lidar z axis [m] (VLP-16 manual table 9-1,
-#: "vertical correction"; velodyne-decoder applies it: point = range * direction + (0, 0, offset))
-LASER_VERT_OFFSET_M = np.array([11.2, -0.7, 9.7, -2.2, 8.1, -3.7, 6.6, -5.1, 5.1, -6.6, 3.7, -8.1,
-                                2.2, -9.7, 0.7, -11.2], dtype=np.float64) * 1e-3
-#: ring (rank of elevation, the decoder's ``ring`` field) of each laser id
-LASER_RING = np.argsort(np.argsort(LASER_ELEVATION_DEG)).astype(np.uint8)
 
 FIRING_NS = 2304  # between lasers, 2.304 us
 SEQUENCE_NS = 55296  # between firing sequences, 55.296 us
@@ -65,15 +56,6 @@ def sequences_per_packet(return_mode: str) -> int:
 def packet_period_ns(return_mode: str) -> int:
     """Data packet period [ns]: 1327104 single return, 663552 dual."""
     return sequences_per_packet(return_mode) * SEQUENCE_NS
-
-
-def beam_directions(azimuth_deg: np.ndarray) -> np.ndarray:
-    """Unit directions (..., 16, 3) in the lidar frame for azimuths (..., 16) [deg]."""
-    az = np.radians(azimuth_deg)
-    el = np.radians(LASER_ELEVATION_DEG)
-    ce = np.cos(el)
-    return np.stack([ce * np.cos(az), -ce * np.sin(az), np.broadcast_to(np.sin(el), az.shape)],
-                    axis=-1)
 
 
 LEG_REFLECTIVITY = 30  # dark anodised aluminium
@@ -218,9 +200,9 @@ class Vlp16:
         t_fire_ns = t_seq_ns[:, None] + np.arange(16, dtype=np.int64)[None, :] * FIRING_NS
         az = self.azimuth_deg(t_fire_ns)  # (S, 16)
         R, p = self.trajectory.T_world_lidar((t_seq_ns + 15 * FIRING_NS // 2) * 1e-9)
-        d_lidar = beam_directions(az)  # (S, 16, 3)
+        d_lidar = firing_directions(az)  # (S, 16, 3)
         half = np.degrees(cfg.beam_divergence_mrad * 1e-3 / 2)
-        d_edge = beam_directions(az + half)
+        d_edge = firing_directions(az + half)
         Rt = np.ascontiguousarray(np.swapaxes(R, 1, 2))
         d1 = np.matmul(d_lidar, Rt).reshape(-1, 3)  # batched R @ d, much faster than einsum
         d2 = np.matmul(d_edge, Rt).reshape(-1, 3)

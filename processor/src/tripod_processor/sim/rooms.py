@@ -15,10 +15,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .beams import RING_ELEVATION_DEG, directions
+
 CEILING, FLOOR, WALL, OTHER = 0, 1, 2, 3
 
 # VLP-16: 16 beams from -15 to +15 deg, 2 deg apart [rad]
-VLP16_ELEVATIONS = np.deg2rad(np.arange(-15.0, 16.0, 2.0))
+VLP16_ELEVATIONS = np.deg2rad(RING_ELEVATION_DEG)
 
 
 @dataclass
@@ -135,32 +137,49 @@ def make_room(seed: int, kind: str | None = None, size: tuple[float, float] | No
     poly = _polygon_of("L" if kind == "L" else "box", w, d, rects)
     mb = _MeshBuilder()
     if kind == "two_rooms":  # partition (wall, 10 cm) with a door and its lintel (wall)
-        px = w * rng.uniform(0.4, 0.6)
-        dy = rng.uniform(0.5, d - 1.5)
-        dh = min(2.1, h - 0.2)
-        mb.box((px - 0.05, 0, 0), (px + 0.05, dy, h), WALL, faces="xXY")
-        mb.box((px - 0.05, dy + 0.9, 0), (px + 0.05, d, h), WALL, faces="xXy")
-        mb.box((px - 0.05, dy, dh), (px + 0.05, dy + 0.9, h), WALL, faces="xXz")
+        _add_partition(mb, w, d, h, rng)
     if kind == "hall":  # columns on a grid (other): square or 8-sided
-        sp = rng.uniform(5.0, 8.0)
-        r = rng.uniform(0.2, 0.4)
-        for cx in np.arange(sp, w - sp / 2, sp):
-            for cy in np.arange(sp, d - sp / 2, sp):
-                if rng.random() < 0.5:
-                    mb.box((cx - r, cy - r, 0), (cx + r, cy + r, h), OTHER, faces="xXyY")
-                else:
-                    a = np.linspace(0, 2 * np.pi, 9)
-                    for a0, a1 in zip(a[:-1], a[1:]):
-                        p0 = (cx + r * np.cos(a0), cy + r * np.sin(a0))
-                        p1 = (cx + r * np.cos(a1), cy + r * np.sin(a1))
-                        mb.quad((*p0, 0), (*p1, 0), (*p1, h), (*p0, h), OTHER)
+        _add_columns(mb, w, d, h, rng)
         clutter = clutter * 3
     for x0, y0, x1, y1 in rects:
         mb.quad((x0, y0, 0), (x1, y0, 0), (x1, y1, 0), (x0, y1, 0), FLOOR)
         mb.quad((x0, y0, h), (x1, y0, h), (x1, y1, h), (x0, y1, h), CEILING)
     for (ax, ay), (bx, by) in zip(poly, poly[1:] + poly[:1]):
         mb.quad((ax, ay, 0), (bx, by, 0), (bx, by, h), (ax, ay, h), WALL)
+    _add_furniture(mb, rects, w, d, h, clutter, rng)
+    _add_wall_items(mb, poly, h, clutter, rng)
+    return mb.scene(poly, h)
 
+
+def _add_partition(mb: "_MeshBuilder", w: float, d: float, h: float, rng) -> None:
+    """A partition wall (10 cm) at mid-width with a door and its lintel (wall)."""
+    px = w * rng.uniform(0.4, 0.6)
+    dy = rng.uniform(0.5, d - 1.5)
+    dh = min(2.1, h - 0.2)
+    mb.box((px - 0.05, 0, 0), (px + 0.05, dy, h), WALL, faces="xXY")
+    mb.box((px - 0.05, dy + 0.9, 0), (px + 0.05, d, h), WALL, faces="xXy")
+    mb.box((px - 0.05, dy, dh), (px + 0.05, dy + 0.9, h), WALL, faces="xXz")
+
+
+def _add_columns(mb: "_MeshBuilder", w: float, d: float, h: float, rng) -> None:
+    """Columns on a grid (other), square or 8-sided, floor to ceiling."""
+    sp = rng.uniform(5.0, 8.0)
+    r = rng.uniform(0.2, 0.4)
+    for cx in np.arange(sp, w - sp / 2, sp):
+        for cy in np.arange(sp, d - sp / 2, sp):
+            if rng.random() < 0.5:
+                mb.box((cx - r, cy - r, 0), (cx + r, cy + r, h), OTHER, faces="xXyY")
+            else:
+                a = np.linspace(0, 2 * np.pi, 9)
+                for a0, a1 in zip(a[:-1], a[1:]):
+                    p0 = (cx + r * np.cos(a0), cy + r * np.sin(a0))
+                    p1 = (cx + r * np.cos(a1), cy + r * np.sin(a1))
+                    mb.quad((*p0, 0), (*p1, 0), (*p1, h), (*p0, h), OTHER)
+
+
+def _add_furniture(mb: "_MeshBuilder", rects, w: float, d: float, h: float, clutter: float,
+                   rng) -> None:
+    """Desks, cabinets against walls, chairs and sometimes a free-standing pillar (other)."""
     def spot(sx, sy, margin=0.3):
         for _ in range(50):
             x, y = rng.uniform(0, w), rng.uniform(0, d)
@@ -211,6 +230,10 @@ def make_room(seed: int, kind: str | None = None, size: tuple[float, float] | No
             x, y = p
             s = rng.uniform(0.25, 0.5)
             mb.box((x, y, 0), (x + s, y + s, h), OTHER, faces="xXyY")
+
+
+def _add_wall_items(mb: "_MeshBuilder", poly, h: float, clutter: float, rng) -> None:
+    """Pictures, boards and radiators on the walls (thin boxes, other)."""
     for _ in range(int(rng.integers(0, 5) * clutter)):  # pictures, boards, radiators on walls
         k = int(rng.integers(len(poly)))
         (ax, ay), (bx, by) = poly[k], poly[(k + 1) % len(poly)]
@@ -230,7 +253,6 @@ def make_room(seed: int, kind: str | None = None, size: tuple[float, float] | No
         mb.quad((*p0, z0 + zh), (*p1, z0 + zh), (*q1, z0 + zh), (*q0, z0 + zh), OTHER)
         mb.quad((*p0, z0), (*q0, z0), (*q0, z0 + zh), (*p0, z0 + zh), OTHER)
         mb.quad((*p1, z0), (*q1, z0), (*q1, z0 + zh), (*p1, z0 + zh), OTHER)
-    return mb.scene(poly, h)
 
 
 def free_station(scene: Scene, rng, margin: float = 0.6) -> np.ndarray:
@@ -283,7 +305,7 @@ def scan(scene: Scene, station, *, head_steps: int = 24, azimuth_step_deg: float
     om = VLP16_ELEVATIONS
     a, o = np.meshgrid(alpha, om, indexing="ij")
     # sensor frame: spin axis z_s; lying on its side: z_s -> world x (before the head yaw)
-    d_s = np.stack([np.cos(o) * np.cos(a), np.cos(o) * np.sin(a), np.sin(o)], -1).reshape(-1, 3)
+    d_s = directions(a, o).reshape(-1, 3)
     R_side = np.array([[0, 0, 1], [0, 1, 0], [-1, 0, 0]], float)  # rotate z_s onto world x
     dirs = []
     for psi in np.linspace(0, np.pi, head_steps, endpoint=False) + rng.uniform(0, np.pi / head_steps):

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .lidar import LASER_VERT_OFFSET_M, beam_directions
+from .beams import LASER_VERT_OFFSET_M, firing_directions
 from .motion import rot_x
 from .scenes import MeshBuilder, Scene
 
@@ -55,7 +55,7 @@ def station_scan(scene: Scene, T_world_lidar: np.ndarray, tilts_deg=(-20, -10, 0
                      o3d.core.Tensor(scene.triangles.astype(np.uint32)))
     T = np.asarray(T_world_lidar, dtype=np.float64)
     az = np.arange(0.0, 360.0, azimuth_step_deg)
-    d_head = beam_directions(np.repeat(az[:, None], 16, axis=1)).reshape(-1, 3)
+    d_head = firing_directions(np.repeat(az[:, None], 16, axis=1)).reshape(-1, 3)
     o_head = np.zeros_like(d_head)
     o_head[:, 2] = np.tile(LASER_VERT_OFFSET_M, len(az))
     rng = np.random.default_rng(seed)

@@ -100,11 +100,8 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
     S = np.asarray(source, np.float64)
     Tg = np.asarray(target, np.float64)
     if source_labels is None or target_labels is None:
-        from ..segmentation import Segmenter
-
-        seg = Segmenter(weights, num_threads)
-        source_labels = seg(S.astype(np.float32)) if source_labels is None else source_labels
-        target_labels = seg(Tg.astype(np.float32)) if target_labels is None else target_labels
+        source_labels, target_labels = _segment(S, Tg, source_labels, target_labels, weights,
+                                                num_threads)
         stages["segment"] = time.perf_counter() - t0
     source_labels, target_labels = np.asarray(source_labels), np.asarray(target_labels)
 
@@ -115,56 +112,20 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
     stages["level"] = time.perf_counter() - t1
 
     # 2. proposals (yaw, shift) of the levelled source onto the levelled target
-    t1 = time.perf_counter()
     extent = (float(max(np.ptp(lt.xy, 0).max(), np.ptp(ls.xy, 0).max()))
               if len(lt.xy) and len(ls.xy) else 10.0)
     cp = max(coarse_pixel, extent / 150)  # the images stay small for big halls
     fp = max(fine_pixel, extent / 400)
     yaws = np.deg2rad(np.arange(0.0, 360.0, coarse_step_deg))
-    proposals = [(yaw, shift, "correlation", score) for score, yaw, shift in
-                 _search(ls, lt, yaws, cp, seed=seed, keep=candidates, other_weight=other_weight,
-                         shifts=5)]
-    stages["correlation"] = time.perf_counter() - t1
-    t1 = time.perf_counter()
-    fpx = max(feature_pixel, extent / 400)
-    if use_keypoints:
-        img_s, lo_s = plan_image(ls, fpx)
-        img_t, lo_t = plan_image(lt, fpx)
-        ij_s, d_s = orb_keypoints(img_s)
-        ij_t, d_t = orb_keypoints(img_t)
-        m = match_binary(d_s, d_t)
-        if len(m) >= 4:
-            a = _ij_to_xy(ij_s[m[:, 0]], lo_s, fpx)
-            b = _ij_to_xy(ij_t[m[:, 1]], lo_t, fpx)
-            for inl, yaw, t in rigid_2d_ransac(a, b, inlier_m=3 * fpx, min_inliers=6, seed=seed):
-                proposals.append((yaw, t, "keypoints", float(len(inl))))
-        stages["keypoints"] = time.perf_counter() - t1
-    t1 = time.perf_counter()
-    if use_shapes:
-        c_s, h_s = shape_blobs(ls, fpx)
-        c_t, h_t = shape_blobs(lt, fpx)
-        m = match_nearest(h_s, h_t, k=3)
-        if len(m) >= 3:
-            for inl, yaw, t in rigid_2d_ransac(c_s[m[:, 0]], c_t[m[:, 1]], inlier_m=0.2,
-                                                min_inliers=3, seed=seed):
-                proposals.append((yaw, t, "shapes", float(len(inl))))
-        stages["shapes"] = time.perf_counter() - t1
+    proposals = _proposals(ls, lt, stages, yaws, cp, max(feature_pixel, extent / 400), candidates,
+                           other_weight, use_keypoints, use_shapes, seed)
 
     # 3. screen the distinct proposals in 3-D as they are (loose distance, free space), then
     #    refine the best by correlation (fine pixel and yaw) and lift them to 3-D
     t1 = time.perf_counter()
     check = _Verifier(S, source_labels, Tg, target_labels, max_distance, viewpoint_source,
                       viewpoint_target, num_threads)
-    screened = []
-    for yaw0, shift0, who, _ in proposals:
-        yaw0, shift0 = float(yaw0), np.asarray(shift0, np.float64)
-        if any(_close(yaw0, shift0, h[1], h[2]) for h in screened):
-            continue
-        T0 = _lift(ls, lt, yaw0, shift0)
-        pre = (check.structure_fitness(T0, 3 * cp, screen=True)
-               - free_space_weight * check.free_space_violation(T0, screen=True))
-        screened.append((pre, yaw0, shift0, who))
-    screened.sort(key=lambda h: -h[0])
+    screened = _screen(proposals, ls, lt, check, 3 * cp, free_space_weight)
     hyps = []
     for _, yaw0, shift0, who in screened[:verify]:
         fine = yaw0 + np.deg2rad(np.arange(-coarse_step_deg, coarse_step_deg + 1e-9, fine_step_deg))
@@ -177,6 +138,105 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
     # 4. verify in 3-D: short ICP, then the share of walls and furniture on the other's
     #    surfaces, less what either scan saw through
     t1 = time.perf_counter()
+    checked, ambiguity = _verify(hyps, check, free_space_weight)
+    best = checked[0]
+    stages["verify"] = time.perf_counter() - t1
+
+    # 5. final polish at full density
+    t1 = time.perf_counter()
+    T, fitness, rmse = check.final(best[3])
+    sfit = check.structure_fitness(T)
+    stages["final"] = time.perf_counter() - t1
+    viol = check.free_space_violation(T)
+    ok = sfit >= min_fitness and viol <= max_violation and ambiguity <= max_ambiguity
+    return HeightmapMatch(T, float(best[1]), float(sfit), float(viol), float(ambiguity), fitness,
+                          rmse, _footprint_distance(ls, lt), best[2], len(checked), bool(ok),
+                          time.perf_counter() - t0, stages,
+                          [(c[2], c[0], c[3], c[4], c[5]) for c in checked])
+
+
+def _proposals(ls, lt, stages: dict, yaws, cp: float, fpx: float, candidates: int,
+               other_weight: float, use_keypoints: bool, use_shapes: bool, seed: int) -> list:
+    """(yaw, shift, proposer, score) from the dense correlation search over ``yaws`` at pixel
+    ``cp`` and, at pixel ``fpx``, from keypoints and shapes; each matcher's time in ``stages``."""
+    t1 = time.perf_counter()
+    proposals = [(yaw, shift, "correlation", score) for score, yaw, shift in
+                 _search(ls, lt, yaws, cp, seed=seed, keep=candidates, other_weight=other_weight,
+                         shifts=5)]
+    stages["correlation"] = time.perf_counter() - t1
+    if use_keypoints:
+        t1 = time.perf_counter()
+        proposals += _keypoint_proposals(ls, lt, fpx, seed)
+        stages["keypoints"] = time.perf_counter() - t1
+    if use_shapes:
+        t1 = time.perf_counter()
+        proposals += _shape_proposals(ls, lt, fpx, seed)
+        stages["shapes"] = time.perf_counter() - t1
+    return proposals
+
+
+def _footprint_distance(ls, lt) -> float:
+    """Distance of the two floor footprints' log Hu moments (0 = same shape)."""
+    hu_s = _log_hu(hu_moments(_footprint_mask(ls.floor_xy)))
+    hu_t = _log_hu(hu_moments(_footprint_mask(lt.floor_xy)))
+    return float(np.abs(hu_s[:4] - hu_t[:4]).sum())
+
+
+def _segment(S, Tg, source_labels, target_labels, weights, num_threads):
+    """Labels of the scans that came without them, by the segmenter."""
+    from ..segmentation import Segmenter
+
+    seg = Segmenter(weights, num_threads)
+    source_labels = seg(S.astype(np.float32)) if source_labels is None else source_labels
+    target_labels = seg(Tg.astype(np.float32)) if target_labels is None else target_labels
+    return source_labels, target_labels
+
+
+def _keypoint_proposals(ls, lt, fpx: float, seed: int) -> list:
+    """(yaw, shift, "keypoints", inliers) from ORB keypoints of the two plan images."""
+    img_s, lo_s = plan_image(ls, fpx)
+    img_t, lo_t = plan_image(lt, fpx)
+    ij_s, d_s = orb_keypoints(img_s)
+    ij_t, d_t = orb_keypoints(img_t)
+    m = match_binary(d_s, d_t)
+    if len(m) < 4:
+        return []
+    a = _ij_to_xy(ij_s[m[:, 0]], lo_s, fpx)
+    b = _ij_to_xy(ij_t[m[:, 1]], lo_t, fpx)
+    return [(yaw, t, "keypoints", float(len(inl)))
+            for inl, yaw, t in rigid_2d_ransac(a, b, inlier_m=3 * fpx, min_inliers=6, seed=seed)]
+
+
+def _shape_proposals(ls, lt, fpx: float, seed: int) -> list:
+    """(yaw, shift, "shapes", inliers) from Hu-moment matches of the plans' blobs."""
+    c_s, h_s = shape_blobs(ls, fpx)
+    c_t, h_t = shape_blobs(lt, fpx)
+    m = match_nearest(h_s, h_t, k=3)
+    if len(m) < 3:
+        return []
+    return [(yaw, t, "shapes", float(len(inl)))
+            for inl, yaw, t in rigid_2d_ransac(c_s[m[:, 0]], c_t[m[:, 1]], inlier_m=0.2,
+                                               min_inliers=3, seed=seed)]
+
+
+def _screen(proposals, ls, lt, check, distance: float, free_space_weight: float) -> list:
+    """Distinct proposals as (pre-score, yaw, shift, proposer), best first: structure fitness at
+    a loose ``distance`` less the weighted free-space violation, of each lifted as it is."""
+    screened = []
+    for yaw0, shift0, who, _ in proposals:
+        yaw0, shift0 = float(yaw0), np.asarray(shift0, np.float64)
+        if any(_close(yaw0, shift0, h[1], h[2]) for h in screened):
+            continue
+        T0 = _lift(ls, lt, yaw0, shift0)
+        pre = (check.structure_fitness(T0, distance, screen=True)
+               - free_space_weight * check.free_space_violation(T0, screen=True))
+        screened.append((pre, yaw0, shift0, who))
+    screened.sort(key=lambda h: -h[0])
+    return screened
+
+
+def _verify(hyps, check, free_space_weight: float) -> tuple[list, float]:
+    """Each hypothesis polished by ICP and scored; (checked best first, ambiguity)."""
     checked = []
     for score, who, T in hyps:
         T_icp = check.polish(T)
@@ -189,19 +249,4 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
         ambiguity = 1.0
     else:
         ambiguity = max(0.0, others[0][0] / best[0]) if others else 0.0
-    stages["verify"] = time.perf_counter() - t1
-
-    # 5. final polish at full density
-    t1 = time.perf_counter()
-    T, fitness, rmse = check.final(best[3])
-    sfit = check.structure_fitness(T)
-    stages["final"] = time.perf_counter() - t1
-    hu_s = _log_hu(hu_moments(_footprint_mask(ls.floor_xy)))
-    hu_t = _log_hu(hu_moments(_footprint_mask(lt.floor_xy)))
-    hu_d = float(np.abs(hu_s[:4] - hu_t[:4]).sum())
-    viol = check.free_space_violation(T)
-    ok = sfit >= min_fitness and viol <= max_violation and ambiguity <= max_ambiguity
-    return HeightmapMatch(T, float(best[1]), float(sfit), float(viol), float(ambiguity), fitness,
-                          rmse, hu_d,
-                          best[2], len(checked), bool(ok), time.perf_counter() - t0, stages,
-                          [(c[2], c[0], c[3], c[4], c[5]) for c in checked])
+    return checked, ambiguity
