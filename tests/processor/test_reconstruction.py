@@ -179,19 +179,21 @@ def test_time_offset_estimate(tmp_path):
     # IMU stamps are late by the latency (+ up to 0.5 ms jitter); the packets' by their fill
     # time (1.33 ms): the correction that puts the IMU on the lidar clock is about -6.9 ms
     expect_ms = -(truth.imu_time_offset_ns * 1e-6 + 0.25 - 1.33)
-    assert abs(off * 1e-6 - expect_ms) < 1.5
-    assert info["best_spread_m"] < 0.8 * info["zero_spread_m"]
+    assert abs(off * 1e-6 - expect_ms) < 0.8  # measured 0.26 ms off
+    assert info["best_spread_m"] < 0.6 * info["zero_spread_m"]  # measured 0.51
 
 
 def test_station_accuracy_against_truth(run):
     res, truth, out = run
     T_true = ev.interpolate_poses(truth.trajectory_t_ns, truth.trajectory_T, res.station_t_ns)
     e = ev.pose_errors(res.slam.T_optimized, T_true)
-    assert e.ate_m < 0.02 and e.ate_deg < 0.2
+    # measured 0.35 mm / 0.019 deg, drift 0.028 % of 5.4 m (the issue's goals: 2 cm, 0.2 deg,
+    # 0.5 %; these bounds catch a regression long before it reaches them)
+    assert e.ate_m < 0.002 and e.ate_deg < 0.06
     drift, path_m = ev.odometry_drift(res.slam.T_odometry, T_true)
-    assert path_m > 5 and drift < 0.5
+    assert path_m > 5 and drift < 0.1
     r = ev.evaluate_run(out, truth.trajectory_t_ns, truth.trajectory_T)
-    assert r["ate_cm"] < 2 and r["stations"] == 3
+    assert r["ate_cm"] < 0.2 and r["stations"] == 3
 
 
 def test_map_lies_on_the_scene(run):
@@ -212,8 +214,8 @@ def test_map_lies_on_the_scene(run):
         out_d = np.linalg.norm(np.maximum(0, np.maximum(lo - p, p - hi)), axis=1)
         in_d = np.min(np.minimum(p - lo, hi - p), axis=1)
         d = np.minimum(d, np.where(inside, in_d, out_d))
-    assert np.median(d) < 0.01
-    assert np.percentile(d, 95) < 0.04
+    assert np.median(d) < 0.0025  # measured 1.0 mm
+    assert np.percentile(d, 95) < 0.01  # measured 4.9 mm
 
 
 def test_outputs_open_in_the_usual_tools(run):

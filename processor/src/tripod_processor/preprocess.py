@@ -83,10 +83,10 @@ def estimate_normals(
     pts = _finite_cloud(points)
     if num_neighbors < 1 and not radius > 0:
         raise ValueError("num_neighbors must be >= 1 (or give a radius)")
-    n, c, k, v = _ext.estimate_normals(pts, int(num_neighbors), float(radius),
-                                       np.asarray(viewpoint, dtype=np.float64).reshape(3),
-                                       int(num_threads))
-    return n, c.reshape(-1, 3, 3), k, v
+    g = _ext.estimate_normals(pts, int(num_neighbors), float(radius),
+                              np.asarray(viewpoint, dtype=np.float64).reshape(3),
+                              int(num_threads))
+    return g.normals, g.covariances.reshape(-1, 3, 3), g.curvature, g.valid
 
 
 def statistical_outlier_removal(
@@ -229,7 +229,8 @@ def voxel_assign(points, voxel_size: float, num_threads: int = 0):
     centroids (M, 3) float32 [m], point_voxel (N,) int32 (-1 for non-finite points),
     counts (M,) int32.
     """
-    return _ext.voxel_assign(as_cloud(points), float(voxel_size), int(num_threads))
+    v = _ext.voxel_assign(as_cloud(points), float(voxel_size), int(num_threads))
+    return v.centroids, v.point_voxel, v.counts
 
 
 def point_normals(points, voxel_size: float = 0.05, num_threads: int = 0) -> np.ndarray:
