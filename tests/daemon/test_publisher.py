@@ -32,8 +32,9 @@ def test_zenoh_config_from_our_keys():
 
 def test_slow_subscriber_drops_are_counted_and_recording_is_complete(tmp_path):
     port = free_tcp_port()
+    # congestion_control: block -- publishing waits for the slow subscriber, our queue overflows
     cfg = loopback_config(tmp_path, zenoh={"enabled": True, "listen": [f"tcp/127.0.0.1:{port}"],
-                                           "queue_messages": 500})
+                                           "queue_messages": 500, "congestion_control": "block"})
     # a subscriber peer: the daemon's own config builder, connecting to it
     conf = build_zenoh_config(ZenohConfig(listen=[], connect=[f"tcp/127.0.0.1:{port}"]))
     received = [0]

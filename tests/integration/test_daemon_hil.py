@@ -46,7 +46,9 @@ def test_simulated_capture_replayed_into_the_daemon(capture, tmp_path):
 
     sink = PtyImuSink()
     port = free_tcp_port()
-    cfg = loopback_config(tmp_path, imu={"url": sink.path, "driver": "tfp"},
+    # the pty replays the IMU's bytes but cannot answer enumerate: name the simulated brick's UID
+    cfg = loopback_config(tmp_path, imu={"url": sink.path, "driver": "tfp",
+                                         "tfp_uid": SimConfig().imu.uid},
                           zenoh={"enabled": True, "listen": [f"tcp/127.0.0.1:{port}"]})
     got: dict[str, list[bytes]] = {}
     lock = threading.Lock()

@@ -32,19 +32,33 @@ Item = tuple[str, int, bytes]
 
 
 class TfpDriver:
-    """Tinkerforge IMU Brick 2.0 over TFP (serial/USB through brickd, or brickd's TCP port)."""
+    """Tinkerforge IMU Brick 2.0 over TFP (serial/USB through brickd, or brickd's TCP port).
+
+    Samples are taken only from the brick identified by UID: the configured ``tfp_uid``, or,
+    when that is empty, the IMU Brick 2.0 that answers our enumerate request. Until one is
+    known, quaternion frames are counted (``imu_unverified``) and dropped, and enumerate is
+    asked again every ``reconnect_interval_s``; with a UID the parser also refuses frames run
+    into each other (see ``TfpStreamParser``), so a cut-off frame never becomes a sample.
+    """
 
     name = "tfp"
 
     def __init__(self, cfg: ImuConfig, counts: Counters):
         self.cfg = cfg
         self.counts = counts
-        self.uid = tfp.base58_decode(cfg.tfp_uid) if cfg.tfp_uid else None
+        counts.setdefault("imu_unverified", 0)
+        self.configured_uid = tfp.base58_decode(cfg.tfp_uid) if cfg.tfp_uid else None
+        self.uid = self.configured_uid
         self.parser = tfp.TfpStreamParser(self.uid)
         self.clock = RateClock()
+        self._prev_host_ns = 0
+        self._samples_since_connect = 0
 
     def reset(self) -> None:
+        # keep a learned UID over a reconnect (the same brick plugged back in streams at once);
+        # a different brick is taken if it answers enumerate before any sample of the old one
         self.parser = tfp.TfpStreamParser(self.uid)
+        self._samples_since_connect = 0
 
     def on_connect(self, port) -> None:
         """Ask who is there, and (when the UID is known) for the quaternion callback period."""
@@ -52,20 +66,31 @@ class TfpDriver:
         if self.uid is not None:
             port.write(tfp.encode_set_quaternion_period(self.uid, self.cfg.quaternion_period_ms))
 
+    def poll(self, port) -> None:
+        """Called every ``reconnect_interval_s`` while connected: enumerate until identified."""
+        if self.uid is None:
+            port.write(tfp.encode_enumerate())
+
     def feed(self, data: bytes, host_ns: int, port, out: list[Item]) -> None:
         before = self.parser.garbage_bytes
+        prev_ns, self._prev_host_ns = self._prev_host_ns, host_ns
         for pkt in self.parser.feed(data):
             if pkt.function_id == tfp.FID_CALLBACK_QUATERNION:
+                if self.uid is None or pkt.uid != self.uid:
+                    self.counts.add("imu_unverified")
+                    continue
                 try:
                     w, x, y, z = tfp.decode_quaternion(pkt.payload)
                 except ValueError:
                     self.counts.add("imu_bad")
                     continue
-                s = messages.ImuSample(host_ns, w, x, y, z, NO_DEVICE_TIME, "tfp", pkt.sequence,
+                ns = prev_ns if pkt.held and prev_ns else host_ns  # the read that completed it
+                s = messages.ImuSample(ns, w, x, y, z, NO_DEVICE_TIME, "tfp", pkt.sequence,
                                        pkt.raw)
-                out.append((topics.TOPIC_IMU, host_ns, messages.encode_imu(s)))
+                out.append((topics.TOPIC_IMU, ns, messages.encode_imu(s)))
                 self.counts.add("imu_samples")
-                self.clock.add(host_ns)
+                self._samples_since_connect += 1
+                self.clock.add(ns)
             elif pkt.function_id == tfp.FID_CALLBACK_ENUMERATE:
                 self.counts.add("imu_other_frames")
                 try:
@@ -73,7 +98,14 @@ class TfpDriver:
                 except (ValueError, struct.error, UnicodeDecodeError):
                     self.counts.add("imu_bad")
                     continue
-                if dev == tfp.DEVICE_IDENTIFIER_IMU_V2 and (self.uid is None or uid == self.uid):
+                if uid != pkt.uid:
+                    self.counts.add("imu_bad")  # header and payload disagree: not a real answer
+                    continue
+                if (dev == tfp.DEVICE_IDENTIFIER_IMU_V2 and uid != self.uid
+                        and self.configured_uid is None and not self._samples_since_connect):
+                    self.uid = uid
+                    self.parser.uid = uid  # from now on, frames of this brick only
+                if dev == tfp.DEVICE_IDENTIFIER_IMU_V2 and uid == self.uid:
                     log.info("IMU Brick 2.0 %s found; quaternion period %d ms",
                              tfp.base58_encode(uid), self.cfg.quaternion_period_ms)
                     try:
@@ -104,6 +136,9 @@ class WitMotionDriver:
 
     def on_connect(self, port) -> None:
         pass  # streams on its own
+
+    def poll(self, port) -> None:
+        pass
 
     @staticmethod
     def _time_frame_ns(data8: bytes) -> int:
@@ -143,7 +178,8 @@ class ImuInput:
     """One IMU port: open/reopen, read with a post-read stamp, frame, encode.
 
     Counters: ``imu_samples``, ``imu_garbage_bytes``, ``imu_other_frames``, ``imu_bad``,
-    ``imu_connects``, ``imu_disconnects``, ``imu_bytes``.
+    ``imu_connects``, ``imu_disconnects``, ``imu_bytes``, ``imu_unverified`` (TFP quaternions
+    before the brick was identified, or of another brick).
     """
 
     def __init__(self, cfg: ImuConfig, counts: Counters):
@@ -194,6 +230,15 @@ class ImuInput:
 
     def fileno(self) -> int:
         return self.port.fileno()
+
+    def poll(self) -> None:
+        """Periodic work while connected (the TFP driver re-asks who is there)."""
+        if self.port is None:
+            return
+        try:
+            self.driver.poll(self.port)
+        except (OSError, serial.SerialException) as exc:
+            log.debug("IMU poll write failed: %s", exc)
 
     def on_readable(self, out: list[Item]) -> bool:
         """Read what is waiting; False when the device is gone (the caller unregisters it)."""

@@ -67,6 +67,9 @@ class TfpPacket:
     response_expected: bool
     error_code: int
     payload: bytes
+    #: completed by an earlier ``feed`` but held back until the bytes after it showed it is
+    #: not a cut-off frame run into the next one (the caller stamps it with that earlier read)
+    held: bool = False
 
     @property
     def raw(self) -> bytes:
@@ -150,13 +153,51 @@ class TfpStreamParser:
     (function id, length) pair is one an IMU Brick 2.0 sends, the flag bits are sane, the UID
     matches (when one is set) and, for quaternions, the norm is about 1; otherwise one byte is
     skipped and counted as garbage. Bytes are never silently lost: ``garbage_bytes`` counts them.
+
+    With a UID set, frames of other UIDs are garbage, except enumerate answers (any brick may
+    answer; the caller decides). A frame cut short on the line (a dropped byte, a reset brick)
+    followed by a good one would otherwise read as one frame made of both -- a sample that
+    never existed -- and lose the good one. So a candidate inside which a whole valid frame of
+    our UID starts is refused (resync one byte on, which then finds that frame); when the
+    buffer ends before that can be told, the candidate is held until more bytes arrive
+    (returned then with ``held=True``, so the caller can stamp it with the earlier read).
     """
 
     def __init__(self, uid: int | None = None):
-        self.uid = uid
         self._buf = bytearray()
         self.packets = 0
         self.garbage_bytes = 0
+        self._held_at: int | None = None  # buffer offset of a frame complete but held
+        self.uid = uid
+
+    @property
+    def uid(self) -> int | None:
+        return self._uid
+
+    @uid.setter
+    def uid(self, uid: int | None) -> None:
+        self._uid = uid
+        self._uid_bytes = _U32.pack(uid) if uid is not None else b""
+
+    def _frame_at(self, j: int) -> int:
+        """1 when a whole valid frame of our UID starts at j, 0 when none can, -1 when the
+        buffer ends before that is known."""
+        buf, ub = self._buf, self._uid_bytes
+        avail = len(buf) - j
+        n = min(4, avail)
+        if buf[j : j + n] != ub[:n]:
+            return 0
+        if avail < HEADER_SIZE:
+            return -1
+        _uid, length, fid, opts, flags = HEADER.unpack_from(buf, j)
+        if _KNOWN_LENGTHS.get(fid) != length or (opts & 0x07) or (flags & 0x3F):
+            return 0
+        if avail < length:
+            return -1
+        if fid in (FID_CALLBACK_QUATERNION, FID_GET_QUATERNION):
+            if not _plausible_quaternion(bytes(buf[j + HEADER_SIZE : j + length])):
+                return 0
+        return 1
 
     def _valid_at(self, i: int) -> int:
         """Length of a valid packet starting at i, 0 if none, -1 if more bytes needed."""
@@ -164,8 +205,8 @@ class TfpStreamParser:
         if len(buf) - i < HEADER_SIZE:
             return -1
         uid, length, fid, opts, flags = HEADER.unpack_from(buf, i)
-        if self.uid is not None and uid != self.uid:
-            return 0
+        if self._uid is not None and uid != self._uid and fid != FID_CALLBACK_ENUMERATE:
+            return 0  # (any brick may answer enumerate: the caller decides)
         if _KNOWN_LENGTHS.get(fid) != length or (opts & 0x07) or (flags & 0x3F):
             return 0
         if len(buf) - i < length:
@@ -173,9 +214,20 @@ class TfpStreamParser:
         if fid in (FID_CALLBACK_QUATERNION, FID_GET_QUATERNION):
             if not _plausible_quaternion(bytes(buf[i + HEADER_SIZE : i + length])):
                 return 0
+        if self._uid is not None:
+            # a frame of ours starting inside this one means this one was cut short and runs
+            # into it: refuse it (resync), or wait until the bytes show whether that is so
+            first = self._uid_bytes[0]
+            for j in range(i + 1, i + length):
+                if buf[j] == first:
+                    f = self._frame_at(j)
+                    if f:
+                        return 0 if f > 0 else -1
         return length
 
     def feed(self, data: bytes) -> list[TfpPacket]:
+        held = self._held_at
+        self._held_at = None
         self._buf += data
         out: list[TfpPacket] = []
         i = 0
@@ -183,6 +235,10 @@ class TfpStreamParser:
         while True:
             n = self._valid_at(i)
             if n < 0:
+                if len(buf) - i >= HEADER_SIZE and self._uid is not None:
+                    _u, length, *_ = HEADER.unpack_from(buf, i)
+                    if len(buf) - i >= length:
+                        self._held_at = 0  # complete, held: at offset 0 after the trim below
                 break
             if n == 0:
                 i += 1
@@ -191,7 +247,7 @@ class TfpStreamParser:
             uid, length, fid, opts, flags = HEADER.unpack_from(buf, i)
             out.append(
                 TfpPacket(uid, fid, opts >> 4, bool(opts & 0x08), flags >> 6,
-                          bytes(buf[i + HEADER_SIZE : i + length]))
+                          bytes(buf[i + HEADER_SIZE : i + length]), held=(i == held))
             )
             self.packets += 1
             i += n
@@ -200,6 +256,7 @@ class TfpStreamParser:
             drop = len(buf) - i - MAX_PACKET_SIZE
             self.garbage_bytes += drop
             i += drop
+            self._held_at = None
         del buf[:i]
         return out
 
