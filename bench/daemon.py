@@ -57,12 +57,13 @@ def free_port() -> int:
 
 
 class DaemonProcess:
-    def __init__(self, workdir: Path):
+    def __init__(self, workdir: Path, lidar_yaml: str = ""):
         self.zport = free_port()
+        self.workdir = workdir
         cfg = workdir / "daemon.yaml"
         cfg.write_text(
             "lidar:\n  bind_address: 127.0.0.1\n  data_port: 0\n  position_port: 0\n"
-            "  receive_buffer_bytes: 67108864\n"
+            "  receive_buffer_bytes: 67108864\n" + lidar_yaml +
             f"recording:\n  directory: {workdir / 'rec'}\n  min_free_bytes: 0\n"
             f"zenoh:\n  listen: [tcp/127.0.0.1:{self.zport}]\n")
         self.proc = subprocess.Popen(
@@ -90,6 +91,15 @@ class DaemonProcess:
         conf.insert_json5("connect/endpoints", f'["tcp/127.0.0.1:{self.zport}"]')
         self.session = zenoh.open(conf)
 
+    def rss_mib(self) -> tuple[float, float]:
+        """(current, peak) resident memory of the daemon process [MiB]."""
+        vals = {}
+        with open(f"/proc/{self.proc.pid}/status") as fh:
+            for line in fh:
+                if line.startswith(("VmRSS:", "VmHWM:")):
+                    vals[line.split(":")[0]] = int(line.split()[1]) / 1024
+        return vals.get("VmRSS", 0.0), vals.get("VmHWM", 0.0)
+
     def cpu_s(self) -> float:
         with open(f"/proc/{self.proc.pid}/stat") as fh:
             f = fh.read().rsplit(")", 1)[1].split()
@@ -111,31 +121,41 @@ class DaemonProcess:
         self.proc.wait(60)
 
 
-def send(addr, first_seq: int, rate: float, seconds: float) -> tuple[int, float]:
-    """Send numbered packets at ``rate`` for ``seconds``; returns (count, achieved rate)."""
+def send(addr, first_seq: int, rate: float, seconds: float, kill_at=None) -> tuple[int, float]:
+    """Send numbered packets evenly paced at ``rate`` for ``seconds``, as the sensor does (one
+    every 0.66 ms at the dual-return rate), not in bursts; returns (count, achieved rate).
+
+    Up to 4,000 packets/s each packet waits for its own time slot; above that, packets go in
+    groups of ceil(rate / 4000) every 0.25 ms (a Python sender cannot sleep 33 µs). ``kill_at``:
+    (seconds, callable) called once that far into the run (the kill -9 case).
+    """
     s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     s.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 4 << 20)
     n = int(rate * seconds)
-    pk = [packet(first_seq + i) for i in range(min(n, 4096))]
-    burst = 32
-    t0 = time.perf_counter()
+    group = max(1, -(-int(rate) // 4000))
+    pk = [packet(first_seq + i) for i in range(min(n, 8192))]
+    sendto, perf, sleep = s.sendto, time.perf_counter, time.sleep
+    t0 = perf()
+    killed = kill_at is None
     for i in range(n):
-        if i < len(pk):
-            p = pk[i]
-        else:
-            p = packet(first_seq + i)
-        s.sendto(p, addr)
-        if i % burst == burst - 1:
-            ahead = (i + 1) / rate - (time.perf_counter() - t0)
+        p = pk[i] if i < len(pk) else packet(first_seq + i)
+        if i % group == 0:
+            ahead = i / rate - (perf() - t0)
             if ahead > 0:
-                time.sleep(ahead)
-    dt = time.perf_counter() - t0
+                sleep(ahead)
+            if not killed and i / rate >= kill_at[0]:
+                kill_at[1](i)
+                killed = True
+        sendto(p, addr)
+    dt = perf() - t0
     # one more packet a little later: the kernel reports its drop count (SO_RXQ_OVFL) only with
     # the next datagram it queues, so this one carries the count of the run into the status
-    time.sleep(0.2)
-    s.sendto(packet(first_seq + n), addr)
+    if kill_at is None:
+        time.sleep(0.2)
+        s.sendto(packet(first_seq + n), addr)
+        n += 1
     s.close()
-    return n + 1, n / dt
+    return n, (n - 1) / dt if kill_at is None else n / dt
 
 
 class Subscriber:
@@ -200,6 +220,7 @@ def run_case(d: DaemonProcess, seq: int, rate: float, seconds: float, sub_second
         "rec_dropped": after["record_dropped"] - before["record_dropped"],
         "zenoh_dropped": after["zenoh_dropped"] - before["zenoh_dropped"],
         "cpu_pct": 100.0 * cpu / wall, "subscriber": None,
+        "rss_mib": d.rss_mib()[0], "load": os.getloadavg()[0],
     }
     if sub:
         row["subscriber"] = sub.close()
