@@ -106,7 +106,7 @@ class LidarConfig(StrictModel):
     source_addresses: list[str] = []  # accept only these senders; empty: any
     receive_buffer_bytes: int = Field(64 << 20, ge=65536)  # SO_RCVBUF(FORCE) per socket [B]
     accept_products: list[int] = [PRODUCT_VLP16, PRODUCT_HDL32E]  # payload[1205]
-    max_batch: int = Field(4096, ge=1)  # datagrams read per wake-up and socket, at most
+    max_batch: int = Field(512, ge=1)  # datagrams read per wake-up and socket, at most
     wake_interval_ms: float = Field(20.0, ge=0)  # sockets are drained at most this often [ms]
 
 
