@@ -49,7 +49,10 @@ def test_simulated_capture_replayed_into_the_daemon(capture, tmp_path):
     # the pty replays the IMU's bytes but cannot answer enumerate: name the simulated brick's UID
     cfg = loopback_config(tmp_path, imu={"url": sink.path, "driver": "tfp",
                                          "tfp_uid": SimConfig().imu.uid},
-                          zenoh={"enabled": True, "listen": [f"tcp/127.0.0.1:{port}"]})
+                          # block: the live path waits for this in-process subscriber, so it gets
+                          # every packet (with the default, drop, a slow one loses its own)
+                          zenoh={"enabled": True, "listen": [f"tcp/127.0.0.1:{port}"],
+                                 "congestion_control": "block"})
     got: dict[str, list[bytes]] = {}
     lock = threading.Lock()
     seen_status = threading.Event()

@@ -36,12 +36,15 @@ class TfpDriver:
 
     Samples are taken only from the brick identified by UID: the configured ``tfp_uid``, or,
     when that is empty, the IMU Brick 2.0 that answers our enumerate request. Until one is
-    known, quaternion frames are counted (``imu_unverified``) and dropped, and enumerate is
-    asked again every ``reconnect_interval_s``; with a UID the parser also refuses frames run
+    known, quaternion frames are not recorded and enumerate is asked again every
+    ``reconnect_interval_s``; a line that only streams (a replay, no answer) is identified
+    once three frames of one UID came back to back (those three are then recorded; frames of
+    a run that breaks off are counted in ``imu_unverified``); with a UID the parser also refuses frames run
     into each other (see ``TfpStreamParser``), so a cut-off frame never becomes a sample.
     """
 
     name = "tfp"
+    LEARN_FRAMES = 3
 
     def __init__(self, cfg: ImuConfig, counts: Counters):
         self.cfg = cfg
@@ -49,15 +52,16 @@ class TfpDriver:
         counts.setdefault("imu_unverified", 0)
         self.configured_uid = tfp.base58_decode(cfg.tfp_uid) if cfg.tfp_uid else None
         self.uid = self.configured_uid
-        self.parser = tfp.TfpStreamParser(self.uid)
+        self.parser = tfp.TfpStreamParser(self.uid, strict=True)
         self.clock = RateClock()
         self._prev_host_ns = 0
         self._samples_since_connect = 0
+        self._run: list = []  # (frame, stamp) of one UID while it is being learned
 
     def reset(self) -> None:
         # keep a learned UID over a reconnect (the same brick plugged back in streams at once);
         # a different brick is taken if it answers enumerate before any sample of the old one
-        self.parser = tfp.TfpStreamParser(self.uid)
+        self.parser = tfp.TfpStreamParser(self.uid, strict=True)
         self._samples_since_connect = 0
 
     def on_connect(self, port) -> None:
@@ -71,6 +75,10 @@ class TfpDriver:
         a frame held at the end of the stream once the line has been quiet (>= 50 ms)."""
         if self.uid is None:
             port.write(tfp.encode_enumerate())
+        self.flush_if_quiet(port, out)
+
+    def flush_if_quiet(self, port, out: list[Item]) -> None:
+        """Decide a frame held at the end of the stream once the line was quiet for 50 ms."""
         if time.time_ns() - self._prev_host_ns >= 50 * NS_PER_MS:
             self._take(self.parser.flush_held(), self._prev_host_ns, self._prev_host_ns, port,
                        out)
@@ -84,21 +92,14 @@ class TfpDriver:
     def _take(self, packets, host_ns: int, prev_ns: int, port, out: list[Item]) -> None:
         for pkt in packets:
             if pkt.function_id == tfp.FID_CALLBACK_QUATERNION:
-                if self.uid is None or pkt.uid != self.uid:
+                ns = prev_ns if pkt.held and prev_ns else host_ns  # the read that completed it
+                if self.uid is None:
+                    self._learn(pkt, ns, out)
+                    continue
+                if pkt.uid != self.uid:
                     self.counts.add("imu_unverified")
                     continue
-                try:
-                    w, x, y, z = tfp.decode_quaternion(pkt.payload)
-                except ValueError:
-                    self.counts.add("imu_bad")
-                    continue
-                ns = prev_ns if pkt.held and prev_ns else host_ns  # the read that completed it
-                s = messages.ImuSample(ns, w, x, y, z, NO_DEVICE_TIME, "tfp", pkt.sequence,
-                                       pkt.raw)
-                out.append((topics.TOPIC_IMU, ns, messages.encode_imu(s)))
-                self.counts.add("imu_samples")
-                self._samples_since_connect += 1
-                self.clock.add(ns)
+                self._emit(pkt, ns, out)
             elif pkt.function_id == tfp.FID_CALLBACK_ENUMERATE:
                 self.counts.add("imu_other_frames")
                 try:
@@ -119,10 +120,46 @@ class TfpDriver:
                     try:
                         port.write(tfp.encode_set_quaternion_period(
                             uid, self.cfg.quaternion_period_ms))
-                    except (OSError, serial.SerialException):
-                        pass  # the read path notices a dead port
+                    except (OSError, serial.SerialException, AttributeError):
+                        pass  # the read path notices a dead port (None: shutting down)
             else:
                 self.counts.add("imu_other_frames")
+
+
+    def _emit(self, pkt, ns: int, out: list[Item]) -> None:
+        try:
+            w, x, y, z = tfp.decode_quaternion(pkt.payload)
+        except ValueError:
+            self.counts.add("imu_bad")
+            return
+        s = messages.ImuSample(ns, w, x, y, z, NO_DEVICE_TIME, "tfp", pkt.sequence, pkt.raw)
+        out.append((topics.TOPIC_IMU, ns, messages.encode_imu(s)))
+        self.counts.add("imu_samples")
+        self._samples_since_connect += 1
+        self.clock.add(ns)
+
+    def _learn(self, pkt, ns: int, out: list[Item]) -> None:
+        """No enumerate answer yet (a line that only streams, e.g. a replay): take the UID
+        from the stream once LEARN_FRAMES quaternion frames of one UID came back to back, and
+        record those frames; until then nothing is recorded."""
+        run = self._run
+        if run and run[-1][0].uid != pkt.uid:
+            self.counts.add("imu_unverified", len(run))
+            run.clear()
+        run.append((pkt, ns))
+        if len(run) < self.LEARN_FRAMES:
+            return
+        self.uid = pkt.uid
+        self.parser.uid = pkt.uid
+        log.info("IMU Brick %s taken from the stream (no enumerate answer yet)",
+                 tfp.base58_encode(pkt.uid))
+        for p, t in run:
+            self._emit(p, t, out)
+        run.clear()
+
+    def flush(self, out: list[Item]) -> None:
+        """At shutdown: decide a frame held at the end of the stream."""
+        self._take(self.parser.flush_held(), self._prev_host_ns, self._prev_host_ns, None, out)
 
 
 class WitMotionDriver:
@@ -145,6 +182,12 @@ class WitMotionDriver:
         pass  # streams on its own
 
     def poll(self, port, out: list[Item]) -> None:
+        pass
+
+    def flush_if_quiet(self, port, out: list[Item]) -> None:
+        pass
+
+    def flush(self, out: list[Item]) -> None:
         pass
 
     @staticmethod
@@ -237,6 +280,16 @@ class ImuInput:
 
     def fileno(self) -> int:
         return self.port.fileno()
+
+    def flush(self, out: list[Item]) -> None:
+        """At shutdown: what the driver still holds."""
+        self.driver.flush(out)
+
+    def flush_if_quiet(self, out: list[Item]) -> None:
+        """A frame held at the end of the stream, once the line was quiet (the loop calls this
+        every 50 ms; cheap)."""
+        if self.port is not None:
+            self.driver.flush_if_quiet(self.port, out)
 
     def poll(self, out: list[Item]) -> None:
         """Periodic work while connected (the TFP driver re-asks who is there and decides a

@@ -258,8 +258,14 @@ class Daemon:
         monotonic = time.monotonic
         next_tick = monotonic() + self._tick_interval()
         lidar_due = 0.0  # host_monotonic [s] before which the lidar sockets are left to fill
+        imu_check = 0.0  # when to look for an IMU frame held at the end of the stream
         while self._running:
             now = monotonic()
+            if self.imu is not None and now >= imu_check:
+                imu_check = now + 0.05
+                held: list = []
+                self.imu.flush_if_quiet(held)
+                self._submit(held)
             if now >= next_tick:
                 try:
                     self._tick()
@@ -272,6 +278,8 @@ class Daemon:
                 sel, until = self._sel_quiet, min(next_tick, lidar_due)
             else:
                 sel, until = self._sel, next_tick
+            if self.imu is not None:
+                until = min(until, imu_check)
             batch: list = []
             drained = False
             behind = False
@@ -525,6 +533,10 @@ class Daemon:
     # ---- shutdown ---------------------------------------------------------------------------
     def _final_drain(self) -> None:
         """Take what the kernel already holds for us before closing the sockets."""
+        if self.imu is not None:
+            batch: list = []
+            self.imu.flush(batch)
+            self.recorder.submit(batch)
         if self.lidar is None:
             return
         for sock in self.lidar.sockets():

@@ -162,19 +162,22 @@ class TfpStreamParser:
     skipped and counted as garbage. Bytes are never silently lost: ``garbage_bytes`` counts them.
 
     With a UID set, frames of other UIDs are garbage, except enumerate answers (any brick may
-    answer; the caller decides). A frame cut short on the line (a dropped byte, a reset brick)
+    answer; the caller decides). With ``strict`` (the daemon's live stream), a frame cut short on the line (a dropped byte, a reset brick)
     runs into the bytes after it and would otherwise read as one frame made of both -- a sample
     that never existed -- and lose the next one. So a candidate is refused (resync one byte on)
     when a header of ours starts inside it, and it must be followed by a header of ours; when
     followed by other bytes (line noise) it is taken only if it is a unit quaternion to the
     brick's rounding (|n^2 - 1| < 1e-3; a frame completed by foreign bytes passes that about
-    once in 10^4). When the buffer ends before that can be told, the candidate is held until
+    once in 10^4). A candidate that ends exactly where the bytes read so far end is taken (the
+    usual case: a read returns whole frames). When a few bytes follow but not enough to tell,
+    the candidate is held until
     more bytes arrive (returned then with ``held=True``, so the caller can stamp it with the
     earlier read), or until the caller says the line went quiet (:meth:`flush_held`: then
     silence follows it, which no foreign byte completed).
     """
 
-    def __init__(self, uid: int | None = None):
+    def __init__(self, uid: int | None = None, strict: bool = False):
+        self.strict = strict  # the look-ahead checks below (the daemon's live stream)
         self._buf = bytearray()
         self.packets = 0
         self.garbage_bytes = 0
@@ -227,7 +230,7 @@ class TfpStreamParser:
         if fid in (FID_CALLBACK_QUATERNION, FID_GET_QUATERNION):
             if not _plausible_quaternion(bytes(buf[i + HEADER_SIZE : i + length])):
                 return 0
-        if self._uid is not None:
+        if self._uid is not None and self.strict:
             # A frame cut short runs into what follows. Refuse a candidate with a header of
             # ours inside it, and want one right after it; a candidate followed by other bytes
             # (noise) is taken only when it is a unit quaternion to the device's rounding,
@@ -241,9 +244,11 @@ class TfpStreamParser:
                         return 0
                     if h < 0:
                         return -1  # the buffer ends inside a possible header: wait
+            if end == len(buf):
+                return length  # a read that ends with a whole frame: the usual case, take it
             after = self._header_at(end)
             if after < 0:
-                return -1  # wait for the next bytes to tell
+                return -1  # a few bytes follow: wait for the next ones to tell
             if (after == 0 and not self._quiet
                     and fid in (FID_CALLBACK_QUATERNION, FID_GET_QUATERNION)):
                 if not _unit_quaternion(bytes(buf[i + HEADER_SIZE : end])):
@@ -260,7 +265,7 @@ class TfpStreamParser:
         while True:
             n = self._valid_at(i)
             if n < 0:
-                if len(buf) - i >= HEADER_SIZE and self._uid is not None:
+                if len(buf) - i >= HEADER_SIZE and self._uid is not None and self.strict:
                     _u, length, *_ = HEADER.unpack_from(buf, i)
                     if len(buf) - i >= length:
                         self._held_at = 0  # complete, held: at offset 0 after the trim below
