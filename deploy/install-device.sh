@@ -38,8 +38,11 @@ run python3 -m venv "$PREFIX/venv"
 run "$PREFIX/venv/bin/pip" install --upgrade pip
 run "$PREFIX/venv/bin/pip" install "$REPO/shared" "$REPO/daemon"
 
-# 3. config (never overwrite an operator's file)
+# 3. config (never overwrite an operator's file); secrets go to the root-only credentials
+#    directory the unit loads with LoadCredential= (deploy/README.md: certificates and logins)
 run install -d -m 0755 /etc/tripod
+run install -d -m 0700 /etc/tripod/credentials
+run install -m 0644 "$REPO/deploy/etc/daemon.secure.yaml" /etc/tripod/daemon.secure.yaml.example
 if [ ! -e /etc/tripod/daemon.yaml ]; then
   run install -m 0644 "$REPO/deploy/etc/daemon.yaml" /etc/tripod/daemon.yaml
 else

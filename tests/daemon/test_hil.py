@@ -143,6 +143,9 @@ def test_replay_capture_with_imu_and_zenoh_subscriber(velodyne_dir, tmp_path):
                 # a status sample proves the subscription reached the daemon
                 assert d.wait_for(lambda: len(got["status"]) > 0)
                 assert d.wait_for(lambda: d.daemon.imu.connected)
+                # the brick answers the daemon's enumerate before it streams (as brickd does)
+                assert tfp.FID_ENUMERATE in dev.read_available(0.3)[:8]
+                dev.write(tfp.encode_enumerate_callback(0x1234ABCD))
                 writer = _write_paced(dev, frames)
                 s = udp_sender()
                 send_paced(s, d.data_addr, data, rate_hz=3000)

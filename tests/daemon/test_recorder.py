@@ -82,20 +82,29 @@ def test_split_by_duration(tmp_path):
     assert [p for f in rec.files for p in _packets(f)] == [make_data_packet(k) for k in range(100)]
 
 
-def test_full_queue_drops_and_counts_never_blocks(tmp_path):
-    cfg = RecordingConfig(directory=str(tmp_path), queue_messages=50, min_free_bytes=0)
+def test_full_backlog_drops_and_counts_never_blocks_and_stays_in_budget(tmp_path):
+    cfg = RecordingConfig(directory=str(tmp_path), queue_bytes=1 << 20, min_free_bytes=0)
     counts = Counters()
     rec = Recorder(cfg, counts)
+    peak = 0
+    said = set()
     try:
         assert rec.start()
         t0 = time.perf_counter()
-        for k in range(200):
+        for k in range(200):  # 8000 packets, ~10 MB offered at once: far over the budget
             rec.submit(_items(k * 40, 40))
+            peak = max(peak, rec.pending_bytes)
+            said.add(rec.overload.split(":")[0])
         assert time.perf_counter() - t0 < 1.0
+        assert "disk cannot keep up" in said  # (cleared again once the backlog is half gone)
     finally:
         rec.close()
+    assert 0 < peak <= cfg.queue_bytes
     assert counts["record_dropped"] > 0
     assert counts["record_dropped"] + counts["record_written"] == 200 * 40
+    # what was written is whole batches, in order
+    got = _packets(rec.files[0])
+    assert got == sorted(got, key=lambda p: int.from_bytes(p[2:6], "little"))
 
 
 def test_not_recording_ignores_data_and_mark_says_so(tmp_path):

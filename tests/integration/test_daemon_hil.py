@@ -46,8 +46,13 @@ def test_simulated_capture_replayed_into_the_daemon(capture, tmp_path):
 
     sink = PtyImuSink()
     port = free_tcp_port()
-    cfg = loopback_config(tmp_path, imu={"url": sink.path, "driver": "tfp"},
-                          zenoh={"enabled": True, "listen": [f"tcp/127.0.0.1:{port}"]})
+    # the pty replays the IMU's bytes but cannot answer enumerate: name the simulated brick's UID
+    cfg = loopback_config(tmp_path, imu={"url": sink.path, "driver": "tfp",
+                                         "tfp_uid": SimConfig().imu.uid},
+                          # block: the live path waits for this in-process subscriber, so it gets
+                          # every packet (with the default, drop, a slow one loses its own)
+                          zenoh={"enabled": True, "listen": [f"tcp/127.0.0.1:{port}"],
+                                 "congestion_control": "block"})
     got: dict[str, list[bytes]] = {}
     lock = threading.Lock()
     seen_status = threading.Event()

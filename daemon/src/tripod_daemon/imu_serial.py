@@ -32,19 +32,37 @@ Item = tuple[str, int, bytes]
 
 
 class TfpDriver:
-    """Tinkerforge IMU Brick 2.0 over TFP (serial/USB through brickd, or brickd's TCP port)."""
+    """Tinkerforge IMU Brick 2.0 over TFP (serial/USB through brickd, or brickd's TCP port).
+
+    Samples are taken only from the brick identified by UID: the configured ``tfp_uid``, or,
+    when that is empty, the IMU Brick 2.0 that answers our enumerate request. Until one is
+    known, quaternion frames are not recorded and enumerate is asked again every
+    ``reconnect_interval_s``; a line that only streams (a replay, no answer) is identified
+    once three frames of one UID came back to back (those three are then recorded; frames of
+    a run that breaks off are counted in ``imu_unverified``); with a UID the parser also refuses frames run
+    into each other (see ``TfpStreamParser``), so a cut-off frame never becomes a sample.
+    """
 
     name = "tfp"
+    LEARN_FRAMES = 3
 
     def __init__(self, cfg: ImuConfig, counts: Counters):
         self.cfg = cfg
         self.counts = counts
-        self.uid = tfp.base58_decode(cfg.tfp_uid) if cfg.tfp_uid else None
-        self.parser = tfp.TfpStreamParser(self.uid)
+        counts.setdefault("imu_unverified", 0)
+        self.configured_uid = tfp.base58_decode(cfg.tfp_uid) if cfg.tfp_uid else None
+        self.uid = self.configured_uid
+        self.parser = tfp.TfpStreamParser(self.uid, strict=True)
         self.clock = RateClock()
+        self._prev_host_ns = 0
+        self._samples_since_connect = 0
+        self._run: list = []  # (frame, stamp) of one UID while it is being learned
 
     def reset(self) -> None:
-        self.parser = tfp.TfpStreamParser(self.uid)
+        # keep a learned UID over a reconnect (the same brick plugged back in streams at once);
+        # a different brick is taken if it answers enumerate before any sample of the old one
+        self.parser = tfp.TfpStreamParser(self.uid, strict=True)
+        self._samples_since_connect = 0
 
     def on_connect(self, port) -> None:
         """Ask who is there, and (when the UID is known) for the quaternion callback period."""
@@ -52,20 +70,36 @@ class TfpDriver:
         if self.uid is not None:
             port.write(tfp.encode_set_quaternion_period(self.uid, self.cfg.quaternion_period_ms))
 
+    def poll(self, port, out: list[Item]) -> None:
+        """Called from the loop's tick while connected: enumerate until identified, and decide
+        a frame held at the end of the stream once the line has been quiet (>= 50 ms)."""
+        if self.uid is None:
+            port.write(tfp.encode_enumerate())
+        self.flush_if_quiet(port, out)
+
+    def flush_if_quiet(self, port, out: list[Item]) -> None:
+        """Decide a frame held at the end of the stream once the line was quiet for 50 ms."""
+        if time.time_ns() - self._prev_host_ns >= 50 * NS_PER_MS:
+            self._take(self.parser.flush_held(), self._prev_host_ns, self._prev_host_ns, port,
+                       out)
+
     def feed(self, data: bytes, host_ns: int, port, out: list[Item]) -> None:
         before = self.parser.garbage_bytes
-        for pkt in self.parser.feed(data):
+        prev_ns, self._prev_host_ns = self._prev_host_ns, host_ns
+        self._take(self.parser.feed(data), host_ns, prev_ns, port, out)
+        self.counts.add("imu_garbage_bytes", self.parser.garbage_bytes - before)
+
+    def _take(self, packets, host_ns: int, prev_ns: int, port, out: list[Item]) -> None:
+        for pkt in packets:
             if pkt.function_id == tfp.FID_CALLBACK_QUATERNION:
-                try:
-                    w, x, y, z = tfp.decode_quaternion(pkt.payload)
-                except ValueError:
-                    self.counts.add("imu_bad")
+                ns = prev_ns if pkt.held and prev_ns else host_ns  # the read that completed it
+                if self.uid is None:
+                    self._learn(pkt, ns, out)
                     continue
-                s = messages.ImuSample(host_ns, w, x, y, z, NO_DEVICE_TIME, "tfp", pkt.sequence,
-                                       pkt.raw)
-                out.append((topics.TOPIC_IMU, host_ns, messages.encode_imu(s)))
-                self.counts.add("imu_samples")
-                self.clock.add(host_ns)
+                if pkt.uid != self.uid:
+                    self.counts.add("imu_unverified")
+                    continue
+                self._emit(pkt, ns, out)
             elif pkt.function_id == tfp.FID_CALLBACK_ENUMERATE:
                 self.counts.add("imu_other_frames")
                 try:
@@ -73,17 +107,59 @@ class TfpDriver:
                 except (ValueError, struct.error, UnicodeDecodeError):
                     self.counts.add("imu_bad")
                     continue
-                if dev == tfp.DEVICE_IDENTIFIER_IMU_V2 and (self.uid is None or uid == self.uid):
+                if uid != pkt.uid:
+                    self.counts.add("imu_bad")  # header and payload disagree: not a real answer
+                    continue
+                if (dev == tfp.DEVICE_IDENTIFIER_IMU_V2 and uid != self.uid
+                        and self.configured_uid is None and not self._samples_since_connect):
+                    self.uid = uid
+                    self.parser.uid = uid  # from now on, frames of this brick only
+                if dev == tfp.DEVICE_IDENTIFIER_IMU_V2 and uid == self.uid:
                     log.info("IMU Brick 2.0 %s found; quaternion period %d ms",
                              tfp.base58_encode(uid), self.cfg.quaternion_period_ms)
                     try:
                         port.write(tfp.encode_set_quaternion_period(
                             uid, self.cfg.quaternion_period_ms))
-                    except (OSError, serial.SerialException):
-                        pass  # the read path notices a dead port
+                    except (OSError, serial.SerialException, AttributeError):
+                        pass  # the read path notices a dead port (None: shutting down)
             else:
                 self.counts.add("imu_other_frames")
-        self.counts.add("imu_garbage_bytes", self.parser.garbage_bytes - before)
+
+
+    def _emit(self, pkt, ns: int, out: list[Item]) -> None:
+        try:
+            w, x, y, z = tfp.decode_quaternion(pkt.payload)
+        except ValueError:
+            self.counts.add("imu_bad")
+            return
+        s = messages.ImuSample(ns, w, x, y, z, NO_DEVICE_TIME, "tfp", pkt.sequence, pkt.raw)
+        out.append((topics.TOPIC_IMU, ns, messages.encode_imu(s)))
+        self.counts.add("imu_samples")
+        self._samples_since_connect += 1
+        self.clock.add(ns)
+
+    def _learn(self, pkt, ns: int, out: list[Item]) -> None:
+        """No enumerate answer yet (a line that only streams, e.g. a replay): take the UID
+        from the stream once LEARN_FRAMES quaternion frames of one UID came back to back, and
+        record those frames; until then nothing is recorded."""
+        run = self._run
+        if run and run[-1][0].uid != pkt.uid:
+            self.counts.add("imu_unverified", len(run))
+            run.clear()
+        run.append((pkt, ns))
+        if len(run) < self.LEARN_FRAMES:
+            return
+        self.uid = pkt.uid
+        self.parser.uid = pkt.uid
+        log.info("IMU Brick %s taken from the stream (no enumerate answer yet)",
+                 tfp.base58_encode(pkt.uid))
+        for p, t in run:
+            self._emit(p, t, out)
+        run.clear()
+
+    def flush(self, out: list[Item]) -> None:
+        """At shutdown: decide a frame held at the end of the stream."""
+        self._take(self.parser.flush_held(), self._prev_host_ns, self._prev_host_ns, None, out)
 
 
 class WitMotionDriver:
@@ -104,6 +180,15 @@ class WitMotionDriver:
 
     def on_connect(self, port) -> None:
         pass  # streams on its own
+
+    def poll(self, port, out: list[Item]) -> None:
+        pass
+
+    def flush_if_quiet(self, port, out: list[Item]) -> None:
+        pass
+
+    def flush(self, out: list[Item]) -> None:
+        pass
 
     @staticmethod
     def _time_frame_ns(data8: bytes) -> int:
@@ -143,7 +228,8 @@ class ImuInput:
     """One IMU port: open/reopen, read with a post-read stamp, frame, encode.
 
     Counters: ``imu_samples``, ``imu_garbage_bytes``, ``imu_other_frames``, ``imu_bad``,
-    ``imu_connects``, ``imu_disconnects``, ``imu_bytes``.
+    ``imu_connects``, ``imu_disconnects``, ``imu_bytes``, ``imu_unverified`` (TFP quaternions
+    before the brick was identified, or of another brick).
     """
 
     def __init__(self, cfg: ImuConfig, counts: Counters):
@@ -194,6 +280,26 @@ class ImuInput:
 
     def fileno(self) -> int:
         return self.port.fileno()
+
+    def flush(self, out: list[Item]) -> None:
+        """At shutdown: what the driver still holds."""
+        self.driver.flush(out)
+
+    def flush_if_quiet(self, out: list[Item]) -> None:
+        """A frame held at the end of the stream, once the line was quiet (the loop calls this
+        every 50 ms; cheap)."""
+        if self.port is not None:
+            self.driver.flush_if_quiet(self.port, out)
+
+    def poll(self, out: list[Item]) -> None:
+        """Periodic work while connected (the TFP driver re-asks who is there and decides a
+        frame held at the end of the stream)."""
+        if self.port is None:
+            return
+        try:
+            self.driver.poll(self.port, out)
+        except (OSError, serial.SerialException) as exc:
+            log.debug("IMU poll write failed: %s", exc)
 
     def on_readable(self, out: list[Item]) -> bool:
         """Read what is waiting; False when the device is gone (the caller unregisters it)."""

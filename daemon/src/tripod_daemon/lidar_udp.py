@@ -3,7 +3,7 @@
 
 The loop calls :meth:`LidarInput.drain` when a socket is readable. Each datagram is read with
 ``recvmsg`` and stamped by the kernel at the wire (``SO_TIMESTAMPNS``, host_realtime), checked
-(size, block flags, return mode, product; position packets: size and timestamp range), counted
+(size, block flags, return mode, product; position packets: ``input_check``), counted
 by kind and, when good, encoded once into the CDR bytes that both MCAP and Zenoh carry. Nothing is
 decoded. The receive buffer is made large (``SO_RCVBUFFORCE`` when permitted) so that the kernel
 holds bursts while Python does other work.
@@ -26,13 +26,13 @@ from tripod_shared.velodyne import (
     TIMESTAMP_OFFSET,
     PacketKind,
     check_data_packet,
-    check_position_packet,
     position_nmea,
     position_timestamp_us,
 )
 
 from .clock import LidarClock
 from .config import LidarConfig
+from .input_check import POSITION_REJECT_REASONS, position_reject_reason
 from .stats import Counters
 
 log = logging.getLogger(__name__)
@@ -81,7 +81,8 @@ class LidarInput:
     ``lidar_malformed`` (wrong size, flags, mode, truncated), ``lidar_foreign`` (a Velodyne
     packet of a product not accepted), ``lidar_filtered`` (sender not in ``source_addresses``),
     ``lidar_bytes``, ``lidar_kernel_drops`` (datagrams the kernel dropped because the receive
-    buffer was full: the loss no user-space counter could otherwise see).
+    buffer was full: the loss no user-space counter could otherwise see), and per reason a
+    position datagram was refused, ``position_rejected_<reason>`` (see ``input_check``).
     """
 
     def __init__(self, cfg: LidarConfig, counts: Counters, clock: LidarClock | None = None):
@@ -91,6 +92,8 @@ class LidarInput:
         for k in ("lidar_data", "lidar_position", "lidar_malformed", "lidar_foreign",
                   "lidar_filtered", "lidar_bytes", "lidar_kernel_drops"):
             counts.setdefault(k, 0)
+        for why in POSITION_REJECT_REASONS:
+            counts.setdefault("position_rejected_" + why, 0)
         self.data_sock, self.data_rcvbuf = open_udp_socket(
             cfg.bind_address, cfg.data_port, cfg.receive_buffer_bytes)
         self.position_sock = None
@@ -200,8 +203,11 @@ class LidarInput:
             if self._sources and addr[0] not in self._sources:
                 c["lidar_filtered"] += 1
                 continue
-            if check_position_packet(data) is not PacketKind.POSITION or flags & socket.MSG_TRUNC:
+            why = "size" if flags & socket.MSG_TRUNC else position_reject_reason(data)
+            if why is not None:
+                # junk on the position port never reaches the recording or the clock
                 c["lidar_malformed"] += 1
+                c["position_rejected_" + why] += 1
                 continue
             toh_us = position_timestamp_us(data)
             c["lidar_position"] += 1

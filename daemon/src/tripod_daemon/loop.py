@@ -1,6 +1,14 @@
 # SPDX-License-Identifier: BSD-3-Clause
 """The daemon: one ``selectors`` loop over the UDP sockets, the IMU port, a self-pipe for
-signals and commands, and a tick (status, watchdog, IMU reconnect).
+signals and commands, and a tick (status, health, watchdog, IMU reconnect).
+
+Light on the CPU: the lidar sends a datagram every 0.66 ms (dual return); waking for each one
+costs more than handling it. So the UDP sockets are drained at most every
+``lidar.wake_interval_ms`` (20 ms): after a drain the loop waits only on the IMU port and the
+self-pipe until the interval is over, while the kernel queues the datagrams with their receive
+stamps (SO_TIMESTAMPNS), so stamps are unchanged and nothing is lost (the receive buffer holds
+seconds). Each wake-up hands one batch to the recorder and one to the publisher. The IMU's
+serial port has no kernel stamps, so it is read as soon as it is readable.
 
 Data flows one way: sockets/port -> encoded batch -> recorder queue (MCAP thread) and publisher
 queue (Zenoh thread). The loop itself never writes files or sends to the network, so nothing
@@ -18,6 +26,7 @@ import os
 import queue
 import selectors
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -76,8 +85,13 @@ class Daemon:
         self.ready = threading.Event()  # set once sockets are open (tests wait on it)
         self._commands: queue.SimpleQueue = queue.SimpleQueue()
         self._rpipe, self._wpipe = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
-        self._sel = selectors.DefaultSelector()
+        self._sel = selectors.DefaultSelector()  # everything
+        self._sel_quiet = selectors.DefaultSelector()  # all but the lidar sockets
         self._running = False
+        self.health: dict[str, str] = {}  # problem name -> message (stalls, not recording)
+        self._seen: dict[str, tuple[int, float]] = {}  # counter -> (value, when it last moved)
+        self._unhealthy_since: float | None = None
+        self._watchdog_stopped = False
         self._last_status: messages.Status | None = None
         self._status_text = messages.encode_status(messages.Status(time.time_ns(), "starting"))
         self._last_status_mono = time.monotonic()
@@ -117,7 +131,7 @@ class Daemon:
     def _open_lidar(self) -> None:
         self.lidar = LidarInput(self.cfg.lidar, self.counts, self.lidar_clock)
         for s in self.lidar.sockets():
-            self._sel.register(s, selectors.EVENT_READ, "lidar")
+            self._sel.register(s, selectors.EVENT_READ, "lidar")  # not in the quiet selector
         log.info("lidar: data on %s:%d, position on %s (receive buffer %d B)",
                  self.cfg.lidar.bind_address, self.lidar.data_port,
                  self.lidar.position_port, self.lidar.data_rcvbuf)
@@ -136,13 +150,25 @@ class Daemon:
     def _close_imu(self) -> None:
         if self.imu is not None:
             if self.imu.connected:
-                self._sel.unregister(self.imu.fileno())
+                self._unregister_both(self.imu.fileno())
             self.imu.close()
             self.imu = None
 
     def _imu_check(self) -> None:
         if self.imu is not None and self.imu.try_open():
-            self._sel.register(self.imu.fileno(), selectors.EVENT_READ, "imu")
+            self._register_both(self.imu.fileno(), "imu")
+            self._seen.pop("imu_samples", None)  # a stall is timed from the connection
+
+    def _register_both(self, fileobj, data: str) -> None:
+        self._sel.register(fileobj, selectors.EVENT_READ, data)
+        self._sel_quiet.register(fileobj, selectors.EVENT_READ, data)
+
+    def _unregister_both(self, fileobj) -> None:
+        for sel in (self._sel, self._sel_quiet):
+            try:
+                sel.unregister(fileobj)
+            except (KeyError, ValueError):
+                pass
 
     def _open_publisher(self) -> None:
         """Open the Zenoh session. A failure (endpoint in use, bad zenoh config file) leaves
@@ -177,12 +203,14 @@ class Daemon:
     # ---- the loop ---------------------------------------------------------------------------
     def run(self) -> int:
         old_handlers = {}
+        old_switch = sys.getswitchinterval()
+        sys.setswitchinterval(self.cfg.lidar.switch_interval_ms / 1000.0)
         if self.install_signal_handlers and threading.current_thread() is threading.main_thread():
             for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
                 old_handlers[sig] = signal.signal(sig, lambda s, _f: self.signal(s))
         try:
             try:
-                self._sel.register(self._rpipe, selectors.EVENT_READ, "pipe")
+                self._register_both(self._rpipe, "pipe")
                 self._open_lidar()
                 self._open_recorder()
                 self._open_publisher()
@@ -214,6 +242,7 @@ class Daemon:
             log.info("stopped; %s", self._status_line())
             return 0
         finally:
+            sys.setswitchinterval(old_switch)
             for sig, h in old_handlers.items():
                 signal.signal(sig, h)
 
@@ -226,41 +255,61 @@ class Daemon:
         return iv
 
     def _loop(self) -> None:
-        sel = self._sel
-        next_tick = time.monotonic() + self._tick_interval()
+        monotonic = time.monotonic
+        next_tick = monotonic() + self._tick_interval()
+        lidar_due = 0.0  # host_monotonic [s] before which the lidar sockets are left to fill
+        imu_check = 0.0  # when to look for an IMU frame held at the end of the stream
         while self._running:
-            timeout = next_tick - time.monotonic()
-            if timeout <= 0:
+            now = monotonic()
+            if self.imu is not None and now >= imu_check:
+                imu_check = now + 0.05
+                held: list = []
+                self.imu.flush_if_quiet(held)
+                self._submit(held)
+            if now >= next_tick:
                 try:
                     self._tick()
                 except Exception:  # noqa: BLE001 - a status problem must not end the service
                     self.counts.add("internal_errors")
                     log.exception("error in the periodic tick (counted, continuing)")
-                next_tick = time.monotonic() + self._tick_interval()
+                next_tick = monotonic() + self._tick_interval()
                 continue
-            for key, _ev in sel.select(timeout):
+            if now < lidar_due:
+                sel, until = self._sel_quiet, min(next_tick, lidar_due)
+            else:
+                sel, until = self._sel, next_tick
+            if self.imu is not None:
+                until = min(until, imu_check)
+            batch: list = []
+            drained = False
+            behind = False
+            for key, _ev in sel.select(until - now):
+                what = key.data
                 try:
-                    self._dispatch(key)
+                    if what == "lidar":
+                        behind |= self.lidar.drain(key.fileobj, batch) >= self.lidar.cfg.max_batch
+                        drained = True
+                    elif what == "imu":
+                        if not self.imu.on_readable(batch):
+                            self._unregister_both(key.fileobj)
+                    else:
+                        self._submit(batch)
+                        batch = []
+                        self._on_pipe()
+                        # a reload may have replaced sockets: the rest of this event list is
+                        # stale (level-triggered, so anything pending is reported again)
+                        break
                 except Exception:  # noqa: BLE001 - bad input must never end the service
                     self.counts.add("internal_errors")
-                    log.exception("error handling %s (counted, continuing)", key.data)
-                if key.data == "pipe":
-                    # a reload may have replaced sockets: the rest of this event list is stale
-                    # (level-triggered, so anything pending is reported again)
-                    break
+                    log.exception("error handling %s (counted, continuing)", what)
+            if drained:
+                wake_s = self.cfg.lidar.wake_interval_ms / 1000.0  # (SIGHUP may change it)
+                # a socket still had data after max_batch datagrams: the loop is behind, so no
+                # pause (the pause is for the light load it was made for, not for catching up)
+                lidar_due = now if behind else now + wake_s
+            self._submit(batch)
 
-    def _dispatch(self, key) -> None:
-        what = key.data
-        if what == "lidar":
-            batch: list = []
-            self.lidar.drain(key.fileobj, batch)
-        elif what == "imu":
-            batch = []
-            if not self.imu.on_readable(batch):
-                self._sel.unregister(key.fileobj)
-        else:
-            self._on_pipe()
-            return
+    def _submit(self, batch: list) -> None:
         if batch:
             self.recorder.submit(batch)
             if self.publisher is not None:
@@ -303,7 +352,7 @@ class Daemon:
                 return {"_wait": cmd_done}
             return {"ok": True, "recording": True, "file": rec.file, "message": rec.message}
         if name == "stop":
-            if rec.active:
+            if rec.active or rec.wanted:  # (wanted: failed and retrying -- stop retrying too)
                 self._event("stop", label or "control")
                 rec.stop(label or "control")
             return {"ok": True, "recording": False, "file": None}
@@ -371,13 +420,76 @@ class Daemon:
     # ---- status, watchdog, reconnect --------------------------------------------------------
     def _tick(self, force: bool = False) -> None:
         self._imu_check()
+        if self.imu is not None:
+            batch: list = []
+            self.imu.poll(batch)
+            self._submit(batch)
         now_mono = time.monotonic()
         if self.zenoh_error and now_mono >= self._zenoh_retry_mono:
             self._open_publisher()
+        self._check_health(now_mono)
         if force or now_mono - self._last_status_mono >= self.cfg.status.interval_s * 0.95:
             self._last_status_mono = now_mono
             self._publish_status()
-        self.notifier.watchdog()
+        if not self._watchdog_stopped:
+            self.notifier.watchdog()
+
+    def _stalled(self, counter: str, now: float, limit_s: float) -> float | None:
+        """Seconds ``counter`` has not moved when that is over ``limit_s``, else None."""
+        value = self.counts.get(counter, 0)
+        last = self._seen.get(counter)
+        if last is None or value != last[0]:
+            self._seen[counter] = (value, now)
+            return None
+        idle = now - last[1]
+        return idle if limit_s and idle >= limit_s else None
+
+    def _flag(self, name: str, message: str | None) -> None:
+        """Raise or clear a health problem: logged, an event, and in status and STATUS=."""
+        old = self.health.get(name)
+        if message is None:
+            if old is not None:
+                del self.health[name]
+                log.warning("%s: resolved", name)
+                self._event("health", f"{name} resolved")
+            return
+        if old is None:
+            log.warning("%s", message)
+            self._event("health", message)
+            self.counts.add(f"health_{name}")
+        self.health[name] = message
+
+    def _check_health(self, now: float) -> None:
+        h = self.cfg.health
+        idle = self._stalled("lidar_data", now, h.lidar_stall_s)
+        self._flag("lidar_stalled", None if idle is None else f"lidar stalled: no data for "
+                   f"{idle:.0f} s")
+        imu = self.imu
+        if imu is not None and imu.connected:
+            idle = self._stalled("imu_samples", now, h.imu_stall_s)
+            self._flag("imu_stalled", None if idle is None else f"IMU stalled: connected but no "
+                       f"samples for {idle:.0f} s")
+        else:
+            self._seen.pop("imu_samples", None)
+            self._flag("imu_stalled", None)
+        rec = self.recorder
+        self._flag("record_overload", rec.overload or None)
+        if rec.wanted and not rec.active:
+            if self._unhealthy_since is None:
+                self._unhealthy_since = now
+            down = now - self._unhealthy_since
+            if (h.unhealthy_restart_s and down >= h.unhealthy_restart_s
+                    and self.notifier.watchdog_interval_s and not self._watchdog_stopped):
+                self._watchdog_stopped = True
+                log.error("not recording for %.0f s although asked to (%s): no more WATCHDOG=1, "
+                          "so systemd restarts the service", down, rec.message)
+                self.notifier.status(f"unhealthy: not recording for {down:.0f} s; waiting for "
+                                     "the watchdog restart")
+        else:
+            self._unhealthy_since = None
+            if self._watchdog_stopped:
+                log.warning("recording again: watchdog resumed")
+            self._watchdog_stopped = False
 
     def _publish_status(self, notify: bool = True) -> None:
         rec = self.recorder
@@ -390,8 +502,10 @@ class Daemon:
         if self.imu is not None:
             clocks["imu"] = self.imu.clock_summary()
             counts["imu_connected"] = int(self.imu.connected)
+        counts["record_queue_bytes"] = rec.pending_bytes
         msg = "; ".join(m for m in (
             rec.message, self.imu.last_error if self.imu is not None else "", self.zenoh_error,
+            *self.health.values(),
         ) if m)
         st = messages.Status(
             time.time_ns(), state=rec.state, recording=rec.active, file=rec.file, counts=counts,
@@ -412,11 +526,17 @@ class Daemon:
         state = rec.state if rec else "starting"
         if rec and rec.message:
             state += f" ({rec.message})"
+        if self.health:
+            state += "; " + "; ".join(self.health.values())
         return status_line(state, self.rates.rates, self.counts, rec.file if rec else None)
 
     # ---- shutdown ---------------------------------------------------------------------------
     def _final_drain(self) -> None:
         """Take what the kernel already holds for us before closing the sockets."""
+        if self.imu is not None:
+            batch: list = []
+            self.imu.flush(batch)
+            self.recorder.submit(batch)
         if self.lidar is None:
             return
         for sock in self.lidar.sockets():
@@ -433,6 +553,7 @@ class Daemon:
         self._close_imu()
         self._close_lidar()
         self._sel.close()
+        self._sel_quiet.close()
         for fd in (self._rpipe, self._wpipe):
             try:
                 os.close(fd)

@@ -9,6 +9,7 @@ live stream.
     tripod-daemon --print-default-config
     tripod-daemon recover FILE [-o OUT]
     tripod-daemon watch [--connect EP] [--device-id ID] [--seconds S]
+    tripod-daemon gen-certs DIR [--name HOST] [--client CN]
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ def _run_parser() -> argparse.ArgumentParser:
         prog="tripod-daemon",
         description="Receive VLP-16 packets and IMU samples, publish them over Zenoh and record "
         "them to MCAP. Subcommands: 'recover FILE' rebuilds a cut-off recording; 'watch' "
-        "prints the live stream's rates.",
+        "prints the live stream's rates; 'gen-certs DIR' makes TLS certificates.",
     )
     p.add_argument("--version", action="version", version=f"tripod-daemon {__version__}")
     p.add_argument("-c", "--config", help=f"YAML config (layered over {SYSTEM_CONFIG})")
@@ -102,6 +103,10 @@ def main(argv: list[str] | None = None) -> int:
         from .recover import main as recover_main
 
         return recover_main(argv[1:])
+    if argv and argv[0] == "gen-certs":
+        from .certs import main as certs_main
+
+        return certs_main(argv[1:])
     if argv and argv[0] == "watch":
         from .watch import main as watch_main
 

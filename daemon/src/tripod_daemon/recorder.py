@@ -1,13 +1,20 @@
 # SPDX-License-Identifier: BSD-3-Clause
 """MCAP recording in a writer thread behind a bounded queue (Klipper ``queuelogger`` style).
 
-The receive loop hands over *batches* of already-encoded messages (one ``put`` per readiness
-event, not per packet) and never waits: when the queue holds ``queue_messages`` the batch is
-counted in ``record_dropped`` and the loop goes on. The thread owns the
-:class:`tripod_shared.recording.RecordingWriter`, closes a chunk at least every
-``flush_interval_s`` (so a ``kill -9`` loses at most that much, see ``recover``), fsyncs by
-policy, splits files by size and duration, names them by UTC start time, and stops cleanly
-with a status saying why when free space falls below ``min_free_bytes`` or a write fails.
+The receive loop hands over *batches* of already-encoded messages (one ``put`` per wake-up,
+not per packet) and never waits. The backlog has a fixed memory budget, ``queue_bytes``: when
+the disk cannot keep up and the budget is used, batches are dropped and counted
+(``record_dropped``), the recorder says so (``overload``: status message, an ``overload``
+event, a log line every 10 s) and memory stays bounded; at the default 32 MiB that is about
+0.6 s of data at 45k packets/s, so with ``flush_interval_s`` 0.5 a ``kill -9`` loses about a
+second at most. The thread owns the :class:`tripod_shared.recording.RecordingWriter`, closes a
+chunk at least every ``flush_interval_s`` (see ``recover``), fsyncs by policy, splits files by
+size and duration, and names them by UTC start time.
+
+Self-healing: when the directory cannot be used, a write fails or free space falls below
+``min_free_bytes``, the file is finished and, as long as recording is wanted (started and not
+stopped), the thread tries again every ``retry_interval_s`` and resumes into a new file by
+itself (``record_resumes``); what arrives meanwhile is counted in ``record_unrecorded``.
 """
 
 from __future__ import annotations
@@ -56,7 +63,9 @@ class Recorder:
     ----------
     cfg : RecordingConfig
     counts : Counters
-        ``record_written``, ``record_dropped``, ``record_files``, ``record_bytes`` are added.
+        ``record_written``, ``record_dropped`` (backlog over budget), ``record_unrecorded``
+        (arrived while recording was wanted but impossible), ``record_files``,
+        ``record_bytes``, ``record_resumes`` are added; ``record_queue_bytes`` is the backlog.
     metadata : dict
         Written as the ``tripod_daemon`` metadata record of every file (e.g. the config).
     free_space : callable(path) -> int
@@ -73,7 +82,8 @@ class Recorder:
     ):
         self.cfg = cfg
         self.counts = counts
-        for k in ("record_written", "record_dropped", "record_files", "record_bytes"):
+        for k in ("record_written", "record_dropped", "record_unrecorded", "record_files",
+                  "record_bytes", "record_resumes"):
             counts.setdefault(k, 0)
         self.metadata = dict(metadata or {})
         self.free_space = free_space
@@ -81,7 +91,14 @@ class Recorder:
         self._q: queue.SimpleQueue = queue.SimpleQueue()
         self._enqueued = 0  # written by producers (loop thread) only
         self._dequeued = 0  # written by the writer thread only
+        self._enqueued_bytes = 0  # likewise, in message bytes
+        self._dequeued_bytes = 0
         self.active = False  # accepting data (set by the loop's start/stop, read by submit)
+        self.wanted = False  # recording asked for (start .. stop): failures are retried
+        self.overload = ""  # set while the backlog is over budget (the disk cannot keep up)
+        self._overload_log_mono = 0.0
+        self._dropped_logged = 0
+        self._retry_mono = 0.0
         self.state = "idle"
         self.message = ""
         self.file: str | None = None
@@ -100,16 +117,45 @@ class Recorder:
     def pending(self) -> int:
         return self._enqueued - self._dequeued
 
-    def submit(self, batch: list[Item]) -> None:
-        """Queue a batch for writing; never blocks. Ignored while not recording."""
-        if not self.active or not batch:
+    @property
+    def pending_bytes(self) -> int:
+        return self._enqueued_bytes - self._dequeued_bytes
+
+    def submit(self, batch: list[Item], nbytes: int | None = None) -> None:
+        """Queue a batch for writing; never blocks. Ignored while not recording (counted in
+        ``record_unrecorded`` while recording is wanted). ``nbytes``: the batch's message
+        bytes, when the caller knows them."""
+        if not batch:
             return
-        n = len(batch)
-        if self._enqueued - self._dequeued + n > self.cfg.queue_messages:
-            self.counts["record_dropped"] += n
+        if not self.active:
+            if self.wanted:
+                self.counts["record_unrecorded"] += len(batch)
             return
-        self._enqueued += n
+        if nbytes is None:
+            nbytes = sum([len(it[2]) for it in batch])
+        if self._enqueued_bytes - self._dequeued_bytes + nbytes > self.cfg.queue_bytes:
+            self._over_budget(len(batch))
+            return
+        backlog = self._enqueued_bytes - self._dequeued_bytes
+        if self.overload and backlog < self.cfg.queue_bytes // 2:
+            self.overload = ""
+            log.warning("recording keeps up again (%d messages dropped in all)",
+                        self.counts["record_dropped"])
+        self._enqueued += len(batch)
+        self._enqueued_bytes += nbytes
         self._q.put(batch)
+
+    def _over_budget(self, n: int) -> None:
+        c = self.counts
+        c["record_dropped"] += n
+        now = time.monotonic()
+        if not self.overload or now - self._overload_log_mono >= 10.0:
+            self.overload = (f"disk cannot keep up: backlog over {self.cfg.queue_bytes >> 20} MiB, "
+                             f"{c['record_dropped']} messages dropped")
+            log.warning("%s (%d since the last report)", self.overload,
+                        c["record_dropped"] - self._dropped_logged)
+            self._dropped_logged = c["record_dropped"]
+            self._overload_log_mono = now
 
     def _command(self, name: str, arg=None, wait: float | None = 10.0):
         cmd = _Cmd(name, arg)
@@ -128,6 +174,7 @@ class Recorder:
         """Ask for a new file without waiting (the writer may still be busy with a backlog);
         data submitted from now on goes into it. The event is set once the file is open, or
         opening failed (then ``active`` is False again and ``state``/``message`` say why)."""
+        self.wanted = True
         if self.active:
             done = threading.Event()
             done.set()
@@ -141,7 +188,7 @@ class Recorder:
     # data, and the receive loop must not stop reading the sockets meanwhile.
     def stop(self, reason: str = "stop") -> None:
         """Finish the current file after what is queued before this call."""
-        self.active = False
+        self.active = self.wanted = False
         self._command("stop", reason, wait=None)
 
     def rotate(self, reason: str = "rotate") -> None:
@@ -153,7 +200,7 @@ class Recorder:
         """Finish the current file, take the new config, and (``record``) start a new file."""
         self._command("reconfigure", (cfg, dict(metadata or self.metadata), record, reason),
                       wait=None)
-        self.active = record
+        self.active = self.wanted = record
 
     def mark(self, label: str, host_ns: int | None = None) -> bool:
         """Write a station mark into the recording; False when not recording."""
@@ -164,7 +211,7 @@ class Recorder:
 
     def close(self, reason: str = "shutdown", timeout: float = 30.0) -> None:
         """Write everything queued, finish the file, end the thread."""
-        self.active = False
+        self.active = self.wanted = False
         self._q.put(_STOP)
         self._thread.join(timeout)
         if self._thread.is_alive():
@@ -172,11 +219,17 @@ class Recorder:
 
     # ---- writer thread ----------------------------------------------------------------------
     def _run(self) -> None:
-        cfg = self.cfg
         while True:
-            timeout = max(0.01, cfg.flush_interval_s - (time.monotonic() - self._last_flush))
+            cfg = self.cfg
+            now = time.monotonic()
+            if self._writer is not None:
+                timeout = max(0.01, cfg.flush_interval_s - (now - self._last_flush))
+            elif self.wanted and self.state in ("error", "stopped"):
+                timeout = max(0.01, self._retry_mono - now)
+            else:
+                timeout = None
             try:
-                item = self._q.get(timeout=timeout if self._writer else None)
+                item = self._q.get(timeout=timeout)
             except queue.Empty:
                 item = None
             try:
@@ -185,16 +238,29 @@ class Recorder:
                     return
                 if isinstance(item, list):
                     self._dequeued += len(item)
+                    self._dequeued_bytes += sum([len(it[2]) for it in item])
                     if self._writer is not None:
                         self._write_batch(item)
                     else:
-                        self.counts["record_dropped"] += len(item)
+                        self.counts["record_unrecorded"] += len(item)
                 elif isinstance(item, _Cmd):
                     self._do(item)
                 if self._writer is not None:
                     self._housekeeping()
+                elif (self.wanted and self.state in ("error", "stopped")
+                      and time.monotonic() >= self._retry_mono):
+                    self._retry()
             except Exception as exc:  # noqa: BLE001 - the writer must never die silently
                 self._fail(f"recording error: {type(exc).__name__}: {exc}")
+
+    def _retry(self) -> None:
+        """Try again to record after a failure (directory gone, unwritable, disk full)."""
+        before = self.message
+        self._open_file("retry")
+        if self._writer is not None:
+            self.counts["record_resumes"] += 1
+            self.active = True
+            log.warning("recording resumed into %s (after: %s)", self.file, before)
 
     def _drain_and_finish(self, reason: str) -> None:
         while True:
@@ -204,6 +270,7 @@ class Recorder:
                 break
             if isinstance(item, list):
                 self._dequeued += len(item)
+                self._dequeued_bytes += sum([len(it[2]) for it in item])
                 if self._writer is not None:
                     try:
                         self._write_batch(item)
@@ -333,6 +400,12 @@ class Recorder:
             ):
                 os.fsync(self._fh.fileno())
                 self._last_fsync = now
+        if flushed and os.fstat(self._fh.fileno()).st_nlink == 0:
+            # the file (or its directory) was deleted under us: writing on would fill an
+            # invisible inode; finish it and let the retry make the directory and a new file
+            path = self.file
+            self._fail(f"{path} was deleted while recording")
+            return
         if flushed or size - self._bytes_at_check >= _FREE_CHECK_BYTES:
             self._bytes_at_check = size
             free = self.free_space(cfg.directory)
@@ -349,8 +422,12 @@ class Recorder:
             self._open_file("split")
 
     def _fail(self, msg: str, state: str = "error") -> None:
-        log.error("recording stopped: %s", msg)
+        retry = self.cfg.retry_interval_s
+        if msg != self.message or self.state != state:
+            log.error("recording stopped: %s%s", msg,
+                      f" (retrying every {retry:g} s)" if self.wanted else "")
         self.active = False
         if self._writer is not None:
             self._close_file(state)
         self.state, self.message = state, msg
+        self._retry_mono = time.monotonic() + retry

@@ -67,6 +67,9 @@ class TfpPacket:
     response_expected: bool
     error_code: int
     payload: bytes
+    #: completed by an earlier ``feed`` but held back until the bytes after it showed it is
+    #: not a cut-off frame run into the next one (the caller stamps it with that earlier read)
+    held: bool = False
 
     @property
     def raw(self) -> bytes:
@@ -143,6 +146,13 @@ def _plausible_quaternion(payload: bytes) -> bool:
     return 0.9 < n2 < 1.1
 
 
+def _unit_quaternion(payload: bytes) -> bool:
+    """Unit norm to the int16 rounding of a real brick (|n^2 - 1| < 1e-3)."""
+    w, x, y, z = _Q.unpack_from(payload)
+    n2 = (w * w + x * x + y * y + z * z) / (QUATERNION_SCALE * QUATERNION_SCALE)
+    return abs(n2 - 1.0) < 1e-3
+
+
 class TfpStreamParser:
     """Incremental TFP parser for a byte stream (serial line or brickd TCP) with resync.
 
@@ -150,13 +160,60 @@ class TfpStreamParser:
     (function id, length) pair is one an IMU Brick 2.0 sends, the flag bits are sane, the UID
     matches (when one is set) and, for quaternions, the norm is about 1; otherwise one byte is
     skipped and counted as garbage. Bytes are never silently lost: ``garbage_bytes`` counts them.
+
+    With a UID set, frames of other UIDs are garbage, except enumerate answers (any brick may
+    answer; the caller decides). With ``strict`` (the daemon's live stream), a frame cut short on the line (a dropped byte, a reset brick)
+    runs into the bytes after it and would otherwise read as one frame made of both -- a sample
+    that never existed -- and lose the next one. So a candidate is refused (resync one byte on)
+    when a header of ours starts inside it, and it must be followed by a header of ours; when
+    followed by other bytes (line noise) it is taken only if it is a unit quaternion to the
+    brick's rounding (|n^2 - 1| < 1e-3; a frame completed by foreign bytes passes that about
+    once in 10^4). A candidate that ends exactly where the bytes read so far end is taken (the
+    usual case: a read returns whole frames). When a few bytes follow but not enough to tell,
+    the candidate is held until
+    more bytes arrive (returned then with ``held=True``, so the caller can stamp it with the
+    earlier read), or until the caller says the line went quiet (:meth:`flush_held`: then
+    silence follows it, which no foreign byte completed).
     """
 
-    def __init__(self, uid: int | None = None):
-        self.uid = uid
+    def __init__(self, uid: int | None = None, strict: bool = False):
+        self.strict = strict  # the look-ahead checks below (the daemon's live stream)
         self._buf = bytearray()
         self.packets = 0
         self.garbage_bytes = 0
+        self._held_at: int | None = None  # buffer offset of a frame complete but held
+        self._quiet = False
+        self.uid = uid
+
+    @property
+    def uid(self) -> int | None:
+        return self._uid
+
+    @uid.setter
+    def uid(self, uid: int | None) -> None:
+        self._uid = uid
+        self._uid_bytes = _U32.pack(uid) if uid is not None else b""
+
+    def _header_at(self, j: int) -> int:
+        """1 when a frame header of our UID (or any brick's enumerate answer) starts at j, 0
+        when none does, -1 when the buffer ends before that is known."""
+        head = bytes(self._buf[j : j + HEADER_SIZE])
+        n = len(head)
+        if n == 0 and self._quiet:
+            return 0  # the line went quiet: nothing follows
+        k = min(4, n)
+        if head[:k] != self._uid_bytes[:k]:
+            if n < 6:
+                return -1  # (could still be an enumerate answer)
+            if head[5] != FID_CALLBACK_ENUMERATE:
+                return 0
+        if n == 0:
+            return -1
+        if n >= 6 and _KNOWN_LENGTHS.get(head[5]) != head[4]:
+            return 0
+        if (n >= 7 and head[6] & 0x07) or (n >= 8 and head[7] & 0x3F):
+            return 0
+        return 1 if n == HEADER_SIZE else -1
 
     def _valid_at(self, i: int) -> int:
         """Length of a valid packet starting at i, 0 if none, -1 if more bytes needed."""
@@ -164,8 +221,8 @@ class TfpStreamParser:
         if len(buf) - i < HEADER_SIZE:
             return -1
         uid, length, fid, opts, flags = HEADER.unpack_from(buf, i)
-        if self.uid is not None and uid != self.uid:
-            return 0
+        if self._uid is not None and uid != self._uid and fid != FID_CALLBACK_ENUMERATE:
+            return 0  # (any brick may answer enumerate: the caller decides)
         if _KNOWN_LENGTHS.get(fid) != length or (opts & 0x07) or (flags & 0x3F):
             return 0
         if len(buf) - i < length:
@@ -173,9 +230,34 @@ class TfpStreamParser:
         if fid in (FID_CALLBACK_QUATERNION, FID_GET_QUATERNION):
             if not _plausible_quaternion(bytes(buf[i + HEADER_SIZE : i + length])):
                 return 0
+        if self._uid is not None and self.strict:
+            # A frame cut short runs into what follows. Refuse a candidate with a header of
+            # ours inside it, and want one right after it; a candidate followed by other bytes
+            # (noise) is taken only when it is a unit quaternion to the device's rounding,
+            # which a frame completed by foreign bytes practically never is.
+            first = self._uid_bytes[0]
+            end = i + length
+            for j in range(i + 1, end):
+                if buf[j] == first:
+                    h = self._header_at(j)
+                    if h > 0 or (h < 0 and self._quiet):
+                        return 0
+                    if h < 0:
+                        return -1  # the buffer ends inside a possible header: wait
+            if end == len(buf):
+                return length  # a read that ends with a whole frame: the usual case, take it
+            after = self._header_at(end)
+            if after < 0:
+                return -1  # a few bytes follow: wait for the next ones to tell
+            if (after == 0 and not self._quiet
+                    and fid in (FID_CALLBACK_QUATERNION, FID_GET_QUATERNION)):
+                if not _unit_quaternion(bytes(buf[i + HEADER_SIZE : end])):
+                    return 0
         return length
 
     def feed(self, data: bytes) -> list[TfpPacket]:
+        held = self._held_at
+        self._held_at = None
         self._buf += data
         out: list[TfpPacket] = []
         i = 0
@@ -183,6 +265,10 @@ class TfpStreamParser:
         while True:
             n = self._valid_at(i)
             if n < 0:
+                if len(buf) - i >= HEADER_SIZE and self._uid is not None and self.strict:
+                    _u, length, *_ = HEADER.unpack_from(buf, i)
+                    if len(buf) - i >= length:
+                        self._held_at = 0  # complete, held: at offset 0 after the trim below
                 break
             if n == 0:
                 i += 1
@@ -191,7 +277,7 @@ class TfpStreamParser:
             uid, length, fid, opts, flags = HEADER.unpack_from(buf, i)
             out.append(
                 TfpPacket(uid, fid, opts >> 4, bool(opts & 0x08), flags >> 6,
-                          bytes(buf[i + HEADER_SIZE : i + length]))
+                          bytes(buf[i + HEADER_SIZE : i + length]), held=(i == held))
             )
             self.packets += 1
             i += n
@@ -200,8 +286,19 @@ class TfpStreamParser:
             drop = len(buf) - i - MAX_PACKET_SIZE
             self.garbage_bytes += drop
             i += drop
+            self._held_at = None
         del buf[:i]
         return out
+
+    def flush_held(self) -> list[TfpPacket]:
+        """The line has been quiet for a while: decide a held frame as if noise followed it."""
+        if self._held_at is None:
+            return []
+        self._quiet = True
+        try:
+            return self.feed(b"")
+        finally:
+            self._quiet = False
 
     @property
     def pending(self) -> int:
