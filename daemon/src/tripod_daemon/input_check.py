@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import re
 
+from tripod_shared import nmea
 from tripod_shared.velodyne import (
     POS_NMEA_OFFSET,
     POS_NMEA_SIZE,
@@ -51,11 +52,8 @@ def nmea_reject_reason(field: bytes) -> str | None:
     m = _NMEA.match(sentence)
     if m is None:
         return "nmea_structure"
-    body = sentence[1 : sentence.index(b"*")]
-    x = 0
-    for b in body:
-        x ^= b
-    return None if x == int(m.group(3), 16) else "nmea_checksum"
+    # the regex admits printable ASCII only, so the sentence decodes as ASCII
+    return None if nmea.checksum_ok(sentence.decode("ascii").rstrip("\r\n")) else "nmea_checksum"
 
 
 def position_reject_reason(payload: bytes) -> str | None:
