@@ -125,3 +125,14 @@ def test_secure_example_config_loads_with_generated_credentials(tmp_path, monkey
     monkeypatch.setenv("CREDENTIALS_DIRECTORY", str(tmp_path / "nothing"))
     with pytest.raises(ConfigError, match="file not found"):
         load(str(REPO / "deploy/etc/daemon.secure.yaml"), system_config=None)
+
+
+def test_gen_certs_with_a_relative_folder(tmp_path, monkeypatch):
+    """`tripod-daemon gen-certs certs` run from the folder above (openssl runs inside it)."""
+    from tripod_daemon.certs import gen_certs
+
+    monkeypatch.chdir(tmp_path)
+    written = gen_certs("certs", ["localhost"], ["operator"])
+    for name in ("ca.pem", "device.pem", "device.key", "operator.pem", "operator.key"):
+        assert (tmp_path / "certs" / name).stat().st_size > 0
+    assert all(p.startswith(str(tmp_path)) for p in written)

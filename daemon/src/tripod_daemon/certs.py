@@ -57,6 +57,7 @@ def gen_certs(out: str, device_names: list[str], clients: list[str], days: int =
     file is already there."""
     if shutil.which("openssl") is None:
         raise RuntimeError("the openssl command is needed (apt install openssl)")
+    out = os.path.abspath(out)  # openssl runs in ``out``: relative paths would point elsewhere
     os.makedirs(out, exist_ok=True)
     names = ["ca", "device", *clients]
     for n in names:
