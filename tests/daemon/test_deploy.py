@@ -78,10 +78,12 @@ def test_install_script_parses_and_dry_runs():
                        capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     steps = r.stdout
-    assert f"pip install {REPO}/shared {REPO}/daemon" in steps  # device gets no processor
+    assert f"pip install {REPO}/shared {REPO}/daemon[panel]" in steps  # no processor
     assert "processor" not in steps
     assert "/etc/systemd/system/tripod-daemon.service" in steps
-    assert "systemctl enable tripod-daemon.service" in steps
+    assert "systemctl enable tripod-daemon.service tripod-panel.service" in steps
+    assert "/etc/systemd/system/tripod-panel.service" in steps
+    assert "gen-certs /etc/tripod/certs" in steps and "/etc/tripod/panel-credentials" in steps
 
 
 def test_daemon_stays_light():
