@@ -26,6 +26,7 @@ import numpy as np
 import pytest
 
 from daemon_helpers import (
+    FakePty,
     RunningDaemon,
     free_tcp_port,
     loopback_config,
@@ -36,6 +37,7 @@ from daemon_helpers import (
 from tripod_daemon.certs import gen_certs
 from tripod_daemon.panel import range_image
 from tripod_daemon.panel.live import tilt_deg
+from tripod_shared import witmotion
 from tripod_shared.recording import RecordingReader
 
 PASSWORD = "gloves-and-sun-42"
@@ -246,21 +248,56 @@ def _shot(drv, name: str) -> None:
         "width": 360, "height": 740, "deviceScaleFactor": 2, "mobile": True})
 
 
-def test_browser_login_live_rate_mark_and_refusal(tmp_path, daemon, velodyne_dir):
+@pytest.fixture
+def imu_daemon(tmp_path):
+    """A daemon with a WitMotion IMU on a pseudo-terminal and 150 MiB of free disk."""
+    dev = FakePty(tmp_path / "imu")
+    port = free_tcp_port()
+    ep = f"tcp/127.0.0.1:{port}"
+    cfg = loopback_config(tmp_path, zenoh={"enabled": True, "listen": [ep]},
+                          imu={"url": str(dev.link), "driver": "witmotion"},
+                          status={"interval_s": 0.5})
+    try:
+        with RunningDaemon(cfg, free_space=lambda _path: 150 << 20) as d:
+            d.endpoint, d.imu_dev = ep, dev
+            yield d
+    finally:
+        dev.close()
+
+
+def _text(drv, css: str) -> str:
+    from selenium.webdriver.common.by import By
+
+    return "\n".join(e.text for e in drv.find_elements(By.CSS_SELECTOR, css))
+
+
+def test_browser_login_live_rate_mark_and_refusal(tmp_path, imu_daemon, velodyne_dir):
     from selenium.webdriver.common.by import By
     from selenium.webdriver.support.ui import WebDriverWait
 
+    daemon = imu_daemon
     payloads = _payloads(velodyne_dir)
-    stop = threading.Event()
+    stop, imu_on = threading.Event(), threading.Event()
+    h = np.radians(3.0) / 2  # the head rolled by 3 deg
+    q_frame = witmotion.encode_quaternion(float(np.cos(h)), float(np.sin(h)), 0.0, 0.0)
 
     def replay():  # paced at the dual-return rate over loopback UDP, until told to stop
         s = udp_sender()
         while not stop.is_set():
             send_paced(s, daemon.data_addr, payloads[:300], DUAL_RETURN_RATE)
 
+    def imu():  # 100 samples/s while imu_on
+        while not stop.is_set():
+            if imu_on.is_set():
+                daemon.imu_dev.write(q_frame)
+            time.sleep(0.01)
+
     with Panel(tmp_path, daemon.endpoint) as p:
         drv = _browser()
         t = threading.Thread(target=replay, daemon=True)
+        ti = threading.Thread(target=imu, daemon=True)
+        imu_on.set()
+        ti.start()
         try:
             wait = WebDriverWait(drv, 15, poll_frequency=0.2)
             drv.get(p.url + "/")
@@ -284,6 +321,10 @@ def test_browser_login_live_rate_mark_and_refusal(tmp_path, daemon, velodyne_dir
             wait.until(lambda d: rate() > 1000)
             wait.until(lambda d: "packets" in d.find_element(By.ID, "range-cap").text)
             assert "RECORDING" in drv.find_element(By.ID, "rec-state").text
+            # the IMU: its state and the head's tilt from the quaternion; the disk warning
+            wait.until(lambda d: d.find_element(By.ID, "imu-tilt").text == "3.0°")
+            assert drv.find_element(By.ID, "imu-state").text == "ok"
+            wait.until(lambda d: "Disk full in" in _text(d, "#warn-list li"))
             # the buttons are big enough for a gloved finger, and the page fits 360 px
             btn = drv.find_element(By.ID, "btn-mark")
             assert btn.size["height"] >= 64 and btn.size["width"] >= 300
@@ -300,13 +341,18 @@ def test_browser_login_live_rate_mark_and_refusal(tmp_path, daemon, velodyne_dir
             assert drv.find_element(By.ID, "btn-stop").text == "Tap again"
             assert daemon.daemon.recorder.active
             _shot(drv, "panel-marked.png")
+            # the IMU goes quiet: a warning in plain words
+            imu_on.clear()
+            wait.until(lambda d: "IMU silent for" in _text(d, "#warn-list li"))
+            assert drv.find_element(By.ID, "imu-state").text == "stalled"
             # the session ends with a log-out: the page is refused again
             drv.find_element(By.CSS_SELECTOR, ".logout button").click()
             wait.until(lambda d: d.find_elements(By.ID, "password"))
         finally:
             stop.set()
             drv.quit()
-            if t.is_alive():
-                t.join(10)
+            for th in (t, ti):
+                if th.is_alive():
+                    th.join(10)
     assert daemon.daemon.counts["lidar_data"] > 1000
     assert _marks(daemon) == ["station A"]

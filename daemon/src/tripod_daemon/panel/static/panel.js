@@ -84,7 +84,7 @@
     setText("lidar-mode", l.return_mode || "–");
     setText("lidar-pps", l.pps);
     const m = s.imu;
-    setText("imu-state", m.present ? m.state : "none");
+    setText("imu-state", m.present ? m.state : "not configured");
     setText("imu-rate", m.present ? m.rate.toFixed(0) : "–");
     setText("imu-tilt", m.tilt_deg === null ? "–" : m.tilt_deg.toFixed(1) + "°");
     setText("imu-rp", m.roll_deg === null ? "–" : m.roll_deg.toFixed(1) + "° / " + m.pitch_deg.toFixed(1) + "°");
@@ -94,6 +94,7 @@
       img.packets + " packets, " + img.age_s.toFixed(1) + " s ago; no return in " + img.empty_pct + " %");
     const marks = s.marks || [];
     setText("marks-n", marks.length ? "(" + marks.length + ")" : "");
+    $("marks-none").hidden = marks.length > 0;
     const ol = $("marks");
     if (ol.children.length !== marks.length) {
       ol.replaceChildren(...marks.map((k) => {
