@@ -8,6 +8,7 @@ import time
 
 import zenoh
 
+from tripod_shared import messages
 from tripod_shared.recording import RecordingReader
 
 from daemon_helpers import (
@@ -67,3 +68,44 @@ def test_slow_subscriber_drops_are_counted_and_recording_is_complete(tmp_path):
     got = [p for _ns, p in RecordingReader(d.daemon.recorder.files[0]).lidar_packets()]
     assert got == packets  # the recording is complete whatever the subscriber does
     assert stop_s < 15
+
+
+def test_slow_subscriber_loses_only_its_own_data(tmp_path):
+    """congestion_control: drop (the default): zenoh queues per link, so a stalled subscriber
+    loses its own samples while a fast one beside it gets every packet, and so does the file."""
+    port = free_tcp_port()
+    cfg = loopback_config(tmp_path, zenoh={"enabled": True, "listen": [f"tcp/127.0.0.1:{port}"]})
+    assert cfg.zenoh.congestion_control == "drop"
+    key = f"tripod/{cfg.device_id}/lidar/packets"
+    conf = build_zenoh_config(ZenohConfig(listen=[], connect=[f"tcp/127.0.0.1:{port}"]))
+    fast: list[bytes] = []
+    slow = [0]
+    seen = [threading.Event(), threading.Event()]
+
+    def on_fast(sample):
+        fast.append(sample.payload.to_bytes())
+
+    def on_slow(sample):
+        slow[0] += 1
+        time.sleep(0.005)  # manages 200 samples/s, far below the stream
+
+    n = 6_000  # 4 s at the VLP-16's dual-return rate
+    packets = [make_data_packet(k) for k in range(n)]
+    with RunningDaemon(cfg) as d, zenoh.open(conf) as zf, zenoh.open(conf) as zs:
+        for i, z in enumerate((zf, zs)):
+            z.declare_subscriber(f"tripod/{cfg.device_id}/status",
+                                 lambda _s, e=seen[i]: e.set())
+        zf.declare_subscriber(key, on_fast)
+        zs.declare_subscriber(key, on_slow)
+        assert seen[0].wait(15) and seen[1].wait(15)
+        send_paced(udp_sender(), d.data_addr, packets, 1508, burst=8)
+        c = d.daemon.counts
+        assert d.wait_for(lambda: c["lidar_data"] == n, timeout=10)
+        assert d.wait_for(lambda: len(fast) == n, timeout=10), (len(fast), slow[0])
+        slow_then = slow[0]
+        assert d.stop(timeout=30) == 0
+    assert [messages.decode_velodyne_packet(b)[1] for b in fast] == packets  # all, in order
+    assert slow_then < n  # the slow one lost (or had not yet got) its share
+    assert c["zenoh_dropped"] == 0 and c["record_dropped"] == 0
+    got = [p for _ns, p in RecordingReader(d.daemon.recorder.files[0]).lidar_packets()]
+    assert got == packets

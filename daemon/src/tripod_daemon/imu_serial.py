@@ -66,15 +66,23 @@ class TfpDriver:
         if self.uid is not None:
             port.write(tfp.encode_set_quaternion_period(self.uid, self.cfg.quaternion_period_ms))
 
-    def poll(self, port) -> None:
-        """Called every ``reconnect_interval_s`` while connected: enumerate until identified."""
+    def poll(self, port, out: list[Item]) -> None:
+        """Called from the loop's tick while connected: enumerate until identified, and decide
+        a frame held at the end of the stream once the line has been quiet (>= 50 ms)."""
         if self.uid is None:
             port.write(tfp.encode_enumerate())
+        if time.time_ns() - self._prev_host_ns >= 50 * NS_PER_MS:
+            self._take(self.parser.flush_held(), self._prev_host_ns, self._prev_host_ns, port,
+                       out)
 
     def feed(self, data: bytes, host_ns: int, port, out: list[Item]) -> None:
         before = self.parser.garbage_bytes
         prev_ns, self._prev_host_ns = self._prev_host_ns, host_ns
-        for pkt in self.parser.feed(data):
+        self._take(self.parser.feed(data), host_ns, prev_ns, port, out)
+        self.counts.add("imu_garbage_bytes", self.parser.garbage_bytes - before)
+
+    def _take(self, packets, host_ns: int, prev_ns: int, port, out: list[Item]) -> None:
+        for pkt in packets:
             if pkt.function_id == tfp.FID_CALLBACK_QUATERNION:
                 if self.uid is None or pkt.uid != self.uid:
                     self.counts.add("imu_unverified")
@@ -115,7 +123,6 @@ class TfpDriver:
                         pass  # the read path notices a dead port
             else:
                 self.counts.add("imu_other_frames")
-        self.counts.add("imu_garbage_bytes", self.parser.garbage_bytes - before)
 
 
 class WitMotionDriver:
@@ -137,7 +144,7 @@ class WitMotionDriver:
     def on_connect(self, port) -> None:
         pass  # streams on its own
 
-    def poll(self, port) -> None:
+    def poll(self, port, out: list[Item]) -> None:
         pass
 
     @staticmethod
@@ -231,12 +238,13 @@ class ImuInput:
     def fileno(self) -> int:
         return self.port.fileno()
 
-    def poll(self) -> None:
-        """Periodic work while connected (the TFP driver re-asks who is there)."""
+    def poll(self, out: list[Item]) -> None:
+        """Periodic work while connected (the TFP driver re-asks who is there and decides a
+        frame held at the end of the stream)."""
         if self.port is None:
             return
         try:
-            self.driver.poll(self.port)
+            self.driver.poll(self.port, out)
         except (OSError, serial.SerialException) as exc:
             log.debug("IMU poll write failed: %s", exc)
 

@@ -406,7 +406,9 @@ class Daemon:
     def _tick(self, force: bool = False) -> None:
         self._imu_check()
         if self.imu is not None:
-            self.imu.poll()
+            batch: list = []
+            self.imu.poll(batch)
+            self._submit(batch)
         now_mono = time.monotonic()
         if self.zenoh_error and now_mono >= self._zenoh_retry_mono:
             self._open_publisher()

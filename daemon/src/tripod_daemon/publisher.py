@@ -321,6 +321,10 @@ class LivePublisher:
         return label
 
     def _on_control_query(self, query) -> None:
+        with query:  # finished (the final reply sent) on leaving, whoever keeps a reference
+            self._control_query(query)
+
+    def _control_query(self, query) -> None:
         c = self.counts
         c["zenoh_queries"] += 1
         c["control_requests"] += 1
@@ -342,7 +346,10 @@ class LivePublisher:
         except ControlRefused as exc:
             c["control_refused"] += 1
             c["control_refused_" + exc.reason] += 1
-            log.warning("control/%s from %s refused: %s", command[:32], peer, exc)
+            # log the text, not the exception: a handler keeping the record would keep its
+            # traceback, the frame and the query alive, and zenoh finishes a query (the
+            # querier's get returns) only when the query object is dropped
+            log.warning("control/%s from %s refused: %s", command[:32], peer, str(exc))
             self._reply_err(query, str(exc))
         except Exception as exc:  # noqa: BLE001 - bad queries get an error reply, nothing else
             self._reply_err(query, str(exc))
@@ -351,8 +358,8 @@ class LivePublisher:
     def _reply_err(query, message: str) -> None:
         try:
             query.reply_err(json.dumps({"ok": False, "error": message}).encode())
-        except Exception:  # noqa: BLE001
-            pass
+        except Exception as exc:  # noqa: BLE001 - the querier gets zenoh's timeout instead
+            log.warning("error reply failed: %s", exc)
 
     def close(self) -> None:
         """Stop the thread, undeclare everything and close the session, then drop every zenoh

@@ -78,6 +78,22 @@ def recover(source: str, output: str, compression: str = "zstd") -> RecoverRepor
     topics: dict[int, str] = {}
     pending_channels: dict[int, Channel] = {}
     tmp = output + ".part"
+    try:
+        _recover_into(source, tmp, comp, rep, size, schema_map, channel_map, topics,
+                      pending_channels)
+    except BaseException:
+        # never leave a partial file behind (a full disk, an interrupt)
+        try:
+            os.remove(tmp)
+        except OSError:
+            pass
+        raise
+    os.replace(tmp, output)
+    return rep
+
+
+def _recover_into(source, tmp, comp, rep, size, schema_map, channel_map, topics,
+                  pending_channels) -> None:
     with open(source, "rb") as src, open(tmp, "wb") as dst:
         reader = _ExactReader(src)
         writer = Writer(dst, chunk_size=4 << 20, compression=comp)
@@ -137,8 +153,20 @@ def recover(source: str, output: str, compression: str = "zstd") -> RecoverRepor
         writer.finish()
         dst.flush()
         os.fsync(dst.fileno())
-    os.replace(tmp, output)
-    return rep
+
+
+def _free(path: str) -> int:
+    try:
+        st = os.statvfs(path)
+    except OSError:
+        return -1
+    return st.f_bavail * st.f_frsize
+
+
+def output_candidates(out: str, fallback_dirs: list[str]) -> list[str]:
+    """Where to try writing: ``out``, then the same file name in each fallback directory."""
+    name = os.path.basename(out)
+    return [out] + [os.path.join(d, name) for d in fallback_dirs]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -151,6 +179,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--in-place", action="store_true",
                    help="replace FILE with the rebuilt file")
     p.add_argument("--compression", choices=["zstd", "lz4", "none"], default="zstd")
+    p.add_argument("--fallback-dir", action="append", default=None, metavar="DIR",
+                   help="where to write when the output's disk is full (repeatable; default: "
+                   "$TMPDIR or /tmp, then /var/tmp)")
     a = p.parse_args(argv)
     if not os.path.isfile(a.file):
         print(f"tripod-daemon recover: no such file: {a.file}", file=sys.stderr)
@@ -164,10 +195,26 @@ def main(argv: list[str] | None = None) -> int:
     else:
         stem = a.file[:-5] if a.file.endswith(".mcap") else a.file
         out = a.output or stem + ".recovered.mcap"
-    try:
-        rep = recover(a.file, out, a.compression)
-    except OSError as exc:
-        print(f"tripod-daemon recover: {exc}", file=sys.stderr)
-        return 1
-    print("\n".join(rep.lines()))
-    return 0
+    fallback = a.fallback_dir
+    if fallback is None:
+        fallback = [os.environ.get("TMPDIR") or "/tmp", "/var/tmp"]
+    need = os.path.getsize(a.file)  # the rebuilt file is about the size of the source
+    errors = []
+    for target in output_candidates(out, [] if a.in_place else fallback):
+        d = os.path.dirname(os.path.abspath(target))
+        if _free(d) < need:
+            errors.append(f"{d}: {max(0, _free(d)) >> 20} MiB free, about {need >> 20} MiB "
+                          "needed")
+            continue
+        try:
+            rep = recover(a.file, target, a.compression)
+        except OSError as exc:  # the partial file is gone; try the next place
+            errors.append(f"{target}: {exc}")
+            continue
+        if target != out:
+            print(f"tripod-daemon recover: {errors[-1]}; wrote to {target} instead",
+                  file=sys.stderr)
+        print("\n".join(rep.lines()))
+        return 0
+    print("tripod-daemon recover: nowhere to write: " + "; ".join(errors), file=sys.stderr)
+    return 1

@@ -146,6 +146,13 @@ def _plausible_quaternion(payload: bytes) -> bool:
     return 0.9 < n2 < 1.1
 
 
+def _unit_quaternion(payload: bytes) -> bool:
+    """Unit norm to the int16 rounding of a real brick (|n^2 - 1| < 1e-3)."""
+    w, x, y, z = _Q.unpack_from(payload)
+    n2 = (w * w + x * x + y * y + z * z) / (QUATERNION_SCALE * QUATERNION_SCALE)
+    return abs(n2 - 1.0) < 1e-3
+
+
 class TfpStreamParser:
     """Incremental TFP parser for a byte stream (serial line or brickd TCP) with resync.
 
@@ -156,11 +163,15 @@ class TfpStreamParser:
 
     With a UID set, frames of other UIDs are garbage, except enumerate answers (any brick may
     answer; the caller decides). A frame cut short on the line (a dropped byte, a reset brick)
-    followed by a good one would otherwise read as one frame made of both -- a sample that
-    never existed -- and lose the good one. So a candidate inside which a whole valid frame of
-    our UID starts is refused (resync one byte on, which then finds that frame); when the
-    buffer ends before that can be told, the candidate is held until more bytes arrive
-    (returned then with ``held=True``, so the caller can stamp it with the earlier read).
+    runs into the bytes after it and would otherwise read as one frame made of both -- a sample
+    that never existed -- and lose the next one. So a candidate is refused (resync one byte on)
+    when a header of ours starts inside it, and it must be followed by a header of ours; when
+    followed by other bytes (line noise) it is taken only if it is a unit quaternion to the
+    brick's rounding (|n^2 - 1| < 1e-3; a frame completed by foreign bytes passes that about
+    once in 10^4). When the buffer ends before that can be told, the candidate is held until
+    more bytes arrive (returned then with ``held=True``, so the caller can stamp it with the
+    earlier read), or until the caller says the line went quiet (:meth:`flush_held`: then
+    silence follows it, which no foreign byte completed).
     """
 
     def __init__(self, uid: int | None = None):
@@ -168,6 +179,7 @@ class TfpStreamParser:
         self.packets = 0
         self.garbage_bytes = 0
         self._held_at: int | None = None  # buffer offset of a frame complete but held
+        self._quiet = False
         self.uid = uid
 
     @property
@@ -179,25 +191,26 @@ class TfpStreamParser:
         self._uid = uid
         self._uid_bytes = _U32.pack(uid) if uid is not None else b""
 
-    def _frame_at(self, j: int) -> int:
-        """1 when a whole valid frame of our UID starts at j, 0 when none can, -1 when the
-        buffer ends before that is known."""
-        buf, ub = self._buf, self._uid_bytes
-        avail = len(buf) - j
-        n = min(4, avail)
-        if buf[j : j + n] != ub[:n]:
-            return 0
-        if avail < HEADER_SIZE:
-            return -1
-        _uid, length, fid, opts, flags = HEADER.unpack_from(buf, j)
-        if _KNOWN_LENGTHS.get(fid) != length or (opts & 0x07) or (flags & 0x3F):
-            return 0
-        if avail < length:
-            return -1
-        if fid in (FID_CALLBACK_QUATERNION, FID_GET_QUATERNION):
-            if not _plausible_quaternion(bytes(buf[j + HEADER_SIZE : j + length])):
+    def _header_at(self, j: int) -> int:
+        """1 when a frame header of our UID (or any brick's enumerate answer) starts at j, 0
+        when none does, -1 when the buffer ends before that is known."""
+        head = bytes(self._buf[j : j + HEADER_SIZE])
+        n = len(head)
+        if n == 0 and self._quiet:
+            return 0  # the line went quiet: nothing follows
+        k = min(4, n)
+        if head[:k] != self._uid_bytes[:k]:
+            if n < 6:
+                return -1  # (could still be an enumerate answer)
+            if head[5] != FID_CALLBACK_ENUMERATE:
                 return 0
-        return 1
+        if n == 0:
+            return -1
+        if n >= 6 and _KNOWN_LENGTHS.get(head[5]) != head[4]:
+            return 0
+        if (n >= 7 and head[6] & 0x07) or (n >= 8 and head[7] & 0x3F):
+            return 0
+        return 1 if n == HEADER_SIZE else -1
 
     def _valid_at(self, i: int) -> int:
         """Length of a valid packet starting at i, 0 if none, -1 if more bytes needed."""
@@ -215,14 +228,26 @@ class TfpStreamParser:
             if not _plausible_quaternion(bytes(buf[i + HEADER_SIZE : i + length])):
                 return 0
         if self._uid is not None:
-            # a frame of ours starting inside this one means this one was cut short and runs
-            # into it: refuse it (resync), or wait until the bytes show whether that is so
+            # A frame cut short runs into what follows. Refuse a candidate with a header of
+            # ours inside it, and want one right after it; a candidate followed by other bytes
+            # (noise) is taken only when it is a unit quaternion to the device's rounding,
+            # which a frame completed by foreign bytes practically never is.
             first = self._uid_bytes[0]
-            for j in range(i + 1, i + length):
+            end = i + length
+            for j in range(i + 1, end):
                 if buf[j] == first:
-                    f = self._frame_at(j)
-                    if f:
-                        return 0 if f > 0 else -1
+                    h = self._header_at(j)
+                    if h > 0 or (h < 0 and self._quiet):
+                        return 0
+                    if h < 0:
+                        return -1  # the buffer ends inside a possible header: wait
+            after = self._header_at(end)
+            if after < 0:
+                return -1  # wait for the next bytes to tell
+            if (after == 0 and not self._quiet
+                    and fid in (FID_CALLBACK_QUATERNION, FID_GET_QUATERNION)):
+                if not _unit_quaternion(bytes(buf[i + HEADER_SIZE : end])):
+                    return 0
         return length
 
     def feed(self, data: bytes) -> list[TfpPacket]:
@@ -259,6 +284,16 @@ class TfpStreamParser:
             self._held_at = None
         del buf[:i]
         return out
+
+    def flush_held(self) -> list[TfpPacket]:
+        """The line has been quiet for a while: decide a held frame as if noise followed it."""
+        if self._held_at is None:
+            return []
+        self._quiet = True
+        try:
+            return self.feed(b"")
+        finally:
+            self._quiet = False
 
     @property
     def pending(self) -> int:
