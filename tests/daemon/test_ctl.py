@@ -138,3 +138,36 @@ def test_ctl_is_a_subcommand(argv, capsys):
 
     assert main(argv) == 0
     assert "Exit codes: 0 done, 1 refused" in capsys.readouterr().out
+
+
+def test_mutual_tls_with_the_ca_and_client_certificates(tmp_path, capsys):
+    from tripod_daemon.certs import gen_certs
+
+    certs = tmp_path / "certs"
+    gen_certs(str(certs), ["localhost", "127.0.0.1"], ["operator", "viewer"])
+    port = free_tcp_port()
+    ep = f"tls/127.0.0.1:{port}"
+    ca = str(certs / "ca.pem")
+    cfg = loopback_config(tmp_path, zenoh={
+        "enabled": True, "listen": [ep],
+        "tls": {"certificate": str(certs / "device.pem"),
+                "private_key": str(certs / "device.key"), "client_ca": ca},
+        "control": {"allow_loopback": False, "cert_common_names": ["operator"]}})
+
+    def tls(name):
+        return ["--connect", ep, "--ca", ca, "--cert", str(certs / f"{name}.pem"),
+                "--key", str(certs / f"{name}.key")]
+
+    with RunningDaemon(cfg) as d:
+        rc, _, err = _run(capsys, "stop", *tls("viewer"), "--timeout", "1.5")
+        assert rc == 1 and "'viewer'" not in err and "this client is not allowed" in err
+        rc, out, err = _run(capsys, "stop", *tls("operator"))
+        assert (rc, out.strip()) == (0, "stopped"), err
+        assert d.wait_for(lambda: not d.daemon.recorder.active)
+        # without a client certificate the daemon refuses the TLS session: exit 2
+        rc, _, err = _run(capsys, "status", "--connect", ep, "--ca", ca, "--timeout", "2")
+        assert rc == 2 and "answers but refused the session" in err and "--cert/--key" in err
+        rc, _, err = _run(capsys, "status", "--connect", ep, "--cert", str(certs / "x.pem"),
+                          "--key", str(certs / "x.key"))
+        assert rc == 2 and err.strip() == (f"tripod-daemon ctl: --cert: file not found: "
+                                           f"{certs / 'x.pem'}")

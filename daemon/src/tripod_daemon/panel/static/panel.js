@@ -82,7 +82,7 @@
     setText("lidar-rate", l.rate.toFixed(0));
     setText("lidar-drops", String(l.drops));
     setText("lidar-mode", l.return_mode || "–");
-    setText("lidar-pps", l.pps);
+    setText("lidar-pps", l.pps === "unknown" ? "no data" : l.pps);
     const m = s.imu;
     setText("imu-state", m.present ? m.state : "not configured");
     setText("imu-rate", m.present ? m.rate.toFixed(0) : "–");
