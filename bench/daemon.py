@@ -6,14 +6,19 @@ and Zenoh on, exactly as on the device; this script sends numbered 1206-byte VLP
 packets at a paced rate and reads the daemon's counters through its Zenoh ``status``
 queryable. CPU is the daemon process's own (utime + stime from /proc), the sender's excluded.
 
-Rows:
-  * 1x the VLP-16 dual-return rate (1507 packets/s): CPU use (goal <= 5 % of one core)
-  * 20x the dual-return rate (30,140 packets/s) for 30 s: zero loss
-  * 20x with a live Zenoh subscriber (a separate process) for 10 s
-  * rising rates until the first loss: the highest zero-loss rate
-At the end the recordings are read back: every received packet must be there exactly once.
+The sender paces packets evenly, as the sensor sends them (not in bursts: bursts let the
+daemon handle many packets per wake-up and under-state its CPU use).
 
-    python bench/daemon.py            # the full run (~3 minutes)
+Rows:
+  * 754 and 1508 packets/s (VLP-16 single and dual return): CPU use (goal <= 5 % of a core)
+  * 1508/s with a live Zenoh subscriber (a separate process)
+  * 20x the dual-return rate (30,140 packets/s) for 30 s, without and with a subscriber
+  * rising rates with a subscriber until the first loss: the highest zero-loss rate
+At the end the recordings are read back: every received packet must be there exactly once.
+Then kill -9 at 20x and at the zero-loss rate: what the recovered file lacks of what was sent
+before the kill, in seconds.
+
+    python bench/daemon.py            # the full run (~5 minutes)
     python bench/daemon.py --quick    # shorter runs, for a smoke test
 """
 
@@ -57,12 +62,13 @@ def free_port() -> int:
 
 
 class DaemonProcess:
-    def __init__(self, workdir: Path):
+    def __init__(self, workdir: Path, lidar_yaml: str = ""):
         self.zport = free_port()
+        self.workdir = workdir
         cfg = workdir / "daemon.yaml"
         cfg.write_text(
             "lidar:\n  bind_address: 127.0.0.1\n  data_port: 0\n  position_port: 0\n"
-            "  receive_buffer_bytes: 67108864\n"
+            "  receive_buffer_bytes: 67108864\n" + lidar_yaml +
             f"recording:\n  directory: {workdir / 'rec'}\n  min_free_bytes: 0\n"
             f"zenoh:\n  listen: [tcp/127.0.0.1:{self.zport}]\n")
         self.proc = subprocess.Popen(
@@ -90,6 +96,15 @@ class DaemonProcess:
         conf.insert_json5("connect/endpoints", f'["tcp/127.0.0.1:{self.zport}"]')
         self.session = zenoh.open(conf)
 
+    def rss_mib(self) -> tuple[float, float]:
+        """(current, peak) resident memory of the daemon process [MiB]."""
+        vals = {}
+        with open(f"/proc/{self.proc.pid}/status") as fh:
+            for line in fh:
+                if line.startswith(("VmRSS:", "VmHWM:")):
+                    vals[line.split(":")[0]] = int(line.split()[1]) / 1024
+        return vals.get("VmRSS", 0.0), vals.get("VmHWM", 0.0)
+
     def cpu_s(self) -> float:
         with open(f"/proc/{self.proc.pid}/stat") as fh:
             f = fh.read().rsplit(")", 1)[1].split()
@@ -111,31 +126,41 @@ class DaemonProcess:
         self.proc.wait(60)
 
 
-def send(addr, first_seq: int, rate: float, seconds: float) -> tuple[int, float]:
-    """Send numbered packets at ``rate`` for ``seconds``; returns (count, achieved rate)."""
+def send(addr, first_seq: int, rate: float, seconds: float, kill_at=None) -> tuple[int, float]:
+    """Send numbered packets evenly paced at ``rate`` for ``seconds``, as the sensor does (one
+    every 0.66 ms at the dual-return rate), not in bursts; returns (count, achieved rate).
+
+    Up to 4,000 packets/s each packet waits for its own time slot; above that, packets go in
+    groups of ceil(rate / 4000) every 0.25 ms (a Python sender cannot sleep 33 µs). ``kill_at``:
+    (seconds, callable) called once that far into the run (the kill -9 case).
+    """
     s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     s.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 4 << 20)
     n = int(rate * seconds)
-    pk = [packet(first_seq + i) for i in range(min(n, 4096))]
-    burst = 32
-    t0 = time.perf_counter()
+    group = max(1, -(-int(rate) // 4000))
+    pk = [packet(first_seq + i) for i in range(min(n, 8192))]
+    sendto, perf, sleep = s.sendto, time.perf_counter, time.sleep
+    t0 = perf()
+    killed = kill_at is None
     for i in range(n):
-        if i < len(pk):
-            p = pk[i]
-        else:
-            p = packet(first_seq + i)
-        s.sendto(p, addr)
-        if i % burst == burst - 1:
-            ahead = (i + 1) / rate - (time.perf_counter() - t0)
+        p = pk[i] if i < len(pk) else packet(first_seq + i)
+        if i % group == 0:
+            ahead = i / rate - (perf() - t0)
             if ahead > 0:
-                time.sleep(ahead)
-    dt = time.perf_counter() - t0
+                sleep(ahead)
+            if not killed and i / rate >= kill_at[0]:
+                kill_at[1](i)
+                killed = True
+        sendto(p, addr)
+    dt = perf() - t0
     # one more packet a little later: the kernel reports its drop count (SO_RXQ_OVFL) only with
     # the next datagram it queues, so this one carries the count of the run into the status
-    time.sleep(0.2)
-    s.sendto(packet(first_seq + n), addr)
+    if kill_at is None:
+        time.sleep(0.2)
+        s.sendto(packet(first_seq + n), addr)
+        n += 1
     s.close()
-    return n + 1, n / dt
+    return n, (n - 1) / dt if kill_at is None else n / dt
 
 
 class Subscriber:
@@ -200,10 +225,42 @@ def run_case(d: DaemonProcess, seq: int, rate: float, seconds: float, sub_second
         "rec_dropped": after["record_dropped"] - before["record_dropped"],
         "zenoh_dropped": after["zenoh_dropped"] - before["zenoh_dropped"],
         "cpu_pct": 100.0 * cpu / wall, "subscriber": None,
+        "rss_mib": d.rss_mib()[0], "load": os.getloadavg()[0],
     }
     if sub:
         row["subscriber"] = sub.close()
     return row, seq + n
+
+
+def kill_case(rate: float, seconds: float, kill_s: float, workdir: Path) -> dict:
+    """kill -9 the daemon ``kill_s`` into an evenly paced run at ``rate``; recover the cut-off
+    file with ``tripod-daemon recover`` and count what is missing of what was sent before
+    the kill (the recovered file is then read with the plain ``mcap`` reader)."""
+    from mcap.reader import make_reader
+
+    d = DaemonProcess(workdir)
+    d.session.close()
+    sent_before = [0]
+
+    def kill(i):
+        sent_before[0] = i
+        os.kill(d.proc.pid, 9)
+
+    send(("127.0.0.1", d.port), 0, rate, seconds, kill_at=(kill_s, kill))
+    d.proc.wait(30)
+    rss = 0.0
+    src = sorted((workdir / "rec").glob("*.mcap"))[-1]
+    out = workdir / "recovered.mcap"
+    subprocess.run([sys.executable, "-m", "tripod_daemon", "recover", str(src), "-o", str(out)],
+                   check=True, capture_output=True)
+    with open(out, "rb") as fh:  # the plain mcap reader, with the summary recover wrote
+        reader = make_reader(fh)
+        seqs = [struct.unpack_from("<I", m.data, 12 + 2)[0]
+                for _s, _c, m in reader.iter_messages(topics=[topics.TOPIC_LIDAR_PACKETS])]
+    kept = len(seqs)
+    lost = sent_before[0] - kept
+    return {"rate": rate, "sent_before_kill": sent_before[0], "recovered": kept, "lost": lost,
+            "lost_s": lost / rate, "rss": rss}
 
 
 def main() -> int:
@@ -212,39 +269,42 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="short runs (smoke test)")
     ap.add_argument("--max-rate", type=float, default=200_000)
+    ap.add_argument("--no-search", action="store_true", help="skip the zero-loss search")
+    ap.add_argument("--no-kill", action="store_true", help="skip the kill -9 cases")
     a = ap.parse_args()
+    low_s = 5 if a.quick else 20
     long_s = 5 if a.quick else 30
     step_s = 3 if a.quick else 5
     rows = []
+    kills = []
+    best = None
+    load0 = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
         d = DaemonProcess(Path(tmp))
         seq = 0
         try:
-            r, seq = run_case(d, seq, DUAL_RATE, 5 if a.quick else 10)
-            rows.append(("1x dual return", r))
-            r, seq = run_case(d, seq, 20 * DUAL_RATE, long_s)
-            rows.append(("20x dual return", r))
-            r, seq = run_case(d, seq, 20 * DUAL_RATE, step_s * 2, sub_seconds=True)
-            rows.append(("20x + live subscriber", r))
-            best = None
+            for name, rate, secs, sub in (
+                ("754/s single return", DUAL_RATE / 2, low_s, False),
+                ("1508/s dual return", DUAL_RATE, low_s, False),
+                ("1508/s + subscriber", DUAL_RATE, low_s, True),
+                ("20x dual return", 20 * DUAL_RATE, long_s, False),
+                ("20x + subscriber", 20 * DUAL_RATE, long_s, True),
+            ):
+                r, seq = run_case(d, seq, rate, secs, sub_seconds=sub or None)
+                rows.append((name, r))
             rate = 40_000.0
             bad = None
-            while rate <= a.max_rate:
-                r, seq = run_case(d, seq, rate, step_s)
-                rows.append((f"search {rate:,.0f}/s", r))
+            while not a.no_search and rate <= a.max_rate:
+                r, seq = run_case(d, seq, rate, step_s, sub_seconds=True)
+                rows.append((f"search {rate:,.0f}/s + sub", r))
                 if r["lost"] == 0 and r["rec_dropped"] == 0 and r["achieved"] >= 0.95 * rate:
                     best = rate
                     rate *= 1.25
                 else:
                     bad = rate
                     break
-            if best is not None and bad is not None:  # one bisection step
-                mid = (best + bad) / 2
-                r, seq = run_case(d, seq, mid, step_s)
-                rows.append((f"search {mid:,.0f}/s", r))
-                if r["lost"] == 0 and r["rec_dropped"] == 0:
-                    best = mid
             counts = d.status()["counts"]
+            peak_rss = d.rss_mib()[1]
         finally:
             d.stop()
         # the recordings hold every received packet exactly once, in order
@@ -253,28 +313,39 @@ def main() -> int:
             for _ns, p in RecordingReader(f).lidar_packets():
                 seqs.append(struct.unpack_from("<I", p, 2)[0])
         in_order = all(b > a_ for a_, b in zip(seqs, seqs[1:]))
+    if not a.no_kill:
+        for rate in (20 * DUAL_RATE,) + ((best,) if best else ()):
+            with tempfile.TemporaryDirectory() as tmp:
+                kills.append(kill_case(rate, 5 if a.quick else 8, 3 if a.quick else 6, Path(tmp)))
     print()
-    print(f"tripod-daemon bench, loopback UDP, recording zstd MCAP + Zenoh on "
-          f"({os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}; "
-          "sender in another process)")
-    hdr = (f"{'case':<24}{'rate/s':>9}{'sent/s':>9}{'s':>4}{'sent':>10}{'lost':>9}"
-           f"{'krn.drop':>9}{'rec.drop':>9}{'zen.drop':>9}{'sub.got':>9}{'CPU %':>7}")
+    print(f"tripod-daemon bench, loopback UDP, evenly paced sender in another process, "
+          f"recording zstd MCAP + Zenoh on; {os.cpu_count()} CPUs, load average at start "
+          f"{load0[0]:.1f} / {load0[1]:.1f} / {load0[2]:.1f} (1/5/15 min)")
+    hdr = (f"{'case':<24}{'rate/s':>9}{'sent/s':>9}{'s':>4}{'sent':>9}{'lost':>7}"
+           f"{'rec.drop':>9}{'zen.drop':>9}{'sub.got':>9}{'CPU %':>7}{'RSS MiB':>8}{'load':>6}")
     print(hdr)
     print("-" * len(hdr))
     for name, r in rows:
         print(f"{name:<24}{r['rate']:>9,.0f}{r['achieved']:>9,.0f}{r['seconds']:>4.0f}"
-              f"{r['sent']:>10,}{r['lost']:>9,}{r['kernel_drops']:>9,}{r['rec_dropped']:>9,}"
+              f"{r['sent']:>9,}{r['lost']:>7,}{r['rec_dropped']:>9,}"
               f"{r['zenoh_dropped']:>9,}"
               f"{'' if r['subscriber'] is None else format(r['subscriber'], ','):>9}"
-              f"{r['cpu_pct']:>7.1f}")
+              f"{r['cpu_pct']:>7.1f}{r['rss_mib']:>8.0f}{r['load']:>6.1f}")
     print("-" * len(hdr))
-    print("lost: sent - received by the daemon; krn.drop: what the daemon's SO_RXQ_OVFL counter "
-          "saw of it; rec.drop / zen.drop: dropped at the recorder / live-path queues; "
-          "sub.got: packets a Zenoh subscriber process received")
-    print(f"highest zero-loss rate: {best:,.0f} packets/s" if best else
-          "highest zero-loss rate: below 40,000 packets/s")
+    print("CPU %: the daemon process (all its threads, Zenoh's included) in % of one core over "
+          "the run, from /proc/PID/stat; lost: sent - received by the daemon; rec.drop / "
+          "zen.drop: dropped at the recorder / live-path queues; sub.got: packets a Zenoh "
+          "subscriber process received; load: 1-min load average at the end of the row")
+    print(f"highest zero-loss rate with a live subscriber: {best:,.0f} packets/s" if best else
+          "highest zero-loss rate with a live subscriber: below 40,000 packets/s"
+          if not a.no_search else "zero-loss search skipped")
+    print(f"peak RSS of the daemon over all rows: {peak_rss:.0f} MiB")
     print(f"recording: {len(seqs):,} packets of {counts['lidar_data']:,} received; "
           f"in order, no duplicates: {in_order and len(seqs) == counts['lidar_data']}")
+    for k in kills:
+        print(f"kill -9 at {k['rate']:,.0f}/s: {k['sent_before_kill']:,} sent before the kill, "
+              f"{k['recovered']:,} in the recovered file (read by the mcap reader): "
+              f"{k['lost']:,} lost = {k['lost_s']:.2f} s")
     return 0
 
 

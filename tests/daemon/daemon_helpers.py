@@ -221,3 +221,21 @@ class RunningDaemon:
                 return True
             time.sleep(step)
         return cond()
+
+
+def send_paced_in_process(addr, first_seq: int, n: int, rate_hz: float, burst: int = 32) -> float:
+    """``send_paced`` of ``make_data_packet(first_seq ..)`` from a separate process, so that the
+    sender does not share the interpreter lock with a daemon running in this process (as on
+    the device, where the lidar is another machine); returns the achieved rate."""
+    import subprocess
+    import sys
+
+    code = ("import sys; sys.path.insert(0, sys.argv[1]); import daemon_helpers as h; "
+            "a = (sys.argv[2], int(sys.argv[3])); f, n = int(sys.argv[4]), int(sys.argv[5]); "
+            "print(h.send_paced(h.udp_sender(), a, (h.make_data_packet(f + i) for i in range(n)), "
+            "float(sys.argv[6]), int(sys.argv[7])))")
+    out = subprocess.run(
+        [sys.executable, "-c", code, str(Path(__file__).parent), addr[0], str(addr[1]),
+         str(first_seq), str(n), str(rate_hz), str(burst)],
+        capture_output=True, text=True, check=True, timeout=600)
+    return float(out.stdout.split()[-1])

@@ -11,6 +11,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from tripod_daemon.config import DaemonConfig
 
 REPO = Path(__file__).resolve().parents[2]
@@ -83,7 +85,8 @@ def test_install_script_parses_and_dry_runs():
     assert "/etc/systemd/system/tripod-daemon.service" in steps
     assert "systemctl enable tripod-daemon.service tripod-panel.service" in steps
     assert "/etc/systemd/system/tripod-panel.service" in steps
-    assert "gen-certs /etc/tripod/certs" in steps and "/etc/tripod/panel-credentials" in steps
+    assert "gen-certs /root/tripod-ca" in steps
+    assert "/etc/tripod/credentials/panel-credentials" in steps
 
 
 def test_daemon_stays_light():
@@ -135,3 +138,24 @@ def test_panel_stays_light():
             "print([m for m in ('starlette', 'uvicorn', 'selenium') if m in sys.modules])\n")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert r.returncode == 0 and r.stdout.strip() == "[]", r.stderr
+
+
+def test_secure_example_config_loads_with_generated_credentials(tmp_path, monkeypatch):
+    from tripod_daemon.certs import gen_certs
+    from tripod_daemon.config import ConfigError, load
+
+    creds = tmp_path / "creds"
+    certs = tmp_path / "certs"
+    gen_certs(str(certs), ["localhost"], ["operator"])
+    creds.mkdir()
+    for name in ("device.pem", "device.key", "ca.pem"):  # as LoadCredential=tripod:DIR names them
+        (creds / f"tripod_{name}").write_bytes((certs / name).read_bytes())
+    (creds / "tripod_zenoh-users").write_text("operator:x\n")
+    monkeypatch.setenv("CREDENTIALS_DIRECTORY", str(creds))
+    cfg = load(str(REPO / "deploy/etc/daemon.secure.yaml"), system_config=None)
+    assert cfg.zenoh.tls.certificate == str(creds / "tripod_device.pem")
+    assert cfg.zenoh.listen == ["tls/0.0.0.0:7447"] and cfg.zenoh.control.users == ["operator"]
+    assert "LoadCredential=tripod:/etc/tripod/credentials" in UNIT.read_text()
+    monkeypatch.setenv("CREDENTIALS_DIRECTORY", str(tmp_path / "nothing"))
+    with pytest.raises(ConfigError, match="file not found"):
+        load(str(REPO / "deploy/etc/daemon.secure.yaml"), system_config=None)

@@ -175,3 +175,19 @@ def test_recover_on_a_full_disk_writes_elsewhere_and_leaves_no_partial(tmp_path,
         err = capsys.readouterr().err
         assert rc == 1 and "nowhere to write" in err and err.count("\n") == 1
         assert not list(full.glob("*.part")) and not out.exists()
+
+
+def test_stop_while_retrying_ends_the_retries(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    cfg = loopback_config(tmp_path, recording={"directory": str(blocker / "rec"),
+                                               "retry_interval_s": 0.1})
+    with RunningDaemon(cfg) as d:
+        rec = d.daemon.recorder
+        assert rec.wanted and not rec.active and rec.state == "error"
+        assert d.daemon.control("stop")["ok"]
+        assert d.wait_for(lambda: rec.state == "idle")
+        blocker.unlink()  # the directory could be made now: no retry may pick that up
+        time.sleep(0.5)
+        assert not rec.active and d.daemon.counts["record_resumes"] == 0
+        d.stop()

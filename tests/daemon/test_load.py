@@ -8,7 +8,12 @@ from __future__ import annotations
 from tripod_shared.recording import RecordingReader
 from tripod_shared.velodyne import VLP16_PACKET_PERIOD_US
 
-from daemon_helpers import RunningDaemon, loopback_config, make_data_packet, send_paced, udp_sender
+from daemon_helpers import (
+    RunningDaemon,
+    loopback_config,
+    make_data_packet,
+    send_paced_in_process,
+)
 
 DUAL_RATE_HZ = 1e6 / VLP16_PACKET_PERIOD_US["dual"]  # 1507 packets/s
 
@@ -22,7 +27,7 @@ def test_twenty_times_dual_rate_without_loss(tmp_path):
         zenoh={"enabled": True, "listen": ["tcp/127.0.0.1:0"]},
         recording={"flush_interval_s": 1.0})
     with RunningDaemon(cfg) as d:
-        achieved = send_paced(udp_sender(), d.data_addr, packets, rate)
+        achieved = send_paced_in_process(d.data_addr, 0, n, rate)
         assert d.wait_for(lambda: d.daemon.counts["lidar_data"] >= n, timeout=15)
         rc = d.stop()
     assert rc == 0

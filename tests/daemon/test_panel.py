@@ -171,17 +171,19 @@ def test_refused_without_the_password(tmp_path, daemon):
 def test_refuses_to_start_without_password_or_certificate(tmp_path):
     base = [sys.executable, "-m", "tripod_daemon", "panel", "--no-system-config",
             "--listen", "127.0.0.1:1"]
+    env = {k: v for k, v in os.environ.items() if k != "CREDENTIALS_DIRECTORY"}
     r = subprocess.run(base + ["--credentials", str(tmp_path / "none")], capture_output=True,
-                       text=True, timeout=60)
+                       text=True, timeout=60, env=env)
     assert r.returncode == 2
-    assert r.stderr.strip().startswith("tripod-daemon panel: refusing to serve the page "
-                                       "without a password: credentials file")
+    assert r.stderr.strip() == (f"tripod-daemon panel: refusing to serve the page without a "
+                                f"password: credentials file {tmp_path / 'none'}: No such file "
+                                "or directory")
     cred = tmp_path / "cred"
     cred.write_text("operator:x\n")
     r = subprocess.run(base + ["--credentials", str(cred)], capture_output=True, text=True,
-                       timeout=60)
-    if not Path("/etc/tripod/certs/device.pem").exists():
-        assert r.returncode == 2 and "served over HTTPS only" in r.stderr
+                       timeout=60, env=env)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1
+    assert "the page is served over HTTPS only" in r.stderr
 
 
 # ---- the pieces the page is made of ---------------------------------------------------------
@@ -356,3 +358,41 @@ def test_browser_login_live_rate_mark_and_refusal(tmp_path, imu_daemon, velodyne
                     th.join(10)
     assert daemon.daemon.counts["lidar_data"] > 1000
     assert _marks(daemon) == ["station A"]
+
+
+def test_settings_reach_a_daemon_with_the_secure_example_config(tmp_path, monkeypatch):
+    """deploy/etc/daemon.secure.yaml (mutual TLS, logins) with the files the units' LoadCredential=
+    hands over: the panel finds its password, the HTTPS certificate and a way in over TLS, and
+    may control from this machine."""
+    from tripod_daemon.client import control, open_session, query_status
+    from tripod_daemon.config import load
+    from tripod_daemon.panel import settings
+
+    certs, creds = tmp_path / "certs", tmp_path / "creds"
+    gen_certs(str(certs), ["tripod0.local"], [])
+    creds.mkdir()
+    for name in ("device.pem", "device.key", "ca.pem"):
+        (creds / f"tripod_{name}").write_bytes((certs / name).read_bytes())
+    (creds / "tripod_zenoh-users").write_text("operator:op\npanel:pw-1\n")
+    (creds / "tripod_panel-credentials").write_text("panel:pw-1\n")
+    monkeypatch.setenv("CREDENTIALS_DIRECTORY", str(creds))
+    port = free_tcp_port()
+    repo = Path(__file__).resolve().parents[2]
+    cfg = load(str(repo / "deploy/etc/daemon.secure.yaml"), {
+        "zenoh.listen": [f"tls/0.0.0.0:{port}"], "lidar.bind_address": "127.0.0.1",
+        "lidar.data_port": 0, "lidar.position_port": 0, "lidar.receive_buffer_bytes": 1 << 20,
+        "recording.directory": str(tmp_path / "rec"), "recording.min_free_bytes": 0},
+        system_config=None)
+    opts, cert, key, password = settings(cfg)
+    assert (cert, key, password) == (str(creds / "tripod_device.pem"),
+                                     str(creds / "tripod_device.key"), "pw-1")
+    assert opts.endpoint == f"tls/127.0.0.1:{port}" and opts.credentials.user == "panel"
+    assert opts.ca == str(creds / "tripod_ca.pem") and opts.certificate == cert
+    with RunningDaemon(cfg) as d:
+        s = open_session(opts)
+        try:
+            assert query_status(s, opts)["recording"] is True
+            assert control(s, opts, "mark", "from the panel")["ok"] is True
+        finally:
+            s.close()
+    assert _marks(d) == ["from the panel"]

@@ -10,7 +10,6 @@ import os
 import threading
 import time
 
-import pytest
 import zenoh
 
 from daemon_helpers import (

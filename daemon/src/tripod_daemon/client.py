@@ -64,6 +64,7 @@ class ClientOptions:
     certificate: str = ""
     private_key: str = ""
     timeout_s: float = 5.0
+    verify_name: bool = True  # check the device certificate's name against the endpoint's host
 
 
 def build_client_config(opts: ClientOptions):
@@ -80,7 +81,8 @@ def build_client_config(opts: ClientOptions):
         raise ValueError("--cert and --key go together")
     conf = build_zenoh_config(ZenohConfig(
         listen=[], connect=[opts.endpoint],
-        tls=ZenohTlsConfig(certificate=opts.certificate, private_key=opts.private_key)))
+        tls=ZenohTlsConfig(certificate=opts.certificate, private_key=opts.private_key,
+                           verify_name_on_connect=opts.verify_name)))
     if opts.ca:
         conf.insert_json5("transport/link/tls/root_ca_certificate", json.dumps(opts.ca))
     if opts.certificate:

@@ -107,8 +107,8 @@ class LidarConfig(StrictModel):
     source_addresses: list[str] = []  # accept only these senders; empty: any
     receive_buffer_bytes: int = Field(64 << 20, ge=65536)  # SO_RCVBUF(FORCE) per socket [B]
     accept_products: list[int] = [PRODUCT_VLP16, PRODUCT_HDL32E]  # payload[1205]
-    max_batch: int = Field(4096, ge=1)  # datagrams read per wake-up and socket, at most
-    wake_interval_ms: float = Field(5.0, ge=0)  # sockets are drained at most this often [ms]
+    max_batch: int = Field(512, ge=1)  # datagrams read per wake-up and socket, at most
+    wake_interval_ms: float = Field(20.0, ge=0)  # sockets are drained at most this often [ms]
 
 
 class ImuConfig(StrictModel):
@@ -244,13 +244,17 @@ class PanelConfig(StrictModel):
     listen: str = "0.0.0.0:8443"  # host:port of the HTTPS page
     # "user:password" (one line): the page's password, and the panel's Zenoh login when the
     # daemon asks for one. Checked when the panel starts (the daemon does not need it).
-    credentials_file: str = "/etc/tripod/panel-credentials"
-    certificate: str = ""  # HTTPS certificate (PEM); "": zenoh.tls.certificate
-    private_key: str = ""  # its key; "": zenoh.tls.private_key
-    connect: str = ""  # the daemon's endpoint; "": tcp/127.0.0.1:<port of the first tcp listen>
-    zenoh_ca: str = ""  # for a tls/ connect: the CA of the device's certificate
-    zenoh_certificate: str = ""  # for mutual TLS: the panel's client certificate (PEM) ...
-    zenoh_private_key: str = ""  # ... and key
+    credentials_file: str = "${CREDENTIALS_DIRECTORY}/tripod_panel-credentials"
+    # HTTPS certificate (PEM); "": zenoh.tls.certificate, else the device's certificate
+    # ${CREDENTIALS_DIRECTORY}/tripod_device.pem
+    certificate: str = ""
+    private_key: str = ""  # its key (the same fallbacks)
+    # the daemon's endpoint; "": the first tcp/ (else tls/) listen endpoint, on this machine
+    connect: str = ""
+    zenoh_ca: str = ""  # for a tls/ connect: the CA of the device's cert; "": tls.client_ca
+    # for mutual TLS: the panel's client certificate and key; "": the device's own
+    zenoh_certificate: str = ""
+    zenoh_private_key: str = ""
     image_interval_s: float = Field(1.0, gt=0)  # range image refresh [s]
     session_hours: float = Field(12.0, gt=0)  # a login lasts this long [h]
 

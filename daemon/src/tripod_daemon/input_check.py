@@ -63,7 +63,8 @@ def position_reject_reason(payload: bytes) -> str | None:
     (one of :data:`POSITION_REJECT_REASONS`)."""
     if len(payload) != POSITION_PACKET_SIZE:
         return "size"
-    if int.from_bytes(payload[POS_TIMESTAMP_OFFSET : POS_TIMESTAMP_OFFSET + 4], "little") >= HOUR_US:
+    toh_us = int.from_bytes(payload[POS_TIMESTAMP_OFFSET : POS_TIMESTAMP_OFFSET + 4], "little")
+    if toh_us >= HOUR_US:
         return "time"
     if payload[POS_PPS_OFFSET] not in PPS_STATES:
         return "pps"

@@ -4,7 +4,7 @@ signals and commands, and a tick (status, health, watchdog, IMU reconnect).
 
 Light on the CPU: the lidar sends a datagram every 0.66 ms (dual return); waking for each one
 costs more than handling it. So the UDP sockets are drained at most every
-``lidar.wake_interval_ms`` (5 ms): after a drain the loop waits only on the IMU port and the
+``lidar.wake_interval_ms`` (20 ms): after a drain the loop waits only on the IMU port and the
 self-pipe until the interval is over, while the kernel queues the datagrams with their receive
 stamps (SO_TIMESTAMPNS), so stamps are unchanged and nothing is lost (the receive buffer holds
 seconds). Each wake-up hands one batch to the recorder and one to the publisher. The IMU's
@@ -271,11 +271,12 @@ class Daemon:
                 sel, until = self._sel, next_tick
             batch: list = []
             drained = False
+            behind = False
             for key, _ev in sel.select(until - now):
                 what = key.data
                 try:
                     if what == "lidar":
-                        self.lidar.drain(key.fileobj, batch)
+                        behind |= self.lidar.drain(key.fileobj, batch) >= self.lidar.cfg.max_batch
                         drained = True
                     elif what == "imu":
                         if not self.imu.on_readable(batch):
@@ -291,7 +292,9 @@ class Daemon:
                     self.counts.add("internal_errors")
                     log.exception("error handling %s (counted, continuing)", what)
             if drained:
-                lidar_due = now + wake_s
+                # a socket still had data after max_batch datagrams: the loop is behind, so no
+                # pause (the pause is for the light load it was made for, not for catching up)
+                lidar_due = now if behind else now + wake_s
             self._submit(batch)
 
     def _submit(self, batch: list) -> None:
@@ -337,7 +340,7 @@ class Daemon:
                 return {"_wait": cmd_done}
             return {"ok": True, "recording": True, "file": rec.file, "message": rec.message}
         if name == "stop":
-            if rec.active:
+            if rec.active or rec.wanted:  # (wanted: failed and retrying -- stop retrying too)
                 self._event("stop", label or "control")
                 rec.stop(label or "control")
             return {"ok": True, "recording": False, "file": None}

@@ -187,9 +187,10 @@ class LivePublisher:
         self._bucket = _TokenBucket(cfg.control.rate_per_s, cfg.control.burst)
         self.session = zenoh.open(build_zenoh_config(cfg, device_id))
         cdr, js = zenoh.Encoding.APPLICATION_CDR, zenoh.Encoding.APPLICATION_JSON
-        # "block": a slow subscriber backs up into *our* bounded queue, where every dropped
-        # message is counted (zenoh_dropped); "drop": zenoh drops inside its own queues, which
-        # no counter sees. Either way only this thread waits, never reception or recording.
+        # "drop" (default): zenoh drops per link, so a slow subscriber loses its own samples and
+        # no other's; "block": this thread waits for the slowest subscriber, our bounded queue
+        # overflows and every dropped message is counted (zenoh_dropped). Either way only this
+        # thread waits, never reception or recording.
         drop = (zenoh.CongestionControl.BLOCK if cfg.congestion_control == "block"
                 else zenoh.CongestionControl.DROP)
         decl = self.session.declare_publisher

@@ -137,7 +137,8 @@ class Recorder:
         if self._enqueued_bytes - self._dequeued_bytes + nbytes > self.cfg.queue_bytes:
             self._over_budget(len(batch))
             return
-        if self.overload and self._enqueued_bytes - self._dequeued_bytes < self.cfg.queue_bytes // 2:
+        backlog = self._enqueued_bytes - self._dequeued_bytes
+        if self.overload and backlog < self.cfg.queue_bytes // 2:
             self.overload = ""
             log.warning("recording keeps up again (%d messages dropped in all)",
                         self.counts["record_dropped"])

@@ -18,14 +18,12 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 
 from ..config import SYSTEM_CONFIG, ConfigError, DaemonConfig, load
 
 log = logging.getLogger("tripod_daemon.panel")
-
-#: where deploy/install-device.sh puts the device's certificate (tripod-daemon gen-certs)
-DEFAULT_CERT_DIR = "/etc/tripod/certs"
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -47,18 +45,19 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def daemon_endpoint(cfg: DaemonConfig) -> str:
-    """Where the panel reaches the daemon: ``panel.connect``, else the first ``tcp/`` or
-    ``tls/`` listen endpoint of the daemon on this machine."""
+    """Where the panel reaches the daemon: ``panel.connect``, else the daemon's first ``tcp/``
+    listen endpoint (else its first ``tls/`` one) on this machine."""
     if cfg.panel.connect:
         return cfg.panel.connect
-    for ep in cfg.zenoh.listen:
-        proto, _, addr = ep.partition("/")
-        if proto not in ("tcp", "tls"):
-            continue
-        host, _, port = addr.split("?", 1)[0].split("#", 1)[0].rpartition(":")
-        if host in ("0.0.0.0", "[::]", ""):
-            host = "127.0.0.1" if proto == "tcp" else "localhost"
-        return f"{proto}/{host}:{port}"
+    for want in ("tcp", "tls"):
+        for ep in cfg.zenoh.listen:
+            proto, _, addr = ep.partition("/")
+            if proto != want:
+                continue
+            host, _, port = addr.split("?", 1)[0].split("#", 1)[0].rpartition(":")
+            if host in ("0.0.0.0", "[::]", ""):
+                host = "127.0.0.1"
+            return f"{proto}/{host}:{port}"
     raise ConfigError("panel.connect is empty and zenoh.listen has no tcp/ or tls/ endpoint: "
                       "set panel.connect to the daemon's endpoint")
 
@@ -77,11 +76,55 @@ def main(argv: list[str] | None = None) -> int:
         return 2
 
 
+def _expand(path: str) -> str:
+    return os.path.expandvars(path) if path else ""
+
+
+def settings(cfg: DaemonConfig):
+    """(client options, HTTPS certificate, its key, the page's password) from the config;
+    ValueError with one line naming what is missing."""
+    from ..client import ClientOptions, read_credentials
+
+    p, tls = cfg.panel, cfg.zenoh.tls
+    try:
+        creds = read_credentials(p.credentials_file)
+    except ValueError as exc:
+        raise ValueError(f"refusing to serve the page without a password: {exc}") from None
+    if p.certificate:
+        cert, key = _expand(p.certificate), _expand(p.private_key)
+    elif tls.certificate:
+        cert, key = tls.certificate, tls.private_key
+    else:
+        cert, key = (_expand(f"${{CREDENTIALS_DIRECTORY}}/tripod_device.{x}")
+                     for x in ("pem", "key"))
+        if "$" in cert:
+            cert = key = ""
+    if not cert or not key:
+        raise ValueError("the page is served over HTTPS only: set panel.certificate and "
+                         "panel.private_key (or zenoh.tls.certificate/private_key, or give the "
+                         "unit the device's tripod_device.pem/.key: deploy/README.md)")
+    for f in (cert, key):
+        if not os.path.isfile(f):
+            raise ValueError(f"HTTPS certificate: file not found: {f}")
+    endpoint = daemon_endpoint(cfg)
+    tls_ep = endpoint.startswith("tls/")
+    opts = ClientOptions(
+        endpoint=endpoint, device_id=cfg.device_id,
+        # the daemon asks every peer to log in when it has a users file
+        credentials=creds if cfg.zenoh.auth.users_file else None,
+        ca=_expand(p.zenoh_ca) or (tls.client_ca if tls_ep else ""),
+        certificate=_expand(p.zenoh_certificate) or (
+            tls.certificate if tls_ep and tls.client_ca else ""),
+        private_key=_expand(p.zenoh_private_key) or (
+            tls.private_key if tls_ep and tls.client_ca else ""),
+        # on this machine the certificate's names (the device's network names) are not
+        # "localhost"; the chain is still checked against the CA
+        verify_name=not (tls_ep and not p.connect))
+    return opts, cert, key, creds.password
+
+
 def serve(cfg: DaemonConfig) -> int:
     """Run the panel until SIGTERM/SIGINT (uvicorn's handlers)."""
-    import os
-
-    from ..client import ClientOptions, read_credentials
     from ..systemd import setup_logging
 
     try:
@@ -92,37 +135,14 @@ def serve(cfg: DaemonConfig) -> int:
     except ImportError as exc:
         raise ValueError(f"the panel needs its extra: pip install 'tripod-daemon[panel]' "
                          f"({exc.name} missing)") from None
+    opts, cert, key, password = settings(cfg)
     p = cfg.panel
-    try:
-        creds = read_credentials(p.credentials_file)
-    except ValueError as exc:
-        raise ValueError(f"refusing to serve the page without a password: {exc}") from None
-    cert, key = p.certificate, p.private_key
-    if not cert:
-        cert, key = cfg.zenoh.tls.certificate, cfg.zenoh.tls.private_key
-    if not cert and os.path.isfile(os.path.join(DEFAULT_CERT_DIR, "device.pem")):
-        cert = os.path.join(DEFAULT_CERT_DIR, "device.pem")
-        key = os.path.join(DEFAULT_CERT_DIR, "device.key")
-    if not cert or not key:
-        raise ValueError("the page is served over HTTPS only: set panel.certificate and "
-                         "panel.private_key, or zenoh.tls.certificate/private_key, or make "
-                         f"{DEFAULT_CERT_DIR}/device.pem with tripod-daemon gen-certs")
-    cert, key = os.path.expandvars(cert), os.path.expandvars(key)
-    for f in (cert, key):
-        if not os.path.isfile(f):
-            raise ValueError(f"file not found: {f}")
-    endpoint = daemon_endpoint(cfg)
-    opts = ClientOptions(
-        endpoint=endpoint, device_id=cfg.device_id,
-        # the daemon asks every peer to log in when it has a users file
-        credentials=creds if cfg.zenoh.auth.users_file else None,
-        ca=os.path.expandvars(p.zenoh_ca), certificate=os.path.expandvars(p.zenoh_certificate),
-        private_key=os.path.expandvars(p.zenoh_private_key))
     host, _, port = p.listen.rpartition(":")
     setup_logging(cfg.log_level)
     live = LiveState(opts, p.image_interval_s)
-    app = create_app(live, creds.password, p.session_hours)
-    log.info("panel for tripod/%s at %s on https://%s:%s/", cfg.device_id, endpoint, host, port)
+    app = create_app(live, password, p.session_hours)
+    log.info("panel for tripod/%s at %s on https://%s:%s/", cfg.device_id, opts.endpoint,
+             host, port)
     server = uvicorn.Server(uvicorn.Config(
         app, host=host.strip("[]"), port=int(port), ssl_certfile=cert, ssl_keyfile=key,
         log_level="warning", access_log=False, lifespan="on", proxy_headers=False,
@@ -131,4 +151,4 @@ def serve(cfg: DaemonConfig) -> int:
     return 0
 
 
-__all__ = ["daemon_endpoint", "main", "serve"]
+__all__ = ["daemon_endpoint", "main", "serve", "settings"]
