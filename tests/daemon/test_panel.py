@@ -230,24 +230,24 @@ def _browser():
     for a in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
               "--ignore-certificate-errors", "--no-first-run", "--disable-extensions"):
         o.add_argument(a)
-    # a phone: 360 x 740 CSS pixels at 2 device pixels each
+    # a phone's screen: 360 x 740 CSS pixels (one device pixel each: the screenshots' size)
     o.add_experimental_option("mobileEmulation", {"deviceMetrics": {
-        "width": 360, "height": 740, "pixelRatio": 2.0, "touch": True}})
+        "width": 360, "height": 740, "pixelRatio": 1.0, "touch": True}})
     os.environ.setdefault("SE_OFFLINE", "true")  # never let Selenium fetch a driver
     return webdriver.Chrome(options=o, service=Service(executable_path=driver))
 
 
-def _shot(drv, name: str) -> None:
+def _shot(drv, name: str, bottom: bool = False) -> None:
+    """A 360 x 740 screenshot of what the phone shows (scrolled to the end with ``bottom``)."""
     out = os.environ.get("TRIPOD_PANEL_SCREENSHOTS")
     if not out:
         return
     Path(out).mkdir(parents=True, exist_ok=True)
-    h = drv.execute_script("return document.body.scrollHeight")
-    drv.execute_cdp_cmd("Emulation.setDeviceMetricsOverride", {
-        "width": 360, "height": max(740, int(h)), "deviceScaleFactor": 2, "mobile": True})
+    drv.execute_script("window.scrollTo(0, arguments[0] ? document.body.scrollHeight : 0)",
+                       bottom)
+    time.sleep(0.2)
     drv.save_screenshot(str(Path(out) / name))
-    drv.execute_cdp_cmd("Emulation.setDeviceMetricsOverride", {
-        "width": 360, "height": 740, "deviceScaleFactor": 2, "mobile": True})
+    drv.execute_script("window.scrollTo(0, 0)")
 
 
 @pytest.fixture
@@ -342,7 +342,7 @@ def test_browser_login_live_rate_mark_and_refusal(tmp_path, imu_daemon, velodyne
             drv.find_element(By.ID, "btn-stop").click()
             assert drv.find_element(By.ID, "btn-stop").text == "Tap again"
             assert daemon.daemon.recorder.active
-            _shot(drv, "panel-marked.png")
+            _shot(drv, "panel-marked.png", bottom=True)
             # the IMU goes quiet: a warning in plain words
             imu_on.clear()
             wait.until(lambda d: "IMU silent for" in _text(d, "#warn-list li"))
