@@ -396,3 +396,20 @@ def test_settings_reach_a_daemon_with_the_secure_example_config(tmp_path, monkey
         finally:
             s.close()
     assert _marks(d) == ["from the panel"]
+
+
+def test_no_daemon_the_page_says_so_and_actions_fail_cleanly(tmp_path):
+    port = free_tcp_port()  # nothing listens there
+    with Panel(tmp_path, f"tcp/127.0.0.1:{port}") as p:
+        jar = http.cookiejar.CookieJar()
+        op = p.opener(jar)
+        p.post("/login", f"password={PASSWORD}".encode(), "application/x-www-form-urlencoded", op)
+        st = json.loads(p.get("/api/state", op)[1])
+        assert st["connected"] is False
+        assert st["warnings"][0].startswith("No connection to the daemon: ")
+        try:
+            p.post("/api/control/mark", b"{}", "application/json", op)
+            raise AssertionError("mark without a daemon answered 200")
+        except urllib.error.HTTPError as exc:
+            assert exc.code == 503 and json.loads(exc.read())["ok"] is False
+        assert p.proc.poll() is None  # still serving, retrying the connection
