@@ -87,14 +87,16 @@ def test_full_backlog_drops_and_counts_never_blocks_and_stays_in_budget(tmp_path
     counts = Counters()
     rec = Recorder(cfg, counts)
     peak = 0
+    said = set()
     try:
         assert rec.start()
         t0 = time.perf_counter()
         for k in range(200):  # 8000 packets, ~10 MB offered at once: far over the budget
             rec.submit(_items(k * 40, 40))
             peak = max(peak, rec.pending_bytes)
+            said.add(rec.overload.split(":")[0])
         assert time.perf_counter() - t0 < 1.0
-        assert rec.overload.startswith("disk cannot keep up")
+        assert "disk cannot keep up" in said  # (cleared again once the backlog is half gone)
     finally:
         rec.close()
     assert 0 < peak <= cfg.queue_bytes

@@ -112,7 +112,7 @@ def test_user_password_only_operator_may_control_and_recording_goes_on(tmp_path)
         d.stop()
 
 
-def test_mutual_tls_only_the_operator_certificate_may_control(tmp_path):
+def test_mutual_tls_only_the_operator_certificate_may_control(tmp_path, caplog):
     certs = tmp_path / "certs"
     gen_certs(str(certs), ["localhost", "127.0.0.1"], ["operator", "viewer"])
     port = free_tcp_port()
@@ -133,12 +133,16 @@ def test_mutual_tls_only_the_operator_certificate_may_control(tmp_path):
             _wait_status(z, cfg.device_id)
             assert _control(z, cfg.device_id, "stop", timeout=1.5) is None
         _recording_goes_on(d)
+        caplog.set_level(logging.INFO, logger="tripod_daemon")
         with _client(ep, tls=tls("operator")) as z:
             _wait_status(z, cfg.device_id)
             r = _control(z, cfg.device_id, "stop")
             assert r and r["ok"] and r["recording"] is False
         assert d.wait_for(lambda: not d.daemon.recorder.active)
         d.stop()
+    # the log names the peer by the certificate zenoh authenticated
+    line = next(r.getMessage() for r in caplog.records if r.getMessage().startswith("control/stop"))
+    assert line.endswith("via lo as operator") and "tls/127.0.0.1:" in line
 
 
 def _rss_kib() -> int:

@@ -26,6 +26,7 @@ import os
 import queue
 import selectors
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -202,6 +203,8 @@ class Daemon:
     # ---- the loop ---------------------------------------------------------------------------
     def run(self) -> int:
         old_handlers = {}
+        old_switch = sys.getswitchinterval()
+        sys.setswitchinterval(self.cfg.lidar.switch_interval_ms / 1000.0)
         if self.install_signal_handlers and threading.current_thread() is threading.main_thread():
             for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
                 old_handlers[sig] = signal.signal(sig, lambda s, _f: self.signal(s))
@@ -239,6 +242,7 @@ class Daemon:
             log.info("stopped; %s", self._status_line())
             return 0
         finally:
+            sys.setswitchinterval(old_switch)
             for sig, h in old_handlers.items():
                 signal.signal(sig, h)
 
@@ -251,7 +255,6 @@ class Daemon:
         return iv
 
     def _loop(self) -> None:
-        wake_s = self.cfg.lidar.wake_interval_ms / 1000.0
         monotonic = time.monotonic
         next_tick = monotonic() + self._tick_interval()
         lidar_due = 0.0  # host_monotonic [s] before which the lidar sockets are left to fill
@@ -292,6 +295,7 @@ class Daemon:
                     self.counts.add("internal_errors")
                     log.exception("error handling %s (counted, continuing)", what)
             if drained:
+                wake_s = self.cfg.lidar.wake_interval_ms / 1000.0  # (SIGHUP may change it)
                 # a socket still had data after max_batch datagrams: the loop is behind, so no
                 # pause (the pause is for the light load it was made for, not for catching up)
                 lidar_due = now if behind else now + wake_s
