@@ -45,7 +45,7 @@ $(SOURCES_STAMP):
 
 $(INSTALL_STAMP): $(DEPS_STAMP) $(PYPROJECTS) $(SOURCES_STAMP)
 	@echo "tripod: installing shared, daemon and processor (building the C++ extension)"
-	$(PIP) install -e shared -e daemon $(QUIET)
+	$(PIP) install -e shared -e "daemon[panel]" $(QUIET)
 	$(PIP) install --no-build-isolation -e processor \
 		--config-settings=cmake.define.TRIPOD_BUILD_TESTS=ON $(QUIET)
 	@touch $@

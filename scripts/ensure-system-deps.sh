@@ -10,6 +10,7 @@ PKGS=(
   libsystemd-dev                          # systemd-python (daemon)
   libusb-1.0-0 libgomp1                   # Open3D's runtime needs
   systemd                                 # systemd-analyze verify of the unit
+  chromium chromium-driver                # the panel's browser test (headless, Selenium)
 )
 # A Debian python3 needs its venv/dev packages; a pyenv/other Python brings its own.
 PY=${PYTHON:-python3}

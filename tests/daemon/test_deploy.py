@@ -80,10 +80,13 @@ def test_install_script_parses_and_dry_runs():
                        capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     steps = r.stdout
-    assert f"pip install {REPO}/shared {REPO}/daemon" in steps  # device gets no processor
+    assert f"pip install {REPO}/shared {REPO}/daemon[panel]" in steps  # no processor
     assert "processor" not in steps
     assert "/etc/systemd/system/tripod-daemon.service" in steps
-    assert "systemctl enable tripod-daemon.service" in steps
+    assert "systemctl enable tripod-daemon.service tripod-panel.service" in steps
+    assert "/etc/systemd/system/tripod-panel.service" in steps
+    assert "gen-certs /root/tripod-ca" in steps
+    assert "/etc/tripod/credentials/panel-credentials" in steps
 
 
 def test_daemon_stays_light():
@@ -104,6 +107,37 @@ def test_daemon_stays_light():
     meta = tomllib.loads((REPO / "daemon/pyproject.toml").read_text())["project"]
     deps = " ".join(meta["dependencies"])
     assert "tripod-processor" not in deps and "torch" not in deps and "open3d" not in deps
+
+
+PANEL_UNIT = REPO / "deploy/systemd/tripod-panel.service"
+
+
+def test_panel_unit_verifies_and_is_hardened(tmp_path):
+    exe = Path(sys.executable).parent / "tripod-daemon"
+    unit = tmp_path / PANEL_UNIT.name
+    unit.write_text(PANEL_UNIT.read_text().replace("/opt/tripod/venv/bin/tripod-daemon", str(exe)))
+    r = subprocess.run(["systemd-analyze", "verify", str(unit)], capture_output=True, text=True)
+    assert r.returncode == 0 and "tripod-panel.service" not in r.stderr, r.stderr
+    r = subprocess.run(["systemd-analyze", "security", "--offline=true", "--no-pager", str(unit)],
+                       capture_output=True, text=True)
+    m = re.search(r"Overall exposure level for tripod-panel\.service: ([\d.]+)", r.stdout)
+    assert m and float(m.group(1)) <= 2.0, r.stdout[-500:]
+    text = PANEL_UNIT.read_text()
+    assert "ExecStart=/opt/tripod/venv/bin/tripod-daemon panel --config /etc/tripod/daemon.yaml" \
+        in text and "User=tripod" in text and "PrivateDevices=yes" in text
+
+
+def test_panel_stays_light():
+    """The panel's extra is two small pure-Python packages, and the daemon never imports them."""
+    import tomllib
+
+    extras = tomllib.loads((REPO / "daemon/pyproject.toml").read_text())["project"][
+        "optional-dependencies"]
+    assert [d.split(">")[0] for d in extras["panel"]] == ["starlette", "uvicorn"]
+    code = ("import sys, tripod_daemon.main, tripod_daemon.loop, tripod_daemon.ctl\n"
+            "print([m for m in ('starlette', 'uvicorn', 'selenium') if m in sys.modules])\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert r.returncode == 0 and r.stdout.strip() == "[]", r.stderr
 
 
 def test_secure_example_config_loads_with_generated_credentials(tmp_path, monkeypatch):

@@ -28,6 +28,7 @@ __all__ = [
     "DaemonConfig",
     "ImuConfig",
     "LidarConfig",
+    "PanelConfig",
     "RecordingConfig",
     "ControlConfig",
     "HealthConfig",
@@ -238,6 +239,40 @@ class HealthConfig(StrictModel):
     # stop sending WATCHDOG=1 so systemd restarts the service [s]; 0: never
 
 
+class PanelConfig(StrictModel):
+    """``tripod-daemon panel`` (its own process and unit; the daemon itself ignores this)."""
+
+    listen: str = "0.0.0.0:8443"  # host:port of the HTTPS page
+    # "user:password" (one line): the page's password, and the panel's Zenoh login when the
+    # daemon asks for one. Checked when the panel starts (the daemon does not need it).
+    credentials_file: str = "${CREDENTIALS_DIRECTORY}/tripod_panel-credentials"
+    # HTTPS certificate (PEM); "": zenoh.tls.certificate, else the device's certificate
+    # ${CREDENTIALS_DIRECTORY}/tripod_device.pem
+    certificate: str = ""
+    private_key: str = ""  # its key (the same fallbacks)
+    # the daemon's endpoint; "": the first tcp/ (else tls/) listen endpoint, on this machine
+    connect: str = ""
+    zenoh_ca: str = ""  # for a tls/ connect: the CA of the device's cert; "": tls.client_ca
+    # for mutual TLS: the panel's client certificate and key; "": the device's own
+    zenoh_certificate: str = ""
+    zenoh_private_key: str = ""
+    image_interval_s: float = Field(1.0, gt=0)  # range image refresh [s]
+    session_hours: float = Field(12.0, gt=0)  # a login lasts this long [h]
+
+    @field_validator("listen")
+    @classmethod
+    def _host_port(cls, v: str) -> str:
+        host, sep, port = v.rpartition(":")
+        if not sep or not host or not port.isdigit() or not 0 < int(port) <= 65535:
+            raise ValueError(f"{v!r} is not host:port (e.g. 0.0.0.0:8443)")
+        return v
+
+    @field_validator("connect")
+    @classmethod
+    def _endpoint(cls, v: str) -> str:
+        return check_endpoint(v) if v else v
+
+
 class DaemonConfig(StrictModel):
     device_id: str = topics.DEFAULT_DEVICE_ID
     log_level: Literal["debug", "info", "warning", "error"] = "info"
@@ -247,6 +282,7 @@ class DaemonConfig(StrictModel):
     recording: RecordingConfig = RecordingConfig()
     status: StatusConfig = StatusConfig()
     health: HealthConfig = HealthConfig()
+    panel: PanelConfig = PanelConfig()
 
     @field_validator("device_id")
     @classmethod

@@ -509,7 +509,7 @@ class Daemon:
         ) if m)
         st = messages.Status(
             time.time_ns(), state=rec.state, recording=rec.active, file=rec.file, counts=counts,
-            rates=rates, message=msg, clocks=clocks)
+            rates=rates, message=msg, clocks=clocks, disk=self._disk_status())
         self._last_status = st
         data = messages.encode_status(st)
         self._status_text = data
@@ -520,6 +520,20 @@ class Daemon:
             self.publisher.submit(item)
         if notify:
             self.notifier.status(self._status_line())
+
+    def _disk_status(self) -> dict:
+        """Free space of the recording directory and the current file's size and start, for
+        the operator's panel (free space: a statvfs once a status period)."""
+        rec = self.recorder
+        d: dict = {"min_free_bytes": self.cfg.recording.min_free_bytes}
+        try:
+            d["free_bytes"] = self.free_space(self.cfg.recording.directory)
+        except OSError:
+            pass
+        if rec.file:
+            d["file_bytes"] = self.counts.get("record_bytes", 0)
+            d["file_started_ns"] = rec.file_started_ns
+        return d
 
     def _status_line(self) -> str:
         rec = self.recorder

@@ -10,6 +10,8 @@ live stream.
     tripod-daemon recover FILE [-o OUT]
     tripod-daemon watch [--connect EP] [--device-id ID] [--seconds S]
     tripod-daemon gen-certs DIR [--name HOST] [--client CN]
+    tripod-daemon ctl status|start|stop|mark [LABEL] [--connect EP] [--credentials FILE] ...
+    tripod-daemon panel [--config FILE] [--listen HOST:PORT] [--credentials FILE] ...
 """
 
 from __future__ import annotations
@@ -30,7 +32,9 @@ def _run_parser() -> argparse.ArgumentParser:
         prog="tripod-daemon",
         description="Receive VLP-16 packets and IMU samples, publish them over Zenoh and record "
         "them to MCAP. Subcommands: 'recover FILE' rebuilds a cut-off recording; 'watch' "
-        "prints the live stream's rates; 'gen-certs DIR' makes TLS certificates.",
+        "prints the live stream's rates; 'gen-certs DIR' makes TLS certificates; 'ctl' "
+        "controls a running daemon (status, start, stop, mark); 'panel' serves the "
+        "operator's page.",
     )
     p.add_argument("--version", action="version", version=f"tripod-daemon {__version__}")
     p.add_argument("-c", "--config", help=f"YAML config (layered over {SYSTEM_CONFIG})")
@@ -107,6 +111,14 @@ def main(argv: list[str] | None = None) -> int:
         from .certs import main as certs_main
 
         return certs_main(argv[1:])
+    if argv and argv[0] == "ctl":
+        from .ctl import main as ctl_main
+
+        return ctl_main(argv[1:])
+    if argv and argv[0] == "panel":
+        from .panel import main as panel_main
+
+        return panel_main(argv[1:])
     if argv and argv[0] == "watch":
         from .watch import main as watch_main
 

@@ -105,6 +105,7 @@ class Recorder:
         self.files: list[str] = []
         self._writer: RecordingWriter | None = None
         self._fh = None
+        self.file_started_ns = 0  # host_realtime when the current file was opened; 0: none
         self._opened_mono = 0.0
         self._last_flush = 0.0
         self._last_fsync = 0.0
@@ -355,6 +356,7 @@ class Recorder:
         self._opened_mono = self._last_flush = self._last_fsync = now
         self._bytes_at_check = 0
         self.file = path
+        self.file_started_ns = time.time_ns()  # host_realtime
         self.files.append(path)
         self.counts["record_files"] += 1
         self.state, self.message = "recording", ""

@@ -73,6 +73,8 @@ STATUS_JSON_SCHEMA = {
         "state": {"type": "string"},
         "message": {"type": "string"},
         "clocks": {"type": "object", "description": "device clock estimates by device"},
+        "disk": {"type": "object", "description": "recording disk: free_bytes, min_free_bytes, "
+                 "file_bytes, file_started_ns (host_realtime)"},
     },
 }
 EVENT_JSON_SCHEMA = {
@@ -193,6 +195,7 @@ class Status:
     rates: dict = field(default_factory=dict)
     message: str = ""
     clocks: dict = field(default_factory=dict)  # device -> clock estimate (offset, drift, ...)
+    disk: dict = field(default_factory=dict)  # free_bytes, min_free_bytes, file_bytes, ...
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -209,5 +212,5 @@ def decode_status(data: bytes) -> Status:
     return Status(
         int(d["host_time_ns"]), d.get("state", ""), bool(d.get("recording", False)), d.get("file"),
         dict(d.get("counts", {})), dict(d.get("rates", {})), d.get("message", ""),
-        dict(d.get("clocks", {})),
+        dict(d.get("clocks", {})), dict(d.get("disk", {})),
     )
