@@ -34,6 +34,11 @@ COMPARED = ("stations.tum", "map.ply", "pose_graph.g2o")
 SETS = ["--set", "output.write_mcap=false", "--set", "output.report=true"]
 
 
+def _sets(survey: Path) -> list[str]:
+    """The simulator's mount (the same for every capture) and the outputs compared."""
+    return [*SETS, "--calibration", str(survey / "room_a" / "gt" / "calibration.json")]
+
+
 # ---- discovery ---------------------------------------------------------------------------------
 def _mcap(path: Path, reason: str) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -86,8 +91,9 @@ def test_discovery_groups_daemon_splits_pairs_pcaps_and_finds_sim_folders(tmp_pa
 def survey(tmp_path_factory):
     """Two tiny simulator captures and a corrupt MCAP recording."""
     root = tmp_path_factory.mktemp("survey")
-    make_capture(root, "room_a", seed=7)
-    make_capture(root, "room_b", seed=8)
+    # stations long enough to be found (3 s still), as short as that allows
+    for name, seed in (("room_a", 7), ("room_b", 8)):
+        make_capture(root, name, seed=seed, motion={"pan_s": 4.0})
     bad = root / "broken_20260101T100000Z.mcap"
     bad.write_bytes(b"\x89MCAP0\r\n" + os.urandom(4096))
     return root
@@ -97,7 +103,7 @@ def survey(tmp_path_factory):
 def local_batch(survey, tmp_path_factory):
     out = tmp_path_factory.mktemp("batch")
     t0 = time.perf_counter()
-    rc = main(["batch", str(survey), "-o", str(out), "--workers", "1", "--quiet", *SETS])
+    rc = main(["batch", str(survey), "-o", str(out), "--workers", "1", "--quiet", *_sets(survey)])
     return rc, out, time.perf_counter() - t0
 
 
@@ -108,7 +114,7 @@ def test_batch_equals_reconstruct_per_recording(survey, local_batch, tmp_path):
     for name in ("room_a", "room_b"):
         direct = tmp_path / name
         assert main(["reconstruct", str(survey / name), "-o", str(direct), "--quiet",
-                     "--set", "num_threads=1", *SETS]) == 0
+                     "--set", "num_threads=1", *_sets(survey)]) == 0
         for f in COMPARED:
             assert (out / name / f).read_bytes() == (direct / f).read_bytes(), (name, f)
         assert (out / name / "config.yaml").read_text() == (direct / "config.yaml").read_text()
@@ -138,7 +144,7 @@ def test_rerun_skips_up_to_date_and_redoes_changed(survey, local_batch, capsys):
     rc, out, _ = local_batch
     good = [survey / "room_a", survey / "room_b"]
     t0 = time.perf_counter()
-    assert main(["batch", *map(str, good), "-o", str(out), "--quiet", *SETS]) == 0
+    assert main(["batch", *map(str, good), "-o", str(out), "--quiet", *_sets(survey)]) == 0
     b = json.loads((out / "batch.json").read_text())
     assert [o["status"] for o in b["recordings"]] == ["skipped", "skipped"]
     assert b["engine"].startswith("none")  # no Ray instance started at all
@@ -149,8 +155,7 @@ def test_rerun_skips_up_to_date_and_redoes_changed(survey, local_batch, capsys):
 
     from tripod_processor.reconstruction.config import ReconstructConfig
 
-    cfg = load_config(ReconstructConfig, overrides={"num_threads": 1, "output.write_mcap": False,
-                                                    "output.report": True})
+    cfg = load_config(ReconstructConfig, out / "room_a" / "config.yaml")  # the effective one
     recs, _ = discover(good)
     h = config_hash(dump_config(cfg))
     d = cfg.model_dump(mode="json")
@@ -258,7 +263,7 @@ def test_loopback_cluster_same_poses_with_a_worker_killed(survey, local_batch, l
     th = threading.Thread(target=killer, daemon=True)
     th.start()
     rc = main(["batch", *good, "-o", str(out), "--address", address, "--quiet",
-               "--max-retries", "2", *SETS])
+               "--max-retries", "2", *_sets(survey)])
     th.join(timeout=5)
     assert killed, "no worker was seen running a task"
     assert rc == 0

@@ -53,8 +53,9 @@ def reconstruct_recording(job: dict) -> dict:
             shutil.rmtree(out)
         fingerprint = manifest.input_fingerprint([Path(p) for p in job["files"]])
         cfg = ReconstructConfig.model_validate(job["config"])
-        res = reconstruct([Path(p) for p in job["inputs"]], out, cfg, imu_log=job["imu"],
-                          quiet=True)
+        inputs = [Path(p) for p in job["inputs"]]
+        res = reconstruct(inputs[0] if len(inputs) == 1 else inputs, out, cfg,
+                          imu_log=job["imu"], quiet=True)
         summ = summary(res)
         manifest.write_manifest(out, fingerprint, job["config_sha256"], _small(summ))
         return {**base, "status": "done", "error": "", "summary": _small(summ),
@@ -62,7 +63,8 @@ def reconstruct_recording(job: dict) -> dict:
     except (RecordingError, OSError, ValueError) as exc:
         err = _one_line(exc)
     except Exception as exc:  # noqa: BLE001  a bug on one recording must not stop the batch
-        err = _one_line(exc) + " (" + traceback.format_exc(limit=-1).strip().splitlines()[-3].strip() + ")"
+        tb = traceback.extract_tb(exc.__traceback__)
+        err = _one_line(exc) + (f" ({Path(tb[-1].filename).name}:{tb[-1].lineno})" if tb else "")
     return {**base, "status": "failed", "error": err, "summary": {},
             "wall_s": time.perf_counter() - t0}
 
