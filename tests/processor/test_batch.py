@@ -197,6 +197,20 @@ def _session_pids(temp_dir: str) -> list[int]:
     return pids
 
 
+def _tree(pids: list[int]) -> set[int]:
+    """The processes and all their descendants (Ray's agents retitle themselves, so their
+    command lines no longer name the temp dir: they are found as children)."""
+    import psutil
+
+    out = set(pids)
+    for pid in pids:
+        try:
+            out |= {c.pid for c in psutil.Process(pid).children(recursive=True)}
+        except psutil.NoSuchProcess:
+            pass
+    return out
+
+
 @pytest.fixture
 def loopback_cluster():
     """A head and a worker node on 127.0.0.1, one CPU each, started with ``ray start``; every
@@ -207,26 +221,34 @@ def loopback_cluster():
     temp_dir = tempfile.mkdtemp(prefix="trb", dir="/tmp")  # short: Ray's socket paths
     port = _free_port()
     env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0"}
-    common = ["--num-cpus=1", "--node-ip-address=127.0.0.1", "--disable-usage-stats"]
+    common = ["--num-cpus=1", "--node-ip-address=127.0.0.1", "--disable-usage-stats",
+              f"--temp-dir={temp_dir}"]
+    started: set[int] = set()
     try:
-        subprocess.run([ray_bin, "start", "--head", f"--port={port}", f"--temp-dir={temp_dir}",
+        subprocess.run([ray_bin, "start", "--head", f"--port={port}",
                         "--include-dashboard=false", *common], check=True, env=env,
                        capture_output=True, timeout=180)
+        started |= _tree(_session_pids(temp_dir))
         subprocess.run([ray_bin, "start", f"--address=127.0.0.1:{port}", *common], check=True,
                        env=env, capture_output=True, timeout=180)
+        started |= _tree(_session_pids(temp_dir))
         yield f"127.0.0.1:{port}", temp_dir
     finally:
         procs = []
-        for pid in _session_pids(temp_dir):
+        for pid in started | _tree(_session_pids(temp_dir)):
             try:
                 p = psutil.Process(pid)
                 p.terminate()
                 procs.append(p)
             except psutil.NoSuchProcess:
                 pass
-        _, alive = psutil.wait_procs(procs, timeout=15)
+        _, alive = psutil.wait_procs(procs, timeout=10)
         for p in alive:
-            p.kill()
+            try:
+                p.kill()
+            except psutil.NoSuchProcess:
+                pass
+        psutil.wait_procs(alive, timeout=5)
         shutil.rmtree(temp_dir, ignore_errors=True)
 
 
