@@ -23,6 +23,10 @@ from .discovery import BatchRecording
 from .tasks import job_of, reconstruct_recording
 
 
+class EngineError(RuntimeError):
+    """Ray could not be started or reached (one-line message)."""
+
+
 @dataclass
 class BatchResult:
     """What a batch did: one dict per recording (``status`` done | skipped | failed), in the
@@ -96,7 +100,12 @@ def run_batch(recs: list[BatchRecording], outdir: Path, cfg_dict: dict, cfg_hash
     res = BatchResult(outdir, [], engine="none (all up to date)")
     if jobs:
         t_engine = time.perf_counter()
-        ray, res.engine = _init_ray(workers, address)
+        try:
+            ray, res.engine = _init_ray(workers, address)
+        except Exception as exc:  # noqa: BLE001  Ray raises several types here
+            first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+            where = f"the Ray cluster at {address}" if address else "a local Ray instance"
+            raise EngineError(f"cannot use {where}: {first}") from None
         res.engine_start_s = time.perf_counter() - t_engine
         try:
             task = ray.remote(num_cpus=cpus_per_task, max_retries=max_retries)(

@@ -62,6 +62,7 @@ def batch_command(
     from tripod_shared.config_io import ConfigError, load_config
 
     from ..batch import batch_reconstruct, discover
+    from ..batch.runner import EngineError
     from ..reconstruction.config import ReconstructConfig
 
     if not inputs:
@@ -105,8 +106,8 @@ def batch_command(
     try:
         res = batch_reconstruct(recs, output, cfg, workers=workers, address=address,
                                 max_retries=max_retries, force=force, on_done=on_done)
-    except ConnectionError as exc:
-        fail(f"Ray cluster {address}: {exc}")
+    except EngineError as exc:
+        fail(str(exc))
     finally:
         bar.close()
     con.print(batch_table(res))
