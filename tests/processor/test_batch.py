@@ -292,8 +292,8 @@ def test_loopback_cluster_same_poses_with_a_worker_killed(survey, local_batch, l
     b = json.loads((out / "batch.json").read_text())
     assert [o["status"] for o in b["recordings"]] == ["done", "done"]
     assert b["engine"].startswith(f"cluster {address}")
-    # the tasks ran on the cluster's workers (both nodes are this host: pids, not host names)
-    assert all(o["pid"] != os.getpid() for o in b["recordings"])
+    # the killed attempt was retried: both recordings were finished by other worker processes
+    assert killed[0] not in {o["pid"] for o in b["recordings"]}
     for name in ("room_a", "room_b"):
         for f in COMPARED:
             assert (out / name / f).read_bytes() == (local_out / name / f).read_bytes(), (name, f)
