@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import time
 from pathlib import Path
 
 
@@ -63,15 +62,16 @@ def main(argv: list[str] | None = None) -> int:
 
     t = Table(title=f"tripod batch: {len(recs)} recordings x {args.stations} stations "
                     f"(room), local Ray, {os.cpu_count()} CPUs", header_style="bold")
-    for c in ("workers", "wall s", "engine start s", "wall − start s", "rec/min",
-              "rec/min (no start)", "Σ task s", "failed", "load avg 1 min before/after"):
+    for c in ("workers", "wall s", "Ray start s", "rec/min", "rec/min w/o start", "Σ task wall s",
+              "Σ task CPU s", "failed", "load 1 min before/after"):
         t.add_column(c, justify="right")
     for workers, res, l0, l1, failed, task_s in rows:
         run_s = res.wall_s - res.engine_start_s
-        t.add_row(str(workers), f"{res.wall_s:.1f}", f"{res.engine_start_s:.1f}", f"{run_s:.1f}",
+        cpu_s = sum(o["summary"].get("processing_cpu_s", 0.0) for o in res.outcomes)
+        t.add_row(str(workers), f"{res.wall_s:.1f}", f"{res.engine_start_s:.1f}",
                   f"{60 * len(recs) / res.wall_s:.2f}", f"{60 * len(recs) / run_s:.2f}",
-                  f"{task_s:.1f}", str(failed), f"{l0[0]:.1f} / {l1[0]:.1f}")
-    con = Console()
+                  f"{task_s:.1f}", f"{cpu_s:.1f}", str(failed), f"{l0[0]:.1f} / {l1[0]:.1f}")
+    con = Console(width=140)
     con.print(t)
     (r1, r2) = rows[0][1], rows[1][1]
     ratio = r1.wall_s / r2.wall_s

@@ -15,6 +15,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -279,8 +280,6 @@ def test_loopback_cluster_same_poses_with_a_worker_killed(survey, local_batch, l
                         continue
                     return
             time.sleep(0.2)
-
-    import threading
 
     th = threading.Thread(target=killer, daemon=True)
     th.start()
