@@ -18,7 +18,7 @@ DEPS_STAMP := $(VENV)/.stamp-deps
 INSTALL_STAMP := $(VENV)/.stamp-install
 PYPROJECTS := shared/pyproject.toml daemon/pyproject.toml processor/pyproject.toml
 
-.PHONY: all setup test demo bench stubs clean distclean
+.PHONY: all setup test demo bench bench-quick stubs clean distclean
 
 all: setup
 
@@ -58,9 +58,16 @@ test: setup
 demo: setup
 	$(VENV)/bin/tripod demo -o $(DEMO_DIR)
 
+# Every bench, each to the end with its defaults (a long run: about an hour on 2 cores, most of
+# it bench/scene.py and bench/reconstruct.py); bench-quick runs each with --quick (a smoke run
+# of a few minutes: fewer scenes, repeats and pairs; its numbers are not the README's).
+BENCH_ARGS ?=
 bench: setup
 	$(PIP) install -e "processor[bench]" --no-build-isolation
-	@for b in bench/*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
+	@for b in bench/*.py; do echo "== $$b $(BENCH_ARGS)"; $(PY) $$b $(BENCH_ARGS) || exit 1; done
+
+bench-quick:
+	@$(MAKE) --no-print-directory bench BENCH_ARGS=--quick
 
 # Refresh the committed type stubs of the C++ extension (tests/processor/test_stubs.py checks them).
 stubs: setup

@@ -22,6 +22,8 @@ above half of Draco's rate, the 0.5x goal is out of reach for any codec: the bit
 say where on the surfaces the points are.
 
     .venv/bin/python bench/compression.py [--plot docs/compression_rd.png] [--sim a.ply ...]
+    .venv/bin/python bench/compression.py --quick   # real VLP-16 rotations only, 1 repeat,
+                                                    # plot under /tmp (make bench-quick)
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ import argparse
 import json
 import os
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -56,7 +59,14 @@ def main(argv: list[str] | None = None) -> int:
                     help="also bench the simulated fragments in the lidar frame (investigation)")
     ap.add_argument("--only", default=None, metavar="TEXT",
                     help="bench only the clouds whose name contains TEXT (e.g. VLP-16)")
+    ap.add_argument("--quick", action="store_true",
+                    help="the real VLP-16 clouds only, one timing repeat, plot to /tmp")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.only = args.only or "VLP-16"
+        args.repeat = 1
+        if args.plot == ap.get_default("plot"):  # leave the committed picture alone
+            args.plot = Path(tempfile.gettempdir()) / "tripod-bench-compression-quick.png"
 
     from tripod_processor.io.clouds import read_cloud, xyz
     from tripod_processor.compression.rd import draco_available, plot_rd, run_rd

@@ -25,7 +25,8 @@ Each row is the best of ``--runs`` runs, timed in CPU seconds of this process (a
 single-threaded, so on an idle machine this is the wall time; on a shared machine it is the
 figure that does not depend on the neighbours' load); wall seconds are shown too. ratio = points
 per CPU second of the row / that of the raw row.
-Usage: ``.venv/bin/python bench/decode.py [--input CAPTURE] [--repeat 10] [--runs 3]``
+Usage: ``.venv/bin/python bench/decode.py [--input CAPTURE] [--repeat 10] [--runs 3] [--quick]``
+(``--quick``: --repeat 2 --runs 1, a smoke run whose ratios are noisier).
 """
 
 from __future__ import annotations
@@ -94,7 +95,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--input", type=Path, default=DEFAULT_INPUT)
     ap.add_argument("--repeat", type=int, default=10)
     ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--quick", action="store_true", help="--repeat 2 --runs 1")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.repeat, args.runs = 2, 1
     if not args.input.is_file():
         print(f"bench/decode.py: no capture at {args.input}", file=sys.stderr)
         return 2

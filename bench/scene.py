@@ -2,7 +2,9 @@
 """Scene understanding benchmark: prints one table.
 
 * segmentation IoU per class on simulated captures never used in training (``tripod simulate``,
-  seed 101, all five scene types; the weights were trained on seed 1 and synthetic rooms),
+  all five scene types, the test split of ``scene_data.SPLITS``: seed 131, drawn fresh and never
+  tuned on; ``--split dev`` gives seed 101, the captures looked at while developing; the weights
+  were trained on seeds 1-4 and synthetic rooms),
   training time (from the weights' provenance) and inference points/s;
 * the real PCL room scans: label shares and the share of floor/ceiling/wall points within 5 cm
   of their fitted planes;
@@ -10,8 +12,9 @@
   planar-patch detector;
 * heightmap relief RMSE against the mesh (3 cm range noise);
 * registration by heightmaps over random pairs of overlapping digital-twin scans: ``tripod
-  simulate`` captures of every scene type (seeds 201-203, never used in training; 4 stations
-  each, 3 cm range noise), each station's points decoded from the capture's packets, placed
+  simulate`` captures of every scene type (``scene_data.PAIR_SEEDS``: test seeds 231-233 and
+  pair draw 1, fresh; ``--pair-split dev`` gives seeds 201-203 and draw 0, the 50 pairs the
+  method was developed on; never used in training; 4 stations each, 3 cm range noise), each station's points decoded from the capture's packets, placed
   with the true poses and taken into the station's frame (``scene_data.station_fragments``,
   cached under .cache/scene_data/pairs); a pair is two stations of one capture with >= 30 % of
   the source within 10 cm of the target, each moved by a random yaw and shift; success:
@@ -19,8 +22,10 @@
   gravity-constrained ``register_global`` + ICP on the same pairs. ``--pair-source synthetic``
   uses the ``synthetic_rooms`` generator instead.
 
-Usage: ``python bench/scene.py [--pairs 50] [--pictures] [--only registration]
-[--pair-source twin|synthetic] [--no-baselines]`` (``--pictures`` rewrites docs/*.png).
+Usage: ``python bench/scene.py [--quick] [--pairs 50] [--pictures] [--only registration]
+[--split test|dev|val] [--pair-split test|dev] [--pair-source twin|synthetic] [--no-baselines]``
+(``--pictures`` rewrites docs/*.png; ``--quick``: the room capture only for segmentation, 8
+pairs from the first seed, no baselines).
 """
 
 from __future__ import annotations
@@ -51,13 +56,15 @@ def rot_err_deg(R) -> float:
 
 
 # ------------------------------------------------------------------------------ segmentation
-def bench_segmentation(pictures: bool, split: str = "test") -> None:
-    from scene_data import make
+def bench_segmentation(pictures: bool, split: str = "test", quick: bool = False) -> None:
+    from scene_data import SCENES, SPLITS, make
 
     from tripod_processor.scene.segmentation import Segmenter
     from tripod_processor.scene.segmentation.metrics import confusion, iou
 
-    files = make(split, REPO / ".cache" / "scene_data" / split)
+    files = make(split, REPO / ".cache" / "scene_data" / split,
+                 scenes=SCENES[:1] if quick else SCENES)
+    print(f"  segmentation on the {split} split, seeds {SPLITS[split]}", flush=True)
     seg = Segmenter()
     total = np.zeros((4, 4), np.int64)
     best_rate = 0.0
@@ -213,17 +220,20 @@ def _rand_T(rng, tilt_deg: float = 0.0):
     return T
 
 
-def twin_pairs(n_pairs: int, seed: int = 0):
-    """Random overlapping station pairs of ``tripod simulate`` captures (every scene type, seeds
-    ``scene_data.PAIR_SEEDS``, 4 stations each): yields (name, target, source, T_true, overlap,
+def twin_pairs(n_pairs: int, split: str = "test", quick: bool = False):
+    """Random overlapping station pairs of ``tripod simulate`` captures (every scene type, the
+    split's seeds ``scene_data.PAIR_SEEDS`` (the first only if ``quick``), 4 stations each, drawn
+    with ``scene_data.PAIR_DRAW``): yields (name, target, source, T_true, overlap,
     kind); overlap = share of the source points within 10 cm of the target's (true poses),
     pairs under 30 % are never drawn. Each fragment is moved by its own random yaw and shift."""
-    from scene_data import PAIR_SEEDS, SCENES, station_fragments
+    from scene_data import PAIR_DRAW, PAIR_SEEDS, SCENES, station_fragments
     from scipy.spatial import cKDTree
 
     cache = REPO / ".cache" / "scene_data" / "pairs"
     frags = {}
-    for sd in PAIR_SEEDS:
+    seeds = PAIR_SEEDS[split][:1] if quick else PAIR_SEEDS[split]
+    print(f"    pairs of the {split} split: seeds {seeds}, draw {PAIR_DRAW[split]}", flush=True)
+    for sd in seeds:
         for sc in SCENES:
             frags[(sc, sd)] = station_fragments(sc, sd, cache)
     cands = []
@@ -240,7 +250,7 @@ def twin_pairs(n_pairs: int, seed: int = 0):
                     ov = float((trees[i].query(world[j], distance_upper_bound=0.1)[0] < 0.1).mean())
                     if ov >= 0.3:
                         cands.append((sc, sd, i, j, ov))
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(PAIR_DRAW[split])
     order = rng.permutation(len(cands))
     if n_pairs > len(cands):
         print(f"    only {len(cands)} overlapping pairs available", flush=True)
@@ -284,7 +294,8 @@ def synthetic_pairs(n_pairs: int):
                (Ta @ [*a, 1.0])[:3], (Tb @ [*b, 1.0])[:3])
 
 
-def bench_registration(n_pairs: int, source: str = "twin", baselines: bool = True) -> None:
+def bench_registration(n_pairs: int, source: str = "twin", baselines: bool = True,
+                       split: str = "test", quick: bool = False) -> None:
     from tripod_processor.scene.heightmap_registration import register_by_heightmaps
 
     def errors(T, T_true):
@@ -299,7 +310,7 @@ def bench_registration(n_pairs: int, source: str = "twin", baselines: bool = Tru
         a, d = errors(T, T_true)
         return f"{a:.2f} deg {d * 100:.1f} cm"
 
-    pairs = twin_pairs(n_pairs) if source == "twin" else synthetic_pairs(n_pairs)
+    pairs = twin_pairs(n_pairs, split, quick) if source == "twin" else synthetic_pairs(n_pairs)
     what = "digital-twin station pairs" if source == "twin" else "synthetic-room pairs"
     ok_h, ok_f, ok_g, t_h, t_f, t_g, kinds, overlaps, flagged = 0, 0, 0, [], [], [], {}, [], 0
     doubted = 0  # correct poses whose own check said success = false
@@ -365,24 +376,33 @@ def main(argv=None) -> int:
     ap.add_argument("--pictures", action="store_true", help="rewrite docs/scene_*.png")
     ap.add_argument("--only", choices=("segmentation", "real", "planes", "registration"), default=None,
                     help="run one section only")
-    ap.add_argument("--split", choices=("test", "val"), default="test",
-                    help="segmentation captures: test (seed 101, reported) or val (seed 102, a "
-                         "second unseen draw)")
+    ap.add_argument("--split", choices=("test", "dev", "val"), default="test",
+                    help="segmentation captures: test (seed 131, fresh, reported), dev (seed "
+                         "101, looked at while developing) or val (seed 102)")
+    ap.add_argument("--pair-split", choices=("test", "dev"), default="test",
+                    help="registration pairs: test (seeds 231-233, draw 1, reported) or dev "
+                         "(seeds 201-203, draw 0: the pairs the method was developed on)")
+    ap.add_argument("--quick", action="store_true",
+                    help="room capture only for segmentation; 8 pairs of the first pair seed, "
+                         "no baselines")
     ap.add_argument("--pair-source", choices=("twin", "synthetic"), default="twin",
                     help="registration pairs: digital-twin stations (default) or synthetic rooms")
     ap.add_argument("--no-baselines", action="store_true",
                     help="registration: heightmaps only (no FPFH + RANSAC, no register_global)")
     a = ap.parse_args(argv)
+    if a.quick:
+        a.no_baselines = True
+        a.pairs = min(a.pairs, 8)
     DOCS.mkdir(exist_ok=True)
     t0 = time.perf_counter()
     if a.only in (None, "segmentation"):
-        bench_segmentation(a.pictures, a.split)
+        bench_segmentation(a.pictures, a.split, a.quick)
     if a.only in (None, "real"):
         bench_real(a.pictures)
     if a.only in (None, "planes"):
         bench_planes(a.pictures)
     if a.only in (None, "registration"):
-        bench_registration(a.pairs, a.pair_source, not a.no_baselines)
+        bench_registration(a.pairs, a.pair_source, not a.no_baselines, a.pair_split, a.quick)
     from rich.console import Console
     from rich.table import Table
 

@@ -64,9 +64,10 @@ def test_real_scan_rate_and_distortion(room_scan):
     out = decompress(data)
     assert info.n_points == 112586 and len(out) == info.n_voxels
     m = d1(room_scan, out)
-    assert m.rmse_m < step / 2 * 1.05  # voxel-centre error: sqrt(3 * s^2 / 12) = s / 2
-    # Draco (DracoPy, level 10) needs 3.25 bpp here at the same PSNR; we measured 2.74
-    assert info.bits_per_point < 3.0
+    assert m.rmse_m < step / 2 * 1.01  # voxel-centre error: sqrt(3 * s^2 / 12) = s / 2 (0.995)
+    # Draco (DracoPy, level 10) needs 3.25 bpp here at the same PSNR; the codec gives 1.270
+    # (deterministic bytes): a 6 % margin catches a real regression of the model or coder
+    assert info.bits_per_point < 1.35
 
 
 def test_deterministic_bytes_and_table(fragment):

@@ -66,7 +66,7 @@ def test_auto_prefers_the_scan_structure_and_falls_back_on_unordered_clouds(scan
     step = 0.004
     auto, info = encode(scan, step)
     octree, octree_info = encode(scan, step, mode="octree")
-    assert info.mode == "predictive" and len(auto) < 0.8 * len(octree)
+    assert info.mode == "predictive" and len(auto) < 0.57 * len(octree)  # measured 0.523
     # the same points, shuffled: no scan order left, the octree is kept (never a larger file)
     shuffled = scan[np.random.default_rng(0).permutation(len(scan))]
     auto, info = encode(shuffled, step)
@@ -87,7 +87,8 @@ def test_origin_moves_with_the_sensor(scan):
     at_origin = compress(moved, error=0.002, mode="predictive", origin=shift)
     at_zero = compress(moved, error=0.002, mode="predictive")
     assert read_info(at_origin)["origin"] == pytest.approx(shift.tolist())
-    assert len(at_origin) < 0.7 * len(at_zero)  # about the wrong point nothing is regular
+    # about the wrong point nothing is regular (measured 0.464)
+    assert len(at_origin) < 0.51 * len(at_zero)
     out = decompress(at_origin)
     assert np.linalg.norm(out.astype(np.float64) - moved, axis=1).max() <= 0.002 * (1 + 1e-6)
 
@@ -199,8 +200,8 @@ def offset_scan() -> np.ndarray:
     return ordered_scan(12, laser_z_m=VLP16_LASER_Z_M)
 
 
-@pytest.mark.parametrize("error", [0.0005, 0.004])
-def test_per_laser_model_round_trip(offset_scan, error):
+@pytest.mark.parametrize("error,ratio", [(0.0005, 0.42), (0.004, 0.62)])  # measured 0.379, 0.565
+def test_per_laser_model_round_trip(offset_scan, error, ratio):
     data, info = compress_with_info(offset_scan, error=error, mode="predictive")
     header = read_info(data)
     assert header["codec"] == predictive.CODEC_NAME and header["laser_z"]
@@ -212,7 +213,7 @@ def test_per_laser_model_round_trip(offset_scan, error):
     # without the laser model this scan has no elevation table: the model must pay off
     auto, _ = encode(offset_scan, 2 * error / math.sqrt(3))
     octree, _ = encode(offset_scan, 2 * error / math.sqrt(3), mode="octree")
-    assert len(auto) == len(data) and len(data) < 0.8 * len(octree)
+    assert len(auto) == len(data) and len(data) < ratio * len(octree)
 
 
 def test_laser_table_detection(offset_scan):
@@ -255,9 +256,32 @@ def test_real_decoded_rotation(calibration, velodyne_dir):
     data, info = encode(pts, step)
     octree, _ = encode(pts, step, mode="octree")
     header = read_info(data)
-    assert info.mode == "predictive" and len(data) < 0.8 * len(octree)
+    assert info.mode == "predictive" and len(data) < 0.66 * len(octree)  # measured 0.60, 0.61
     assert header["el_table_len"] == 16 and header["laser_z"] == (calibration == "manual")
     assert header["az_lattice"] == 36000 and header["range_lattice"] == pytest.approx(0.002)
     out = decompress(data)
     assert out.shape == pts.shape
     assert np.linalg.norm(out.astype(np.float64) - pts, axis=1).max() <= step * 0.8661
+
+
+def test_old_sph1_file_still_decodes():
+    """A ``predictive-sph1`` file written by the code that wrote sph1 (commit c8984a8; see
+    tests/processor/data/sph1/README.md) decodes to what that code's decoder gave."""
+    import hashlib
+    from pathlib import Path
+
+    d = Path(__file__).parent / "data" / "sph1"
+    data = (d / "ordered_scan_2000.tpc").read_bytes()
+    header = read_info(data)
+    assert header["codec"] == "predictive-sph1" and header["n_points"] == 2000
+    out = decompress(data)
+    assert hashlib.sha256(out.tobytes()).hexdigest() == (
+        "9558233937587ef59a805a52a67dd2d10c6e6edaa491fe20c862d6c96971d150")
+    with np.load(d / "ordered_scan_2000_input.npz") as z:
+        points = z["points"]
+    err = np.linalg.norm(out.astype(np.float64) - points, axis=1)
+    assert err.max() <= 0.003 and err.max() == pytest.approx(header["max_error"], abs=1e-7)
+    damaged = bytearray(data)
+    damaged[-100] ^= 0x40  # inside the stream: the sph1 checksum still guards it
+    with pytest.raises((CodecError, ContainerError)):
+        decompress(bytes(damaged))

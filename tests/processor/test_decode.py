@@ -413,3 +413,114 @@ def test_pcapng_decodes_like_pcap(velodyne_dir, tmp_path):
     for x, y in zip(fa, fb):
         np.testing.assert_array_equal(x.points, y.points)
         assert x.stamp_host_ns == y.stamp_host_ns
+
+
+# ---------------------------------------------------------------------------------------------
+# issue 15, item 6: bugs found by trying it
+# ---------------------------------------------------------------------------------------------
+def _pcap_records(raw):
+    """(offset, length) of each record of a little-endian classic pcap."""
+    out, off = [], 24
+    while off + 16 <= len(raw):
+        incl = struct.unpack_from("<I", raw, off + 8)[0]
+        out.append((off, 16 + incl))
+        off += 16 + incl
+    return out
+
+
+def test_refused_input_leaves_no_output_folder(velodyne_dir, tmp_path, capsys):
+    out = tmp_path / "out"
+    code, _out, err = _cli(capsys, velodyne_dir / "mrpt-hdl32e.pcap", "-o", out)
+    assert code == 2 and "HDL-32E" in err
+    assert not out.exists()  # no decode_config.yaml left behind in a fresh folder
+
+
+def test_reused_output_folder_describes_the_new_run(velodyne_dir, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert _cli(capsys, velodyne_dir / "mrpt-vlp16-gps.pcap", "-o", out, "-q")[0] == 0
+    first = sorted(p.name for p in out.glob("frame_*.ply"))
+    assert len(first) == json.loads((out / "summary.json").read_text())["frames"] == 5
+    (out / "notes.txt").write_text("mine")
+    code, _out, err = _cli(capsys, velodyne_dir / "rustlidar-vlp16.pcap", "-o", out, "-q")
+    assert code == 0 and "removed 5 frame files" in err
+    s = json.loads((out / "summary.json").read_text())
+    assert sorted(p.name for p in out.glob("frame_*")) == [
+        f"frame_{i:06d}.ply" for i in range(s["frames"])] and s["frames"] == 2
+    assert (out / "notes.txt").read_text() == "mine"  # not the decoder's: kept
+    # a refused input keeps the earlier run's output whole
+    assert _cli(capsys, velodyne_dir / "mrpt-hdl32e.pcap", "-o", out)[0] == 2
+    assert json.loads((out / "summary.json").read_text()) == s
+
+
+def test_forced_sensor_warns_when_the_packet_period_says_otherwise(velodyne_dir, capsys):
+    code, out, err = _cli(capsys, velodyne_dir / "mrpt-hdl32e.pcap", "--summary",
+                          "--sensor", "VLP-16")
+    assert code == 0 and json.loads(out)["sensor"] == "VLP-16"
+    assert re.search(r"tripod: warning: .*'VLP-16' was forced.* every 55\d µs", err)
+    code, out, err = _cli(capsys, velodyne_dir / "mrpt-vlp16-gps.pcap", "--summary",
+                          "--sensor", "VLP-16")
+    assert code == 0 and "forced" not in err  # a VLP-16 forced as VLP-16: no doubt
+
+
+def test_folder_as_input_is_named_a_folder(tmp_path, capsys):
+    code, out, err = _cli(capsys, tmp_path, "--summary")
+    assert code == 2 and out == ""
+    assert err.strip() == f"tripod: error: {tmp_path}: a folder, not a capture file"
+
+
+def test_corrupt_record_error_names_the_file_once(velodyne_dir, tmp_path, capsys):
+    raw = bytearray((velodyne_dir / "veloview-vlp16-20hz.pcap").read_bytes())
+    off, _n = _pcap_records(raw)[1500]  # past the sensor detection and the first batch
+    struct.pack_into("<I", raw, off + 8, 10**8)  # a record that claims 100 MB
+    bad = tmp_path / "bad.pcap"
+    bad.write_bytes(bytes(raw))
+    out = tmp_path / "out"
+    code, _out, err = _cli(capsys, bad, "-o", out, "-q")
+    assert code == 2 and err.count(str(bad)) == 1, err
+    assert "claims 100000000 bytes" in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()  # the frames written before the corrupt record went again
+
+
+def test_cut_pcapng_is_called_a_pcapng_block(velodyne_dir, tmp_path, capsys):
+    raw = (velodyne_dir / "rustlidar-vlp16.pcap").read_bytes()
+    ng = tmp_path / "c.pcapng"
+    _write_pcapng(ng, [(struct.unpack_from("<I", raw, o)[0] * 10**9, raw[o + 16 : o + n])
+                       for o, n in _pcap_records(raw)])
+    data = ng.read_bytes()
+    ng.write_bytes(data[: len(data) - 500])
+    code, out, err = _cli(capsys, ng, "--summary")
+    assert code == 0 and json.loads(out)["truncated"]
+    assert "ends inside a pcapng block" in err and "pcap record" not in err
+
+
+def test_azimuth_filter_keeps_the_view_width(velodyne_dir, capsys):
+    path = velodyne_dir / "mrpt-vlp16-gps.pcap"
+    full = np.concatenate([f.points for f in decode_file(path)])
+
+    def points(lo, hi, decoder="native"):
+        cfg = DecodeConfig(azimuth_min_deg=lo, azimuth_max_deg=hi, decoder=decoder)
+        return np.concatenate([f.points for f in decode_file(path, cfg)])
+
+    def azimuth_deg(p):  # the sensor's azimuth: 0 along +x, clockwise seen from above
+        return np.degrees(np.arctan2(-p["y"], p["x"])) % 360
+
+    # a range within one turn: velodyne-decoder's filter, point for point
+    a, b = points(0, 180), points(0, 180, "velodyne_decoder")
+    np.testing.assert_array_equal(a[["x", "y", "z", "intensity", "ring"]],
+                                  b[["x", "y", "z", "intensity", "ring"]])
+    # (a laser's own azimuth offset puts a few returns up to ~1.5 deg past the block's)
+    assert 0.3 * len(full) < len(a) < 0.7 * len(full)
+    az = azimuth_deg(a)
+    assert ((az <= 182) | (az >= 358)).all()
+    # across 0: the front half (x >= 0), which velodyne-decoder cannot give
+    front = points(270, 90)
+    az = azimuth_deg(front)
+    assert ((az <= 92) | (az >= 268)).all() and (front["x"] > -0.1).all()
+    assert 0.3 * len(full) < len(front) < 0.7 * len(full)
+    with pytest.raises(DecodeError, match="needs decoder: native"):
+        points(270, 90, "velodyne_decoder")
+    code, out, _err = _cli(capsys, path, "--summary", "--azimuth-min", "270",
+                           "--azimuth-max", "90")
+    assert code == 0 and json.loads(out)["points"] == len(front)
+    code, _out, err = _cli(capsys, path, "--summary", "--azimuth-min", "-5")
+    assert code == 2 and "azimuth_min_deg" in err

@@ -99,5 +99,14 @@ def test_cli_heightmaps(tmp_path, capsys):
         assert (out / pl["heightmap"]).with_suffix(".json").is_file()
     assert (out / "overview.png").stat().st_size > 10_000
     assert (out / "room_lowpoly.ply").is_file() and (out / "config.yaml").is_file()
+    # the same low-poly room as OBJ (+ MTL), z up, faces grouped by class
+    from tripod_processor.io.mesh_obj import read_obj
+
+    v_obj, t_obj, groups = read_obj(out / "room_lowpoly.obj")
+    assert len(t_obj) > 0 and (out / "room_lowpoly.mtl").is_file()
+    assert set(groups) <= {"ceiling", "floor", "wall", "other"} and "floor" in groups
+    floor_z = v_obj[t_obj[[g == "floor" for g in groups]]][..., 2].mean()
+    ceil_z = v_obj[t_obj[[g == "ceiling" for g in groups]]][..., 2].mean()
+    assert floor_z < ceil_z
     assert "pixel: 0.1" in (out / "config.yaml").read_text()
     assert main(["heightmaps", str(src), "-o", str(out), "--config", str(tmp_path / "none.yaml")]) == 2

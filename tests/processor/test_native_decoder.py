@@ -163,9 +163,22 @@ def test_equal_with_range_and_angle_filters(velodyne_dir):
     full = _native_decode(packets, stamps, _VELOVIEW)
     for kw in ({"min_range": 1.5, "max_range": 8.0},  # indoor walls at a few metres
                {"min_angle": 90.0, "max_angle": 270.0},
-               {"min_angle": 300.0, "max_angle": 60.0}):  # a sector across 0°
+               {"min_angle": 300.0, "max_angle": 359.99}, {"min_angle": 0.0, "max_angle": 60.0}):
         batch, _ref = _assert_equal(packets, stamps, _VELOVIEW, **kw)
         assert 0 < len(batch.points) < len(full.points)
+    # a sector across 0 deg: the ROS driver's rule (300..359.99 and 0..60; velodyne-decoder
+    # cannot give: it keeps [60, 300] for min > max)
+    across = _native_decode(packets, stamps, _VELOVIEW, min_angle=300.0, max_angle=60.0)
+    parts = [_native_decode(packets, stamps, _VELOVIEW, min_angle=a, max_angle=b)
+             for a, b in ((300.0, 359.99), (0.0, 60.0))]
+
+    def rows(*batches):
+        p = np.concatenate([b.points for b in batches])
+        return np.sort(p[["x", "y", "z", "time_offset_ns"]])
+
+    np.testing.assert_array_equal(rows(across), rows(*parts))
+    inverse = _vd_decode(packets, stamps, _VELOVIEW, min_angle=300.0, max_angle=60.0)
+    assert len(inverse) + len(across.points) > len(full.points)  # [60, 300]: the other side
 
 
 # ---------------------------------------------------------------------------------------------

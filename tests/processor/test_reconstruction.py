@@ -42,7 +42,10 @@ def run(capture, tmp_path_factory):
 
     path, truth = capture
     out = tmp_path_factory.mktemp("recon")
-    cfg = load_config(ReconstructConfig, overrides=_ext_overrides(truth))
+    # with the survey files (E57, LAZ): the default path (without) is the other tests' and demo's
+    cfg = load_config(ReconstructConfig, overrides={**_ext_overrides(truth),
+                                                    "output.write_e57": True,
+                                                    "output.write_las": "laz"})
     res = reconstruct(path, out, cfg, quiet=True)
     return res, truth, out
 
@@ -176,19 +179,21 @@ def test_time_offset_estimate(tmp_path):
     # IMU stamps are late by the latency (+ up to 0.5 ms jitter); the packets' by their fill
     # time (1.33 ms): the correction that puts the IMU on the lidar clock is about -6.9 ms
     expect_ms = -(truth.imu_time_offset_ns * 1e-6 + 0.25 - 1.33)
-    assert abs(off * 1e-6 - expect_ms) < 1.5
-    assert info["best_spread_m"] < 0.8 * info["zero_spread_m"]
+    assert abs(off * 1e-6 - expect_ms) < 0.8  # measured 0.26 ms off
+    assert info["best_spread_m"] < 0.6 * info["zero_spread_m"]  # measured 0.51
 
 
 def test_station_accuracy_against_truth(run):
     res, truth, out = run
     T_true = ev.interpolate_poses(truth.trajectory_t_ns, truth.trajectory_T, res.station_t_ns)
     e = ev.pose_errors(res.slam.T_optimized, T_true)
-    assert e.ate_m < 0.02 and e.ate_deg < 0.2
+    # measured 0.35 mm / 0.019 deg, drift 0.028 % of 5.4 m (the issue's goals: 2 cm, 0.2 deg,
+    # 0.5 %; these bounds catch a regression long before it reaches them)
+    assert e.ate_m < 0.002 and e.ate_deg < 0.06
     drift, path_m = ev.odometry_drift(res.slam.T_odometry, T_true)
-    assert path_m > 5 and drift < 0.5
+    assert path_m > 5 and drift < 0.1
     r = ev.evaluate_run(out, truth.trajectory_t_ns, truth.trajectory_T)
-    assert r["ate_cm"] < 2 and r["stations"] == 3
+    assert r["ate_cm"] < 0.2 and r["stations"] == 3
 
 
 def test_map_lies_on_the_scene(run):
@@ -209,8 +214,8 @@ def test_map_lies_on_the_scene(run):
         out_d = np.linalg.norm(np.maximum(0, np.maximum(lo - p, p - hi)), axis=1)
         in_d = np.min(np.minimum(p - lo, hi - p), axis=1)
         d = np.minimum(d, np.where(inside, in_d, out_d))
-    assert np.median(d) < 0.01
-    assert np.percentile(d, 95) < 0.04
+    assert np.median(d) < 0.0025  # measured 1.0 mm
+    assert np.percentile(d, 95) < 0.01  # measured 4.9 mm
 
 
 def test_outputs_open_in_the_usual_tools(run):
@@ -398,3 +403,90 @@ def test_dejitter_keeps_raw_stamps_when_samples_were_lost():
 
     _, host = _stalled_imu_stamps(lost=(1500, 3100, 4700))
     assert np.array_equal(dejitter_periodic(host), _strictly_increasing(host))
+
+
+# ---- survey deliverables: E57 per station, LAS/LAZ map (read back by pye57 and laspy) ----------
+def test_survey_deliverables(run, tmp_path):
+    import laspy
+    import pye57
+
+    from tripod_processor.cli import main
+    from tripod_processor.io.e57 import NO_LABEL, read_e57
+    from tripod_processor.reconstruction.survey import labels_from_asprs
+
+    res, truth, out = run
+    t_st, T_st = read_tum(out / "stations.tum")
+    # E57: one scan per station, points in the station frame, the pose of stations.tum
+    e57 = pye57.E57(str(out / "stations.e57"))
+    assert e57.scan_count == 3
+    for k in range(3):
+        h = e57.get_header(k)
+        frag = cloud_io.read_ply(out / "fragments" / f"station_{k:03d}.ply")
+        assert h.point_count == len(frag)
+        glob = e57.read_scan(k, intensity=True, transform=True)
+        p_map = np.stack([glob["cartesianX"], glob["cartesianY"], glob["cartesianZ"]], 1)
+        want = cloud_io.xyz(frag) @ T_st[k][:3, :3].T + T_st[k][:3, 3]
+        assert np.abs(p_map - want).max() < 2e-4  # 0.1 mm grid + float32 fragment points
+        # the synthetic lidar returns intensity 100 everywhere
+        assert np.nanmedian(glob["intensity"]) == pytest.approx(100.0)
+    e57.close()
+    scans = read_e57(out / "stations.e57")
+    labelled = np.concatenate([s.label for s in scans])
+    assert np.isin(labelled, [0, 1, 2, 3, NO_LABEL]).all()
+    assert (labelled != NO_LABEL).mean() > 0.9
+    for s, tk in zip(scans, t_st):
+        assert s.start_ns < tk < s.end_ns
+    # LAS: the map with intensity, station and ASPRS classes
+    las = laspy.read(out / "map.laz")
+    mp = cloud_io.read_ply(out / "map.ply")
+    assert len(las.points) == len(mp) == res.map_points
+    xyz_las = np.stack([las.x, las.y, las.z], 1)
+    assert np.abs(xyz_las - cloud_io.xyz(mp)).max() <= 0.5e-4 + 1e-6
+    assert set(np.unique(las.point_source_id)) <= {1, 2, 3}  # station + 1
+    np.testing.assert_array_equal(np.asarray(las.point_source_id) - 1, mp["station"])
+    np.testing.assert_array_equal(labels_from_asprs(np.asarray(las.classification)), mp["label"])
+    assert np.median(las.intensity) == 100 * 256
+    # the floor (lowest points) is mostly ASPRS ground, the ceiling mostly code 64
+    z = xyz_las[:, 2]
+    cls = np.asarray(las.classification)
+    assert (cls[z < np.percentile(z, 3)] == 2).mean() > 0.7
+    assert (cls[z > np.percentile(z, 97)] == 64).mean() > 0.7
+    # tripod export rebuilds the same E57 from the folder, and LAS from map.ply
+    assert main(["export", "e57", str(out), "-o", str(tmp_path / "s.e57")]) == 0
+    again = read_e57(tmp_path / "s.e57")
+    for a, b in zip(scans, again):
+        np.testing.assert_array_equal(a.points, b.points)
+        np.testing.assert_array_equal(a.label, b.label)
+        np.testing.assert_allclose(a.T_map_station, b.T_map_station, atol=1e-6)
+    assert main(["export", "las", str(out / "map.ply"), "-o", str(tmp_path / "m.las")]) == 0
+    las2 = laspy.read(tmp_path / "m.las")
+    np.testing.assert_array_equal(np.asarray(las2.classification), cls)
+    np.testing.assert_array_equal(np.asarray(las2.point_source_id),
+                                  np.asarray(las.point_source_id))
+
+
+def test_cli_survey_flag_writes_the_survey_files(capture, tmp_path):
+    import pye57
+
+    from tripod_processor.cli import main
+
+    path, truth = capture
+    cut = tmp_path / "cut.mcap"  # two stations: a short run
+    data = path.read_bytes()
+    cut.write_bytes(data[: int(len(data) * 0.62)])
+    calib = tmp_path / "calib.yaml"
+    q = _ext_overrides(truth)
+    calib.write_text(json.dumps({"q_imu_lidar": [float(v) for v in
+                                                 q["placement.extrinsic.q_imu_lidar"]],
+                                 "lever_arm_m": q["placement.extrinsic.lever_arm_m"]}))
+    out = tmp_path / "out"
+    assert main(["reconstruct", str(cut), "-o", str(out), "--survey", "--quiet", "--calibration",
+                 str(calib), "--set", "output.report=false", "--set",
+                 "output.write_mcap=false"]) == 0
+    t, _ = read_tum(out / "stations.tum")
+    e57 = pye57.E57(str(out / "stations.e57"))
+    assert e57.scan_count == len(t) >= 1
+    e57.close()
+    assert (out / "map.laz").stat().st_size > 0
+    assert set(cloud_io.read_ply(out / "map.ply").dtype.names) == {"x", "y", "z", "intensity",
+                                                                    "station", "label"}

@@ -58,7 +58,9 @@ def test_column_context_is_the_same_on_every_side_of_the_grid():
     z = np.full_like(t, 1.0)
     walls = [np.c_[t, 0 * t, z], np.c_[t, 0 * t + 4, z], np.c_[0 * t, t, z], np.c_[0 * t + 4, t, z]]
     p = np.concatenate(walls).astype(np.float32)
-    cc = _ext.column_context(p, np.ones(len(p), np.uint8), 0.1, 0.2, 2.5, 16, 0.25, 100.0, 1)
+    opt = _ext._ColumnContextOptions()
+    opt.cell_size, opt.z_low, opt.z_high, opt.max_range, opt.num_threads = 0.1, 0.2, 2.5, 100.0, 1
+    cc = _ext.column_context(p, np.ones(len(p), np.uint8), opt)
     mid = [200, 600, 1000, 1400]  # the middle of each wall
     assert np.ptp(cc[mid, 0]) == 0.0, cc[mid, 0]
     assert 0.3 < cc[mid[0], 0] < 0.6  # about half of the rays leave the room outward
@@ -135,9 +137,10 @@ def test_shipped_model_on_unseen_rooms():
         assert pred.shape == lab.shape and pred.dtype == np.int32
         total += confusion(lab, pred)
     ious = iou(total)
-    assert ious[0] > 0.95 and ious[1] > 0.95, ious
-    assert ious[2] > 0.85, ious
-    assert ious[3] > 0.6, ious
+    # measured 0.991 / 0.990 / 0.942 / 0.783
+    assert ious[0] > 0.98 and ious[1] > 0.98, ious
+    assert ious[2] > 0.92, ious
+    assert ious[3] > 0.74, ious
 
 
 def test_partition_walls_are_walls():
@@ -162,10 +165,12 @@ def test_partition_walls_are_walls():
         wall_as_other += int(((lab == 2) & (pred == 3)).sum())
         wall_as_other_1 += int(((lab == 2) & (seg_1(p) == 3)).sum())
     assert part_n > 10_000
-    assert part_ok / part_n > 0.97, part_ok / part_n
-    assert wall_as_other < 0.85 * wall_as_other_1, (wall_as_other, wall_as_other_1)
+    # measured: 0.989 of the partition; 704 wall -> other against 1094 without the stage;
+    # IoU wall 0.971, other 0.735
+    assert part_ok / part_n > 0.98, part_ok / part_n
+    assert wall_as_other < 0.75 * wall_as_other_1, (wall_as_other, wall_as_other_1)
     ious = iou(total)
-    assert ious[2] > 0.95 and ious[3] > 0.7, ious
+    assert ious[2] > 0.96 and ious[3] > 0.71, ious
 
 
 def test_segmenter_is_invariant_to_yaw_and_position():
@@ -175,7 +180,7 @@ def test_segmenter_is_invariant_to_yaw_and_position():
     c, s = np.cos(1.1), np.sin(1.1)
     q = p @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]], np.float32).T + np.float32([40, -7, 3])
     b = seg(q)
-    assert (a == b).mean() > 0.97
+    assert (a == b).mean() > 0.985  # measured 0.9935
 
 
 def test_training_learns_and_is_seeded(tmp_path):
@@ -194,7 +199,7 @@ def test_training_learns_and_is_seeded(tmp_path):
 
     with torch.inference_mode():
         acc = (model(torch.from_numpy(F)).argmax(1).numpy() == L).mean()
-    assert acc > 0.85, acc  # chance is ~0.35
+    assert acc > 0.97, acc  # measured 0.993; chance is ~0.35
 
 
 def test_cli_segment_keeps_points_and_order(tmp_path, capsys):

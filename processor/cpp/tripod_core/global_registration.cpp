@@ -68,16 +68,13 @@ Eigen::Isometry3d fit(const std::vector<Match>& m, const std::vector<int>& sel, 
     T.translation() = mq - T.linear() * mp;
     return T;
 }
-}  // namespace
 
-GlobalResult register_global(const PointsXYZ& source_in, const PointsXYZ& target_in,
-                             const GlobalOptions& opt) {
+void validate(const GlobalOptions& opt) {
     if (!(opt.normal_radius > 0) || !(opt.feature_radius > 0) || !(opt.inlier_distance > 0))
         throw std::invalid_argument("normal_radius, feature_radius and inlier_distance must be > 0");
     if (opt.max_iterations < 1) throw std::invalid_argument("max_iterations must be >= 1");
     if (!(opt.confidence > 0 && opt.confidence < 1))
         throw std::invalid_argument("confidence must be in (0, 1)");
-    const bool gravity = opt.up_source.norm() > 0 && opt.up_target.norm() > 0;
     if ((opt.up_source.norm() > 0) != (opt.up_target.norm() > 0))
         throw std::invalid_argument("give the up vector of both clouds or of neither");
     if (!opt.up_source.allFinite() || !opt.up_target.allFinite())
@@ -90,47 +87,52 @@ GlobalResult register_global(const PointsXYZ& source_in, const PointsXYZ& target
         if (!(opt.rotation_tolerance > 0))
             throw std::invalid_argument("rotation_tolerance must be > 0");
     }
-    const int nt = threads(opt.num_threads);
+}
 
-    // 0. finite points only
-    auto finite = [](const PointsXYZ& in, const char* name) {
-        const std::vector<int64_t> rows = finite_rows(in);
-        if (rows.size() < 3)
-            throw std::invalid_argument(std::string(name) + " has " + std::to_string(rows.size()) +
-                                        " finite points; global registration needs at least 3");
-        PointsXYZ out(static_cast<Eigen::Index>(rows.size()), 3);
-        for (size_t i = 0; i < rows.size(); ++i) out.row(i) = in.row(rows[i]);
-        return out;
-    };
-    const PointsXYZ src = finite(source_in, "source"), tgt = finite(target_in, "target");
+/// The finite rows of `in` (at least 3, else std::invalid_argument naming the cloud).
+PointsXYZ finite_points(const PointsXYZ& in, const char* name) {
+    const std::vector<int64_t> rows = finite_rows(in);
+    if (rows.size() < 3)
+        throw std::invalid_argument(std::string(name) + " has " + std::to_string(rows.size()) +
+                                    " finite points; global registration needs at least 3");
+    PointsXYZ out(static_cast<Eigen::Index>(rows.size()), 3);
+    for (size_t i = 0; i < rows.size(); ++i) out.row(i) = in.row(rows[i]);
+    return out;
+}
 
-    // 1. normals and FPFH
+/// A cloud's normals and FPFH features.
+struct Described {
+    LocalGeometry geometry;
+    MatrixX33f fpfh;
+    bool has_feature(int64_t i) const { return geometry.valid[i] && fpfh.row(i).sum() > 0; }
+};
+
+Described describe(const PointsXYZ& pts, const Eigen::Vector3d& viewpoint, const GlobalOptions& opt,
+                   int nt) {
     const Neighborhood nb{opt.max_neighbors > 0 ? std::min(opt.max_neighbors, 30) : 30,
                           opt.normal_radius};
-    const LocalGeometry gs = estimate_local_geometry(src, nb, opt.viewpoint_source, nt);
-    const LocalGeometry gt = estimate_local_geometry(tgt, nb, opt.viewpoint_target, nt);
-    const MatrixX33f fs = compute_fpfh(src, gs.normals, opt.feature_radius, opt.max_neighbors, nt);
-    const MatrixX33f ft = compute_fpfh(tgt, gt.normals, opt.feature_radius, opt.max_neighbors, nt);
+    Described d;
+    d.geometry = estimate_local_geometry(pts, nb, viewpoint, nt);
+    d.fpfh = compute_fpfh(pts, d.geometry.normals, opt.feature_radius, opt.max_neighbors, nt);
+    return d;
+}
 
-    // 2. nearest features (source -> target, and back for the mutual filter); points without a
-    //    feature (no normal or empty histogram) are not matched
-    auto has_feature = [](const LocalGeometry& g, const MatrixX33f& f, int64_t i) {
-        return g.valid[i] && f.row(i).sum() > 0;
-    };
-    std::vector<int> tmap;  // rows of tgt with a feature
+/// Nearest feature of each source point among the target's (and back for the mutual filter),
+/// as point pairs in the levelled frames (Ls, Lt). Points without a feature (no normal or an
+/// empty histogram) are not matched. Too few mutual matches: the one-way ones (as Open3D).
+std::vector<Match> match_features(const PointsXYZ& src, const PointsXYZ& tgt,
+                                  const Described& ds, const Described& dt,
+                                  const Eigen::Matrix3d& Ls, const Eigen::Matrix3d& Lt,
+                                  bool mutual_filter, int nt) {
+    std::vector<int> tmap, smap;  // rows with a feature
     for (int64_t j = 0; j < tgt.rows(); ++j)
-        if (has_feature(gt, ft, j)) tmap.push_back(static_cast<int>(j));
-    std::vector<int> smap;
+        if (dt.has_feature(j)) tmap.push_back(static_cast<int>(j));
     for (int64_t i = 0; i < src.rows(); ++i)
-        if (has_feature(gs, fs, i)) smap.push_back(static_cast<int>(i));
-    GlobalResult res;
-    if (tmap.size() < 3 || smap.size() < 3) {
-        res.status = "no_correspondences";
-        return res;
-    }
+        if (ds.has_feature(i)) smap.push_back(static_cast<int>(i));
+    if (tmap.size() < 3 || smap.size() < 3) return {};
     MatrixX33f ftc(tmap.size(), 33), fsc(smap.size(), 33);
-    for (size_t j = 0; j < tmap.size(); ++j) ftc.row(j) = ft.row(tmap[j]);
-    for (size_t i = 0; i < smap.size(); ++i) fsc.row(i) = fs.row(smap[i]);
+    for (size_t j = 0; j < tmap.size(); ++j) ftc.row(j) = dt.fpfh.row(tmap[j]);
+    for (size_t i = 0; i < smap.size(); ++i) fsc.row(i) = ds.fpfh.row(smap[i]);
     const KdTree<33> ttree(ftc.data(), ftc.rows());
     std::vector<int> s2t(smap.size(), -1);
 #pragma omp parallel for num_threads(nt) schedule(dynamic, 256)
@@ -139,7 +141,7 @@ GlobalResult register_global(const PointsXYZ& source_in, const PointsXYZ& target
         s2t[i] = ttree.nearest(fsc.row(i).data(), std::numeric_limits<float>::infinity(), &d);
     }
     std::vector<int> t2s;
-    if (opt.mutual_filter) {
+    if (mutual_filter) {
         const KdTree<33> stree(fsc.data(), fsc.rows());
         t2s.assign(tmap.size(), -1);
 #pragma omp parallel for num_threads(nt) schedule(dynamic, 256)
@@ -148,50 +150,77 @@ GlobalResult register_global(const PointsXYZ& source_in, const PointsXYZ& target
             t2s[j] = stree.nearest(ftc.row(j).data(), std::numeric_limits<float>::infinity(), &d);
         }
     }
-    const Eigen::Matrix3d Ls = gravity ? level(opt.up_source) : Eigen::Matrix3d::Identity();
-    const Eigen::Matrix3d Lt = gravity ? level(opt.up_target) : Eigen::Matrix3d::Identity();
+    auto pair = [&](size_t i, int j) {
+        return Match{Ls * src.row(smap[i]).transpose().cast<double>(),
+                     Lt * tgt.row(tmap[j]).transpose().cast<double>()};
+    };
     std::vector<Match> matches;
     for (size_t i = 0; i < smap.size(); ++i) {
         const int j = s2t[i];
         if (j < 0) continue;
-        if (opt.mutual_filter && t2s[j] != static_cast<int>(i)) continue;
-        matches.push_back({Ls * src.row(smap[i]).transpose().cast<double>(),
-                           Lt * tgt.row(tmap[j]).transpose().cast<double>()});
+        if (mutual_filter && t2s[j] != static_cast<int>(i)) continue;
+        matches.push_back(pair(i, j));
     }
-    // too few mutual matches: fall back to one-way matches (Open3D does the same)
-    if (opt.mutual_filter && matches.size() < 10) {
+    if (mutual_filter && matches.size() < 10) {
         matches.clear();
         for (size_t i = 0; i < smap.size(); ++i)
-            if (s2t[i] >= 0)
-                matches.push_back({Ls * src.row(smap[i]).transpose().cast<double>(),
-                                   Lt * tgt.row(tmap[s2t[i]]).transpose().cast<double>()});
+            if (s2t[i] >= 0) matches.push_back(pair(i, s2t[i]));
     }
-    res.num_correspondences = static_cast<int64_t>(matches.size());
-    const int sample = gravity ? 2 : 3;
-    if (static_cast<int>(matches.size()) < sample) {
-        res.status = "no_correspondences";
-        return res;
+    return matches;
+}
+
+/// RANSAC over feature matches in the levelled frames. Hypothesis k draws from its own stream
+/// (seed, k), so the result does not depend on the thread count. Hypotheses that agree with
+/// more than their minimal sample are scored on the clouds themselves (source points, at most
+/// 2000, with a target point within the inlier distance), as Open3D does: sparse or repetitive
+/// scenes give few feature inliers, but the right pose explains the geometry.
+class Ransac {
+public:
+    Ransac(const std::vector<Match>& matches, const PointsXYZ& src, const PointsXYZ& tgt,
+           const Eigen::Matrix3d& Ls, const Eigen::Matrix3d& Lt, bool gravity,
+           const GlobalOptions& opt)
+        : m_(matches), opt_(opt), Ls_(Ls), Lt_(Lt), gravity_(gravity),
+          sample_(gravity ? 2 : 3), thr2_(opt.inlier_distance * opt.inlier_distance),
+          cos_tol_(std::cos(std::min(opt.rotation_tolerance, M_PI))),
+          tgt_tree_(tgt.data(), tgt.rows()) {
+        const int64_t step = std::max<int64_t>(1, src.rows() / 2000);
+        for (int64_t i = 0; i < src.rows(); i += step)
+            probe_.push_back(Ls * src.row(i).transpose().cast<double>());
     }
 
-    // 3. RANSAC; hypothesis k draws from its own stream (seed, k): thread-count independent
-    const int64_t M = static_cast<int64_t>(matches.size());
-    const double thr2 = opt.inlier_distance * opt.inlier_distance;
-    auto count_inliers = [&](const Eigen::Isometry3d& T) {
+    int sample() const { return sample_; }
+
+    int64_t count_inliers(const Eigen::Isometry3d& T) const {
         int64_t c = 0;
-        for (const Match& m : matches) c += (T * m.p - m.q).squaredNorm() < thr2;
+        for (const Match& m : m_) c += (T * m.p - m.q).squaredNorm() < thr2_;
         return c;
-    };
-    // rotation prior, compared in the original frames: R = Lt^T R_levelled Ls
-    const double cos_tol = std::cos(std::min(opt.rotation_tolerance, M_PI));
-    auto agrees_with_prior = [&](const Eigen::Isometry3d& T) {
-        if (!opt.has_rotation_prior) return true;
-        const Eigen::Matrix3d R = Lt.transpose() * T.linear() * Ls;
-        return ((R * opt.R_prior.transpose()).trace() - 1) / 2 >= cos_tol;
-    };
-    auto hypothesis = [&](int64_t k, Eigen::Isometry3d& T) -> bool {
-        uint64_t state = splitmix(opt.seed * 0x100000001b3ULL + static_cast<uint64_t>(k));
+    }
+
+    /// Rotation prior, compared in the original frames: R = Lt^T R_levelled Ls.
+    bool agrees_with_prior(const Eigen::Isometry3d& T) const {
+        if (!opt_.has_rotation_prior) return true;
+        const Eigen::Matrix3d R = Lt_.transpose() * T.linear() * Ls_;
+        return ((R * opt_.R_prior.transpose()).trace() - 1) / 2 >= cos_tol_;
+    }
+
+    int64_t geometric_score(const Eigen::Isometry3d& T) const {
+        const Eigen::Matrix3d LtT = Lt_.transpose();
+        int64_t c = 0;
+        for (const Eigen::Vector3d& p : probe_) {
+            const Eigen::Vector3f x = (LtT * (T * p)).cast<float>();
+            float d;
+            c += tgt_tree_.nearest(x.data(), static_cast<float>(thr2_), &d) >= 0;
+        }
+        return c;
+    }
+
+    /// Hypothesis k: a sample passing the edge-length (and, with gravity, height) checks,
+    /// fitted, within the rotation prior.
+    bool hypothesis(int64_t k, Eigen::Isometry3d& T) const {
+        const int64_t M = static_cast<int64_t>(m_.size());
+        uint64_t state = splitmix(opt_.seed * 0x100000001b3ULL + static_cast<uint64_t>(k));
         int idx[3];
-        for (int s = 0; s < sample; ++s) {
+        for (int s = 0; s < sample_; ++s) {
             bool fresh;
             int tries = 0;
             do {
@@ -202,117 +231,109 @@ GlobalResult register_global(const PointsXYZ& source_in, const PointsXYZ& target
             } while (!fresh && ++tries < 16);
             if (!fresh) return false;
         }
-        // edge-length check on every pair of the sample
-        for (int a = 0; a < sample; ++a)
-            for (int b = a + 1; b < sample; ++b) {
-                const double ds = (matches[idx[a]].p - matches[idx[b]].p).norm();
-                const double dt = (matches[idx[a]].q - matches[idx[b]].q).norm();
-                if (ds < opt.edge_length_ratio * dt || dt < opt.edge_length_ratio * ds) return false;
-                if (gravity) {
-                    // heights must agree, and the pair must span some horizontal distance
-                    const double dzs = matches[idx[a]].p.z() - matches[idx[b]].p.z();
-                    const double dzt = matches[idx[a]].q.z() - matches[idx[b]].q.z();
-                    if (std::fabs(dzs - dzt) > 2 * opt.inlier_distance) return false;
-                    if ((matches[idx[a]].p - matches[idx[b]].p).head<2>().norm() <
-                        2 * opt.inlier_distance)
-                        return false;
-                }
-            }
-        std::vector<int> sel(idx, idx + sample);
-        T = fit(matches, sel, gravity);
+        for (int a = 0; a < sample_; ++a)
+            for (int b = a + 1; b < sample_; ++b)
+                if (!compatible(m_[idx[a]], m_[idx[b]])) return false;
+        std::vector<int> sel(idx, idx + sample_);
+        T = fit(m_, sel, gravity_);
         return agrees_with_prior(T);
-    };
-    // Hypotheses that agree with more than the minimal sample are scored on the clouds
-    // themselves (source points, at most 2000, with a target point within the inlier distance),
-    // as Open3D does: sparse or repetitive scenes give few feature inliers, but the right pose
-    // explains the geometry.
-    const KdTree<3> tgt_tree(tgt.data(), tgt.rows());
-    std::vector<Eigen::Vector3d> probe;
-    {
-        const int64_t step = std::max<int64_t>(1, src.rows() / 2000);
-        for (int64_t i = 0; i < src.rows(); i += step)
-            probe.push_back(Ls * src.row(i).transpose().cast<double>());
     }
-    const Eigen::Matrix3d LtT = Lt.transpose();
-    auto geometric_score = [&](const Eigen::Isometry3d& T) {
-        int64_t c = 0;
-        for (const Eigen::Vector3d& p : probe) {
-            const Eigen::Vector3f x = (LtT * (T * p)).cast<float>();
-            float d;
-            c += tgt_tree.nearest(x.data(), static_cast<float>(thr2), &d) >= 0;
-        }
-        return c;
-    };
-    int64_t best = -1, best_k = -1, best_inl = 0;
-    Eigen::Isometry3d best_T = Eigen::Isometry3d::Identity();
-    int64_t needed = opt.max_iterations;
-    int64_t done = 0;
-    const int64_t batch = 1024;
-    while (done < std::min(needed, opt.max_iterations)) {
-        const int64_t end = std::min({done + batch, opt.max_iterations});
+
+    /// Draw hypotheses in batches until `confidence` (or max_iterations); the best by
+    /// geometric score (ties: the lowest k). Returns false when none agreed with more than its
+    /// sample.
+    bool run(Eigen::Isometry3d& best_T, int64_t& iterations, int nt) const {
+        int64_t best = -1, best_k = -1, best_inl = 0;
+        int64_t needed = opt_.max_iterations, done = 0;
+        const int64_t M = static_cast<int64_t>(m_.size());
+        constexpr int64_t kBatch = 1024;
+        while (done < std::min(needed, opt_.max_iterations)) {
+            const int64_t end = std::min(done + kBatch, opt_.max_iterations);
 #pragma omp parallel num_threads(nt)
-        {
-            int64_t lb = -1, lk = -1, linl = 0;
-            Eigen::Isometry3d lT = Eigen::Isometry3d::Identity();
+            {
+                int64_t lb = -1, lk = -1, linl = 0;
+                Eigen::Isometry3d lT = Eigen::Isometry3d::Identity();
 #pragma omp for schedule(dynamic, 64)
-            for (int64_t k = done; k < end; ++k) {
-                Eigen::Isometry3d T;
-                if (!hypothesis(k, T)) continue;
-                const int64_t inl = count_inliers(T);
-                if (inl <= sample) continue;
-                const int64_t c = geometric_score(T);
-                if (c > lb || (c == lb && k < lk)) {
-                    lb = c;
-                    lk = k;
-                    lT = T;
-                    linl = inl;
+                for (int64_t k = done; k < end; ++k) {
+                    Eigen::Isometry3d T;
+                    if (!hypothesis(k, T)) continue;
+                    const int64_t inl = count_inliers(T);
+                    if (inl <= sample_) continue;
+                    const int64_t c = geometric_score(T);
+                    if (c > lb || (c == lb && k < lk)) {
+                        lb = c;
+                        lk = k;
+                        lT = T;
+                        linl = inl;
+                    }
+                }
+#pragma omp critical
+                if (lb > best || (lb == best && lb >= 0 && lk < best_k)) {
+                    best = lb;
+                    best_k = lk;
+                    best_T = lT;
+                    best_inl = linl;
                 }
             }
-#pragma omp critical
-            if (lb > best || (lb == best && lb >= 0 && lk < best_k)) {
-                best = lb;
-                best_k = lk;
-                best_T = lT;
-                best_inl = linl;
+            done = end;
+            if (best_inl > sample_) {
+                const double w = static_cast<double>(best_inl) / M;
+                const double denom = std::log(1 - std::pow(w, sample_));
+                if (denom < 0)
+                    needed = static_cast<int64_t>(std::ceil(std::log(1 - opt_.confidence) / denom));
+                if (w >= 1) needed = done;
             }
         }
-        done = end;
-        if (best_inl > sample) {
-            const double w = static_cast<double>(best_inl) / M;
-            const double denom = std::log(1 - std::pow(w, sample));
-            if (denom < 0)
-                needed = static_cast<int64_t>(std::ceil(std::log(1 - opt.confidence) / denom));
-            if (w >= 1) needed = done;
+        iterations = done;
+        return best >= 0;
+    }
+
+    /// Refit on the inliers (twice: the refit can gain inliers), kept when it explains the
+    /// geometry at least as well.
+    Eigen::Isometry3d refine(Eigen::Isometry3d T) const {
+        for (int r = 0; r < 2; ++r) {
+            std::vector<int> sel;
+            for (size_t i = 0; i < m_.size(); ++i)
+                if ((T * m_[i].p - m_[i].q).squaredNorm() < thr2_) sel.push_back(static_cast<int>(i));
+            if (static_cast<int>(sel.size()) < sample_) break;
+            const Eigen::Isometry3d T2 = fit(m_, sel, gravity_);
+            if (agrees_with_prior(T2) && geometric_score(T2) >= geometric_score(T)) T = T2;
         }
+        return T;
     }
-    res.iterations = done;
-    if (best < 0) {
-        res.status = "no_consensus";
-        return res;
+
+private:
+    /// Edge-length check on a pair of the sample; with gravity, heights must agree and the
+    /// pair must span some horizontal distance.
+    bool compatible(const Match& a, const Match& b) const {
+        const double ds = (a.p - b.p).norm();
+        const double dt = (a.q - b.q).norm();
+        if (ds < opt_.edge_length_ratio * dt || dt < opt_.edge_length_ratio * ds) return false;
+        if (!gravity_) return true;
+        const double dzs = a.p.z() - b.p.z();
+        const double dzt = a.q.z() - b.q.z();
+        if (std::fabs(dzs - dzt) > 2 * opt_.inlier_distance) return false;
+        return (a.p - b.p).head<2>().norm() >= 2 * opt_.inlier_distance;
     }
-    // 4. refit on the inliers (twice: the refit can gain inliers), kept if it explains the
-    //    geometry at least as well
-    Eigen::Isometry3d T = best_T;
-    for (int r = 0; r < 2; ++r) {
-        std::vector<int> sel;
-        for (int64_t i = 0; i < M; ++i)
-            if ((T * matches[i].p - matches[i].q).squaredNorm() < thr2) sel.push_back(static_cast<int>(i));
-        if (static_cast<int>(sel.size()) < sample) break;
-        const Eigen::Isometry3d T2 = fit(matches, sel, gravity);
-        if (agrees_with_prior(T2) && geometric_score(T2) >= geometric_score(T)) T = T2;
-    }
-    res.num_inlier_correspondences = count_inliers(T);
-    // back from the levelled frames: T_target_source = Lt^T T Ls
-    Eigen::Isometry3d out = Eigen::Isometry3d::Identity();
-    out.linear() = Lt.transpose() * T.linear() * Ls;
-    out.translation() = Lt.transpose() * T.translation();
-    res.T_target_source = out.matrix();
-    // 5. fitness on the full clouds
+
+    const std::vector<Match>& m_;
+    const GlobalOptions& opt_;
+    Eigen::Matrix3d Ls_, Lt_;
+    bool gravity_;
+    int sample_;
+    double thr2_, cos_tol_;
+    KdTree<3> tgt_tree_;
+    std::vector<Eigen::Vector3d> probe_;
+};
+
+/// Fitness and inlier RMSE of T on the full clouds (pairs within sqrt(thr2)).
+void score_on_clouds(const PointsXYZ& src, const PointsXYZ& tgt, const Eigen::Isometry3d& T,
+                     double thr2, int nt, GlobalResult& res) {
     const KdTree<3> tt(tgt.data(), tgt.rows());
     int64_t inl = 0;
     double sq = 0;
-    const Eigen::Matrix3f R = out.linear().cast<float>();
-    const Eigen::Vector3f t = out.translation().cast<float>();
+    const Eigen::Matrix3f R = T.linear().cast<float>();
+    const Eigen::Vector3f t = T.translation().cast<float>();
 #pragma omp parallel for num_threads(nt) reduction(+ : inl, sq)
     for (int64_t i = 0; i < src.rows(); ++i) {
         const Eigen::Vector3f p = R * src.row(i).transpose() + t;
@@ -324,6 +345,46 @@ GlobalResult register_global(const PointsXYZ& source_in, const PointsXYZ& target
     }
     res.fitness = static_cast<double>(inl) / src.rows();
     res.inlier_rmse = inl ? std::sqrt(sq / inl) : 0;
+}
+}  // namespace
+
+GlobalResult register_global(const PointsXYZ& source_in, const PointsXYZ& target_in,
+                             const GlobalOptions& opt) {
+    validate(opt);
+    const int nt = threads(opt.num_threads);
+    const bool gravity = opt.up_source.norm() > 0 && opt.up_target.norm() > 0;
+    // 0. finite points only; 1. normals and FPFH
+    const PointsXYZ src = finite_points(source_in, "source");
+    const PointsXYZ tgt = finite_points(target_in, "target");
+    const Described ds = describe(src, opt.viewpoint_source, opt, nt);
+    const Described dt = describe(tgt, opt.viewpoint_target, opt, nt);
+    // 2. feature matches, in frames levelled by gravity (if known)
+    const Eigen::Matrix3d Ls = gravity ? level(opt.up_source) : Eigen::Matrix3d::Identity();
+    const Eigen::Matrix3d Lt = gravity ? level(opt.up_target) : Eigen::Matrix3d::Identity();
+    const std::vector<Match> matches =
+        match_features(src, tgt, ds, dt, Ls, Lt, opt.mutual_filter, nt);
+    GlobalResult res;
+    res.num_correspondences = static_cast<int64_t>(matches.size());
+    const Ransac ransac(matches, src, tgt, Ls, Lt, gravity, opt);
+    if (static_cast<int>(matches.size()) < ransac.sample()) {
+        res.status = "no_correspondences";
+        return res;
+    }
+    // 3. RANSAC; 4. refit on the inliers
+    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+    if (!ransac.run(T, res.iterations, nt)) {
+        res.status = "no_consensus";
+        return res;
+    }
+    T = ransac.refine(T);
+    res.num_inlier_correspondences = ransac.count_inliers(T);
+    // back from the levelled frames: T_target_source = Lt^T T Ls
+    Eigen::Isometry3d out = Eigen::Isometry3d::Identity();
+    out.linear() = Lt.transpose() * T.linear() * Ls;
+    out.translation() = Lt.transpose() * T.translation();
+    res.T_target_source = out.matrix();
+    // 5. fitness on the full clouds
+    score_on_clouds(src, tgt, out, opt.inlier_distance * opt.inlier_distance, nt, res);
     res.success = true;
     res.status = "success";
     return res;

@@ -2,6 +2,9 @@
 // A static k-d tree over float points of fixed dimension (3 for clouds, 33 for FPFH features).
 // Points are copied in tree order so a leaf scan reads contiguous memory; indices returned are
 // the caller's row indices. Header-only so the compiler specialises the search on Dim.
+// Each leaf keeps its cell (the box its splits bound): a warm-started nearest-neighbour query
+// whose ball around the query (radius: the distance to the hint) lies inside the hint's cell
+// scans that one leaf and skips the tree (ICP's later iterations, where points barely move).
 #pragma once
 
 #include <Eigen/Core>
@@ -29,7 +32,11 @@ public:
         pts_.resize(static_cast<size_t>(n) * Dim);
         src_ = data;
         nodes_.reserve(2 * (n / leaf_size_ + 1));
-        if (n > 0) build(0, static_cast<int>(n));
+        leaf_of_.resize(n);
+        if (n > 0) {
+            Row lo = Row::Constant(-std::numeric_limits<float>::infinity()), hi = -lo;
+            build(0, static_cast<int>(n), lo, hi);
+        }
         pos_.resize(n);
         for (int64_t i = 0; i < n; ++i) {
             std::copy(data + order_[i] * Dim, data + order_[i] * Dim + Dim, pts_.data() + i * Dim);
@@ -75,10 +82,30 @@ public:
         int idx = -1;
         float best = max_sq_dist;
         if (hint >= 0) {
-            const float d = sq(q, pts_.data() + static_cast<size_t>(pos_[hint]) * Dim);
+            const int pos = pos_[hint];
+            const float d = sq(q, pts_.data() + static_cast<size_t>(pos) * Dim);
             if (d < best) {
                 best = d;
                 idx = hint;
+                // the ball of radius sqrt(d) about q inside the hint's cell: no point outside
+                // the cell can be nearer, so the answer is in this leaf
+                const Leaf& lf = leaves_[leaf_of_[pos]];
+                bool inside = true;
+                for (int a = 0; a < Dim && inside; ++a) {
+                    const float dl = q[a] - lf.lo[a], dh = lf.hi[a] - q[a];
+                    inside = dl >= 0 && dh >= 0 && dl * dl >= d && dh * dh >= d;
+                }
+                if (inside) {
+                    for (int i = lf.begin; i < lf.end; ++i) {
+                        const float e = sq(q, pts_.data() + static_cast<size_t>(i) * Dim);
+                        if (e < best) {
+                            best = e;
+                            idx = static_cast<int>(order_[i]);
+                        }
+                    }
+                    if (sq_dist) *sq_dist = best;
+                    return idx;
+                }
             }
         }
         float off[Dim] = {};
@@ -103,10 +130,22 @@ private:
         int left, right;
     };
 
-    int build(int begin, int end) {
+    struct Leaf {
+        int begin, end;
+        Row lo, hi;  // the cell (infinite towards the outside of the root)
+    };
+
+    int make_leaf(int id, int begin, int end, const Row& lo, const Row& hi) {
+        const int l = static_cast<int>(leaves_.size());
+        leaves_.push_back({begin, end, lo, hi});
+        for (int i = begin; i < end; ++i) leaf_of_[i] = l;
+        return id;
+    }
+
+    int build(int begin, int end, const Row& cell_lo, const Row& cell_hi) {
         const int id = static_cast<int>(nodes_.size());
         nodes_.push_back({begin, end, -1, 0.f, -1, -1});
-        if (end - begin <= leaf_size_) return id;
+        if (end - begin <= leaf_size_) return make_leaf(id, begin, end, cell_lo, cell_hi);
         Row lo = Row::Constant(std::numeric_limits<float>::infinity()), hi = -lo;
         for (int i = begin; i < end; ++i) {
             Eigen::Map<const Row> p(src_ + order_[i] * Dim);
@@ -115,15 +154,19 @@ private:
         }
         int axis;
         const float extent = (hi - lo).maxCoeff(&axis);
-        if (!(extent > 0.f)) return id;  // all points equal: keep as one leaf
+        if (!(extent > 0.f)) return make_leaf(id, begin, end, cell_lo, cell_hi);  // all equal
         const int mid = begin + (end - begin) / 2;
         std::nth_element(order_.begin() + begin, order_.begin() + mid, order_.begin() + end,
                          [&](int64_t a, int64_t b) {
                              return src_[a * Dim + axis] < src_[b * Dim + axis];
                          });
         const float split = src_[order_[mid] * Dim + axis];
-        const int l = build(begin, mid);
-        const int r = build(mid, end);
+        // left cell: coordinate <= split, right cell: >= split (ties may sit on either side)
+        Row left_hi = cell_hi, right_lo = cell_lo;
+        left_hi[axis] = split;
+        right_lo[axis] = split;
+        const int l = build(begin, mid, cell_lo, left_hi);
+        const int r = build(mid, end, right_lo, cell_hi);
         nodes_[id].axis = axis;
         nodes_[id].split = split;
         nodes_[id].left = l;
@@ -140,6 +183,30 @@ private:
         return s;
     }
 
+    /// sq(a, b), or any value > bound once the partial sum exceeds it (checked every 8
+    /// dimensions: FPFH's 33-D matching rejects most leaf points after 8 or 16). Same sum order
+    /// as sq(): a candidate that is kept has bit-identical distance.
+    static float sq_bounded(const float* a, const float* b, float bound) {
+        if constexpr (Dim <= 8) {
+            return sq(a, b);
+        } else {
+            float s = 0.f;
+            int d = 0;
+            for (; d + 8 <= Dim; d += 8) {
+                for (int j = d; j < d + 8; ++j) {
+                    const float e = a[j] - b[j];
+                    s += e * e;
+                }
+                if (s > bound) return s;
+            }
+            for (; d < Dim; ++d) {
+                const float e = a[d] - b[d];
+                s += e * e;
+            }
+            return s;
+        }
+    }
+
     // Searches descend to the near child first; the far child is visited only if its cell can
     // hold a closer point. The cell distance is tracked incrementally per axis (Arya & Mount):
     // `off[d]` is the query's offset from the cell along d, `mindist` their squared sum.
@@ -148,7 +215,7 @@ private:
         const Node& nd = nodes_[id];
         if (nd.axis < 0) {
             for (int i = nd.begin; i < nd.end; ++i) {
-                const float d = sq(q, pts_.data() + static_cast<size_t>(i) * Dim);
+                const float d = sq_bounded(q, pts_.data() + static_cast<size_t>(i) * Dim, worst);
                 if (found == k && d >= worst) continue;
                 int j = found < k ? found++ : k - 1;  // insertion into the sorted buffer
                 while (j > 0 && dist[j - 1] > d) {
@@ -179,7 +246,7 @@ private:
         const Node& nd = nodes_[id];
         if (nd.axis < 0) {
             for (int i = nd.begin; i < nd.end; ++i) {
-                const float d = sq(q, pts_.data() + static_cast<size_t>(i) * Dim);
+                const float d = sq_bounded(q, pts_.data() + static_cast<size_t>(i) * Dim, best);
                 if (d < best) {
                     best = d;
                     idx = static_cast<int>(order_[i]);
@@ -224,6 +291,8 @@ private:
     std::vector<int> pos_;        // caller's row -> tree position
     std::vector<float> pts_;      // rows in tree order
     std::vector<Node> nodes_;
+    std::vector<Leaf> leaves_;
+    std::vector<int> leaf_of_;    // tree position -> its leaf
 };
 
 }  // namespace tripod

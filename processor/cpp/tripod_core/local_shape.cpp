@@ -160,9 +160,11 @@ void voxel_assign(const PointsXYZ& points, double voxel_size, PointsXYZ& centroi
     point_voxel = std::move(g.point_cell);
 }
 
-FeaturesF column_context(const PointsXYZ& points, const uint8_t* upright, double cell_size,
-                         double z_low, double z_high,
-                         int num_directions, double skip, double max_range, int num_threads) {
+FeaturesF column_context(const PointsXYZ& points, const uint8_t* upright,
+                         const ColumnContextOptions& options) {
+    const double cell_size = options.cell_size, z_low = options.z_low, z_high = options.z_high;
+    const int num_directions = options.num_directions, num_threads = options.num_threads;
+    const double skip = options.skip, max_range = options.max_range;
     if (!(cell_size > 0)) throw std::invalid_argument("cell_size must be > 0");
     if (num_directions < 1) throw std::invalid_argument("num_directions must be >= 1");
     const int nt = threads(num_threads);

@@ -40,6 +40,17 @@ void voxel_assign(const PointsXYZ& points, double voxel_size, PointsXYZ& centroi
                   std::vector<int32_t>& point_voxel, std::vector<int32_t>& counts,
                   int num_threads = 0);
 
+/// Settings of column_context.
+struct ColumnContextOptions {
+    double cell_size = 0.1;   ///< side of a grid cell [m]
+    double z_low = 0.2;       ///< occupancy band: points between z_low and z_high [m]
+    double z_high = 2.0;
+    int num_directions = 16;  ///< horizontal rays per occupied cell
+    double skip = 0.25;       ///< rays start this far from their cell [m]
+    double max_range = 8.0;   ///< a ray that leaves this far without a hit is open [m]
+    int num_threads = 0;      ///< 0 = all available
+};
+
 /// Context of every point in the horizontal plane of a z-up scan.
 ///
 /// The x-y plane is cut into square cells; a cell is "occupied" when it holds points between
@@ -55,8 +66,7 @@ void voxel_assign(const PointsXYZ& points, double voxel_size, PointsXYZ& centroi
 ///         its rays [m] (capped at max_range), column z-min and z-max of the upright points of
 ///         the 3x3 cells around the point's cell [m] (the point's own z when there are none),
 ///         number of points of that column neighbourhood (log1p)
-FeaturesF column_context(const PointsXYZ& points, const uint8_t* upright, double cell_size,
-                         double z_low, double z_high,
-                         int num_directions, double skip, double max_range, int num_threads = 0);
+FeaturesF column_context(const PointsXYZ& points, const uint8_t* upright,
+                         const ColumnContextOptions& options);
 
 }  // namespace tripod

@@ -8,65 +8,27 @@
 //   d e / d w = [R p]x ,   d e / d v = -I.
 #include "tripod_core/registration.hpp"
 
-#include <omp.h>
-
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 #include <Eigen/SVD>
 #include <cmath>
 #include <limits>
+#include <memory>
 #include <stdexcept>
 
 #include "tripod_core/registration_internal.hpp"
+#include "tripod_core/registration_voxels.hpp"
 
 namespace tripod {
 
 using detail::Mat6;
 using detail::Normal;
 using detail::Vec6;
+using detail::Kernel;
+using detail::Problem;
 using detail::skew;
 
 namespace {
-int threads(int n) { return n > 0 ? n : omp_get_max_threads(); }
-
-/// Robust kernel: weight rho'(s) and cost rho(s) of a whitened squared residual s.
-struct Kernel {
-    Loss loss;
-    double c2;  // squared scale, whitened
-    void operator()(double s, double& w, double& rho) const {
-        switch (loss) {
-            case Loss::kNone:
-                w = 1;
-                rho = s;
-                return;
-            case Loss::kHuber:
-                if (s <= c2) {
-                    w = 1;
-                    rho = s;
-                } else {
-                    const double r = std::sqrt(s), c = std::sqrt(c2);
-                    w = c / r;
-                    rho = 2 * c * r - c2;
-                }
-                return;
-            case Loss::kCauchy:
-                w = 1 / (1 + s / c2);
-                rho = c2 * std::log1p(s / c2);
-                return;
-            case Loss::kTukey:
-                if (s < c2) {
-                    const double u = 1 - s / c2;
-                    w = u * u;
-                    rho = c2 / 3 * (1 - u * u * u);
-                } else {
-                    w = 0;
-                    rho = c2 / 3;
-                }
-                return;
-        }
-    }
-};
-
 /// Locked components of (wx, wy, wz, vx, vy, vz).
 std::array<bool, 6> locked(const RegistrationOptions& opt) {
     std::array<bool, 6> l{};
@@ -130,7 +92,13 @@ void validate(const PreparedCloud& src, const PreparedCloud& tgt, const Eigen::M
         if (opt.rotation_prior_sigma < 0)
             throw std::invalid_argument("rotation_prior_sigma must be >= 0 (0 = fixed)");
     }
-    const bool needs_normals = opt.method != Method::kPointToPoint;
+    if (opt.max_source < 0) throw std::invalid_argument("max_source must be >= 0 (0 = all)");
+    if (opt.min_correspondences < 0)
+        throw std::invalid_argument("min_correspondences must be >= 0");
+    if (!(opt.min_normal_cos >= -1 && opt.min_normal_cos <= 1))
+        throw std::invalid_argument("min_normal_cos must be in [-1, 1]");
+    const bool needs_normals = opt.method == Method::kPointToPlane ||
+                               opt.method == Method::kSymmetric || opt.method == Method::kLM;
     if (needs_normals) {
         int64_t ok = 0;
         for (uint8_t v : tgt.normal_valid) ok += v;
@@ -144,6 +112,7 @@ void validate(const PreparedCloud& src, const PreparedCloud& tgt, const Eigen::M
 Eigen::Isometry3d kabsch(const PreparedCloud& src, const PreparedCloud& tgt,
                          const Eigen::Isometry3d& T, const std::vector<int>& corr,
                          const Kernel& kernel, double inv_s2) {
+    // corr is -1 for every source row outside the problem's active rows
     double wsum = 0;
     Eigen::Vector3d mp = Eigen::Vector3d::Zero(), mq = Eigen::Vector3d::Zero();
     std::vector<double> w(corr.size(), 0.0);
@@ -175,154 +144,144 @@ Eigen::Isometry3d kabsch(const PreparedCloud& src, const PreparedCloud& tgt,
     dT.translation() = mq - dT.linear() * mp;
     return dT * T;
 }
+/// Smallest / largest eigenvalue of the free block of H, rotations scaled by the RMS extent of
+/// the source about its centroid (so that both are in metres).
+double condition_number(const PreparedCloud& src, const Mat6& H, const std::array<bool, 6>& lock) {
+    double extent = 0;
+    const Eigen::Vector3d c = src.points.cast<double>().colwise().mean().transpose();
+    for (int64_t i = 0; i < src.points.rows(); ++i)
+        extent += (src.points.row(i).transpose().cast<double>() - c).squaredNorm();
+    extent = std::sqrt(extent / std::max<int64_t>(1, src.points.rows()));
+    std::vector<int> freeidx;
+    for (int k = 0; k < 6; ++k)
+        if (!lock[k]) freeidx.push_back(k);
+    if (freeidx.empty()) return 1;
+    Eigen::MatrixXd Hs(freeidx.size(), freeidx.size());
+    for (size_t a = 0; a < freeidx.size(); ++a)
+        for (size_t b = 0; b < freeidx.size(); ++b) {
+            const double sa = freeidx[a] < 3 ? 1.0 / std::max(extent, 1e-9) : 1.0;
+            const double sb = freeidx[b] < 3 ? 1.0 / std::max(extent, 1e-9) : 1.0;
+            Hs(a, b) = H(freeidx[a], freeidx[b]) * sa * sb;
+        }
+    Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> es(Hs, Eigen::EigenvaluesOnly);
+    const double hi = es.eigenvalues().maxCoeff(), lo = es.eigenvalues().minCoeff();
+    return hi > 0 ? std::max(lo, 0.0) / hi : 0;
+}
+
+/// lm: Levenberg-Marquardt iterations per set of correspondences at most (Ceres' 10 before).
+constexpr int kLmInner = 10;
+
+/// One damped Gauss-Newton step from T on the normal equations `nl` (prior and locks added
+/// here): Marquardt damping, accepted only when the cost (same pairs) decreases, as small_gicp's
+/// LM optimiser does; T itself when no damping up to 1e6 decreases it.
+Eigen::Isometry3d damped_step(const Problem& P, const Eigen::Isometry3d& T, Normal nl,
+                              std::vector<int>& corr, std::vector<Eigen::Matrix3d>& mahalanobis,
+                              double& lambda) {
+    const RegistrationOptions& opt = P.opt;
+    const double err = nl.error + add_prior(opt, T.linear(), &nl.H, &nl.b);
+    const auto lock = locked(opt);
+    for (int k = 0; k < 6; ++k)
+        if (lock[k]) {
+            nl.H.row(k).setZero();
+            nl.H.col(k).setZero();
+            nl.H(k, k) = 1;
+            nl.b[k] = 0;
+        }
+    for (int inner = 0; inner < 10; ++inner) {
+        Mat6 Hd = nl.H;
+        // Marquardt scaling, plus a floor so that directions the geometry does not constrain
+        // (a plane, a corridor) stay put instead of drifting
+        Hd.diagonal() += lambda * nl.H.diagonal() +
+                         Vec6::Constant(1e-9 * nl.H.diagonal().maxCoeff() + 1e-12);
+        const Vec6 delta = Hd.ldlt().solve(-nl.b);
+        if (!delta.allFinite()) {
+            lambda *= 10;
+            continue;
+        }
+        const Eigen::Isometry3d cand = apply(T, delta);
+        const Normal ev = detail::linearize(P, cand, corr, false, -1, &mahalanobis);
+        const double e_new = ev.error + add_prior(opt, cand.linear(), nullptr, nullptr);
+        if (e_new <= err) {
+            lambda = std::max(lambda / 10, 1e-10);
+            return cand;
+        }
+        lambda *= 10;
+    }
+    return T;
+}
+
+/// Iterate one stage (correspondence distance d) from T. Returns false when too few pairs
+/// were left; `converged` tells whether the stage's step test passed.
+bool run_stage(Problem& P, double d, Eigen::Isometry3d& T, std::vector<int>& corr,
+               RegistrationResult& res, bool& converged) {
+    const RegistrationOptions& opt = P.opt;
+    const bool closed_form = opt.method == Method::kPointToPoint && !opt.has_rotation_prior &&
+                             !opt.lock_z;
+    const int64_t need = std::max<int64_t>(min_points(opt.method), opt.min_correspondences);
+    const double inv_s2 = 1.0 / (opt.point_sigma * opt.point_sigma);
+    const Kernel kernel{opt.loss, std::pow(opt.loss_scale / opt.point_sigma, 2)};
+    // VGICP: the target's Gaussian voxels at this stage's scale
+    std::unique_ptr<detail::GaussianVoxels> voxels;
+    if (opt.method == Method::kVGICP) {
+        voxels = std::make_unique<detail::GaussianVoxels>(P.tgt, d);
+        P.voxels = voxels.get();
+        corr.clear();  // voxel indices of another stage are no hints
+    }
+    std::vector<Eigen::Matrix3d> mahalanobis;  // GICP weights of the current pairs
+    double lambda = 1e-4;
+    detail::StepTest test(opt);
+    converged = false;
+    for (int it = 0; it < opt.max_iterations; ++it) {
+        ++res.iterations;
+        Eigen::Isometry3d T_new;
+        if (closed_form) {
+            detail::associate(P, T, d * d, corr);
+            int64_t m = 0;
+            for (int c : corr) m += c >= 0;
+            if (m < need) return false;
+            T_new = kabsch(P.src, P.tgt, T, corr, kernel, inv_s2);
+        } else {
+            Normal nl = detail::linearize(P, T, corr, true, d * d, &mahalanobis);
+            if (nl.count < need) return false;
+            T_new = damped_step(P, T, std::move(nl), corr, mahalanobis, lambda);
+            // lm: the non-linear problem of these pairs solved to convergence before the
+            // next association (one damped step per association for the others)
+            for (int inner = 1; opt.method == Method::kLM && inner < kLmInner; ++inner) {
+                Eigen::Isometry3d T_prev = T_new;
+                T_new = damped_step(P, T_prev, detail::linearize(P, T_prev, corr, true), corr,
+                                    mahalanobis, lambda);
+                detail::StepTest inner_test(opt);
+                if (inner_test.step(T_prev, T_new)) break;
+            }
+        }
+        if (test.step(T, T_new)) {
+            converged = true;
+            break;
+        }
+    }
+    P.voxels = nullptr;
+    if (opt.method == Method::kVGICP) corr.clear();
+    return true;
+}
+
 }  // namespace
 
 namespace detail {
 
-/// Point-to-plane family: pairs whose normals differ by more than 60 deg are ignored.
-constexpr double kMinNormalCos = 0.5;
-
-void associate(const PreparedCloud& src, const PreparedCloud& tgt, const Eigen::Isometry3d& T,
-               double max_sq_dist, std::vector<int>& corr, int num_threads) {
-    const int64_t n = src.points.rows();
-    if (corr.size() != static_cast<size_t>(n)) corr.assign(n, -1);  // else: warm-start hints
-    const Eigen::Matrix3f R = T.linear().cast<float>();
-    const Eigen::Vector3f t = T.translation().cast<float>();
-#pragma omp parallel for num_threads(threads(num_threads)) schedule(dynamic, 512)
-    for (int64_t i = 0; i < n; ++i) {
-        const Eigen::Vector3f p = R * src.points.row(i).transpose() + t;
-        float d;
-        corr[i] = tgt.tree->nearest_from(p.data(), static_cast<float>(max_sq_dist), corr[i], &d);
-    }
-}
-
-Normal linearize(Method method, const PreparedCloud& src, const PreparedCloud& tgt,
-                 const Eigen::Isometry3d& T, std::vector<int>& corr,
-                 const RegistrationOptions& opt, bool with_jacobian, int num_threads,
-                 double associate_sq_dist, std::vector<Eigen::Matrix3d>* mahalanobis) {
-    const bool find = associate_sq_dist > 0;
-    // the previous iteration's matches (if any) warm-start the nearest-neighbour searches
-    if (find && corr.size() != static_cast<size_t>(src.points.rows()))
-        corr.assign(src.points.rows(), -1);
-    const bool store_M = mahalanobis && with_jacobian && method == Method::kGICP;
-    const bool reuse_M = mahalanobis && !with_jacobian && method == Method::kGICP &&
-                         mahalanobis->size() == static_cast<size_t>(src.points.rows());
-    if (store_M) mahalanobis->resize(src.points.rows());
-    const Eigen::Matrix3f Rf = T.linear().cast<float>();
-    const Eigen::Vector3f tf = T.translation().cast<float>();
-    const int nt = threads(num_threads);
-    const double inv_s2 = 1.0 / (opt.point_sigma * opt.point_sigma);
-    const Kernel kernel{opt.loss, std::pow(opt.loss_scale / opt.point_sigma, 2)};
-    const Eigen::Matrix3d R = T.linear();
-    const Eigen::Vector3d t = T.translation();
-    const int64_t n = src.points.rows();
-    // Fixed chunks handed out dynamically (a descheduled thread on a busy machine does not hold
-    // the others up), each with its own partial sum, added in chunk order afterwards: the result
-    // is bit-identical whatever the thread count.
-    constexpr int64_t kChunk = 512;
-    const int64_t num_chunks = (n + kChunk - 1) / kChunk;
-    std::vector<Normal> parts(num_chunks);
-#pragma omp parallel for num_threads(nt) schedule(dynamic, 1)
-    for (int64_t chunk = 0; chunk < num_chunks; ++chunk) {
-        Normal acc;
-        const int64_t end = std::min(n, (chunk + 1) * kChunk);
-        for (int64_t i = chunk * kChunk; i < end; ++i) {
-            if (find) {
-                const Eigen::Vector3f pf = Rf * src.points.row(i).transpose() + tf;
-                float d2;
-                corr[i] = tgt.tree->nearest_from(pf.data(), static_cast<float>(associate_sq_dist),
-                                                 corr[i], &d2);
-            }
-            const int j = corr[i];
-            if (j < 0) continue;
-            const Eigen::Vector3d Rp = R * src.points.row(i).transpose().cast<double>();
-            const Eigen::Vector3d q = tgt.points.row(j).transpose().cast<double>();
-            const Eigen::Vector3d e = q - (Rp + t);
-            Eigen::Matrix<double, 3, 6> J;
-            if (with_jacobian) {
-                J.leftCols<3>() = skew(Rp);
-                J.rightCols<3>() = -Eigen::Matrix3d::Identity();
-            }
-            double w = 0, rho = 0;
-            switch (method) {
-                case Method::kGICP: {
-                    Eigen::Matrix3d M;
-                    if (reuse_M) {
-                        M = (*mahalanobis)[i];
-                    } else {
-                        const Eigen::Matrix3d C =
-                            tgt.covariances[j] + R * src.covariances[i] * R.transpose();
-                        M = C.inverse();
-                        if (store_M) (*mahalanobis)[i] = M;
-                    }
-                    const Eigen::Vector3d Me = M * e;
-                    kernel(e.dot(Me), w, rho);
-                    if (with_jacobian) {
-                        const Eigen::Matrix<double, 6, 3> JtM = J.transpose() * M;
-                        acc.H.noalias() += w * JtM * J;
-                        acc.b.noalias() += w * J.transpose() * Me;
-                    }
-                    break;
-                }
-                case Method::kPointToPoint: {
-                    kernel(e.squaredNorm() * inv_s2, w, rho);
-                    if (with_jacobian) {
-                        acc.H.noalias() += (w * inv_s2) * J.transpose() * J;
-                        acc.b.noalias() += (w * inv_s2) * J.transpose() * e;
-                    }
-                    break;
-                }
-                default: {  // point-to-plane family (plane, symmetric, Ceres' model)
-                    if (!tgt.normal_valid[j]) continue;
-                    Eigen::Vector3d nrm = tgt.normals.row(j).transpose();
-                    if (src.normal_valid[i]) {
-                        Eigen::Vector3d ns = R * src.normals.row(i).transpose();
-                        if (ns.dot(nrm) < 0) ns = -ns;  // seen from the other side
-                        // normal compatibility: a pair on different surfaces (a wall point
-                        // matched to the floor near a corner) pulls the wrong way: drop it
-                        if (ns.dot(nrm) < kMinNormalCos) continue;
-                        if (method == Method::kSymmetric) nrm = (nrm + ns).normalized();
-                    } else if (method == Method::kSymmetric) {
-                        continue;
-                    }
-                    const double s = nrm.dot(e);
-                    kernel(s * s * inv_s2, w, rho);
-                    if (with_jacobian) {
-                        const Eigen::Matrix<double, 1, 6> Jn = nrm.transpose() * J;
-                        acc.H.noalias() += (w * inv_s2) * Jn.transpose() * Jn;
-                        acc.b.noalias() += (w * inv_s2 * s) * Jn.transpose();
-                    }
-                    break;
-                }
-            }
-            acc.error += rho;
-            acc.count += 1;
-            acc.sq_dist += e.squaredNorm();
-        }
-        parts[chunk] = acc;
-    }
-    Normal out;
-    for (const Normal& p : parts) {
-        out.H += p.H;
-        out.b += p.b;
-        out.error += p.error;
-        out.count += p.count;
-        out.sq_dist += p.sq_dist;
-    }
-    return out;
-}
-
-void finish_result(const PreparedCloud& src, const PreparedCloud& tgt, Method residual_model,
-                   const RegistrationOptions& opt, RegistrationResult& res, int num_threads,
-                   std::vector<int> corr) {
+void finish_result(const Problem& P, RegistrationResult& res, std::vector<int> corr) {
+    const PreparedCloud& src = P.src;
+    const PreparedCloud& tgt = P.tgt;
+    const RegistrationOptions& opt = P.opt;
     const Eigen::Isometry3d T(res.T_target_source);
     const double d = opt.max_correspondence_distances.back();
-    Normal nl = linearize(residual_model, src, tgt, T, corr, opt, true, num_threads, d * d);
+    Normal nl = linearize(P, T, corr, true, d * d);
     res.final_error = nl.error + add_prior(opt, T.linear(), &nl.H, &nl.b);
-    // Fitness and RMSE as Open3D defines them (all correspondences within the distance).
+    res.residual_rmse = nl.count ? std::sqrt(nl.sq_res / nl.count) : 0;
+    // Fitness and RMSE as Open3D defines them (all correspondences within the distance), over
+    // the source points taking part.
     int64_t inl = 0;
     double sq = 0;
-    for (size_t i = 0; i < corr.size(); ++i) {
+    for (int64_t i : P.rows) {
         if (corr[i] < 0) continue;
         const Eigen::Vector3d e = tgt.points.row(corr[i]).transpose().cast<double>() -
                                   T * src.points.row(i).transpose().cast<double>();
@@ -330,7 +289,7 @@ void finish_result(const PreparedCloud& src, const PreparedCloud& tgt, Method re
         ++inl;
     }
     res.num_inliers = inl;
-    res.fitness = src.points.rows() ? static_cast<double>(inl) / src.points.rows() : 0;
+    res.fitness = P.rows.empty() ? 0 : static_cast<double>(inl) / P.rows.size();
     res.inlier_rmse = inl ? std::sqrt(sq / inl) : 0;
     // Information in the right-perturbation tangent T exp(xi), xi = (w, v) in the source frame:
     // the left update (w_L, v_L) = (R w, R v) to first order, so H_R = A^T H_L A.
@@ -348,30 +307,10 @@ void finish_result(const PreparedCloud& src, const PreparedCloud& tgt, Method re
     // Conditioning of the free components, rotations scaled by the source's extent to metres.
     // Judged on the surfaces (point-to-plane information) whatever the method: point-to-point
     // and GICP also "see" in-plane sample positions, which do not constrain a real surface.
-    Normal geo = linearize(Method::kPointToPlane, src, tgt, T, corr, opt, true, num_threads);
+    Problem plane(src, tgt, opt, Method::kPointToPlane, P.num_threads);
+    Normal geo = linearize(plane, T, corr, true);
     if (geo.count > 0) nl.H = geo.H;
-    double extent = 0;
-    const Eigen::Vector3d c = src.points.cast<double>().colwise().mean().transpose();
-    for (int64_t i = 0; i < src.points.rows(); ++i)
-        extent += (src.points.row(i).transpose().cast<double>() - c).squaredNorm();
-    extent = std::sqrt(extent / std::max<int64_t>(1, src.points.rows()));
-    std::vector<int> freeidx;
-    for (int k = 0; k < 6; ++k)
-        if (!lock[k]) freeidx.push_back(k);
-    Eigen::MatrixXd Hs(freeidx.size(), freeidx.size());
-    for (size_t a = 0; a < freeidx.size(); ++a)
-        for (size_t b = 0; b < freeidx.size(); ++b) {
-            const double sa = freeidx[a] < 3 ? 1.0 / std::max(extent, 1e-9) : 1.0;
-            const double sb = freeidx[b] < 3 ? 1.0 / std::max(extent, 1e-9) : 1.0;
-            Hs(a, b) = nl.H(freeidx[a], freeidx[b]) * sa * sb;
-        }
-    if (Hs.size() == 0) {
-        res.condition = 1;
-    } else {
-        Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> es(Hs, Eigen::EigenvaluesOnly);
-        const double hi = es.eigenvalues().maxCoeff(), lo = es.eigenvalues().minCoeff();
-        res.condition = hi > 0 ? std::max(lo, 0.0) / hi : 0;
-    }
+    res.condition = condition_number(src, nl.H, lock);
 }
 
 }  // namespace detail
@@ -409,96 +348,30 @@ std::shared_ptr<PreparedCloud> prepare_cloud(const PointsXYZ& points, const Neig
 RegistrationResult register_local(const PreparedCloud& src, const PreparedCloud& tgt,
                                   const Eigen::Matrix4d& T_init, const RegistrationOptions& opt) {
     validate(src, tgt, T_init, opt);
-    const int nt = threads(opt.num_threads);
     RegistrationResult res;
     Eigen::Isometry3d T(T_init);
     if (opt.has_rotation_prior && !(opt.rotation_prior_sigma > 0)) T.linear() = opt.R_prior;
-    const auto lock = locked(opt);
-    const double inv_s2 = 1.0 / (opt.point_sigma * opt.point_sigma);
-    const Kernel kernel{opt.loss, std::pow(opt.loss_scale / opt.point_sigma, 2)};
-    const bool closed_form = opt.method == Method::kPointToPoint && !opt.has_rotation_prior &&
-                             !opt.lock_z;
-    const int need = min_points(opt.method);
-
+    Problem P(src, tgt, opt, opt.method, opt.num_threads);
     std::vector<int> corr;
-    if (opt.method == Method::kCeresLM) {
-        detail::register_ceres(src, tgt, T, opt, res, nt);
-    } else {
-        std::vector<Eigen::Matrix3d> mahalanobis;  // GICP weights of the current pairs
-        bool ok = true;
-        res.status = "max_iterations";
-        for (size_t stage = 0; stage < opt.max_correspondence_distances.size() && ok; ++stage) {
-            const double d = opt.max_correspondence_distances[stage];
-            double lambda = 1e-4;
-            bool stage_converged = false;
-            for (int it = 0; it < opt.max_iterations; ++it) {
-                ++res.iterations;
-                Eigen::Isometry3d T_new;
-                Normal nl;
-                int64_t m = 0;
-                if (closed_form) {
-                    detail::associate(src, tgt, T, d * d, corr, nt);
-                    for (int c : corr) m += c >= 0;
-                } else {
-                    nl = detail::linearize(opt.method, src, tgt, T, corr, opt, true, nt, d * d,
-                                           &mahalanobis);
-                    m = nl.count;
-                }
-                if (m < need) {
-                    res.status = "too_few_correspondences";
-                    ok = false;
-                    break;
-                }
-                if (closed_form) {
-                    T_new = kabsch(src, tgt, T, corr, kernel, inv_s2);
-                } else {
-                    const double err = nl.error + add_prior(opt, T.linear(), &nl.H, &nl.b);
-                    for (int k = 0; k < 6; ++k)
-                        if (lock[k]) {
-                            nl.H.row(k).setZero();
-                            nl.H.col(k).setZero();
-                            nl.H(k, k) = 1;
-                            nl.b[k] = 0;
-                        }
-                    // Marquardt damping, accepted only when the cost (same pairs) decreases
-                    T_new = T;
-                    for (int inner = 0; inner < 10; ++inner) {
-                        Mat6 Hd = nl.H;
-                        // Marquardt scaling, plus a floor so that directions the geometry
-                        // does not constrain (a plane, a corridor) stay put instead of drifting
-                        Hd.diagonal() += lambda * nl.H.diagonal() +
-                                         Vec6::Constant(1e-9 * nl.H.diagonal().maxCoeff() + 1e-12);
-                        const Vec6 delta = Hd.ldlt().solve(-nl.b);
-                        if (!delta.allFinite()) {
-                            lambda *= 10;
-                            continue;
-                        }
-                        const Eigen::Isometry3d cand = apply(T, delta);
-                        const Normal ev = detail::linearize(opt.method, src, tgt, cand, corr,
-                                                            opt, false, nt, -1, &mahalanobis);
-                        const double e_new = ev.error + add_prior(opt, cand.linear(), nullptr, nullptr);
-                        if (e_new <= err) {
-                            T_new = cand;
-                            lambda = std::max(lambda / 10, 1e-10);
-                            break;
-                        }
-                        lambda *= 10;
-                    }
-                }
-                if (detail::step_and_check(T, T_new, opt)) {
-                    stage_converged = true;
-                    break;
-                }
-            }
-            if (ok && stage + 1 == opt.max_correspondence_distances.size())
-                res.status = stage_converged ? "converged" : "max_iterations";
+    res.status = "max_iterations";
+    const size_t stages = opt.max_correspondence_distances.size();
+    for (size_t stage = 0; stage < stages; ++stage) {
+        bool converged = false;
+        if (!run_stage(P, opt.max_correspondence_distances[stage], T, corr, res, converged)) {
+            res.status = "too_few_correspondences";
+            break;
         }
-        res.converged = res.status == "converged";
+        if (stage + 1 == stages) res.status = converged ? "converged" : "max_iterations";
     }
+    res.converged = res.status == "converged";
     res.T_target_source = T.matrix();
-    // quality and information with the method's own residual model (Ceres: point-to-plane)
-    const Method model = opt.method == Method::kCeresLM ? Method::kPointToPlane : opt.method;
-    detail::finish_result(src, tgt, model, opt, res, nt, std::move(corr));
+    // quality and information with the method's own residual model (lm: point-to-plane;
+    // VGICP: GICP on the points, at the final pose)
+    Method model = opt.method;
+    if (model == Method::kLM) model = Method::kPointToPlane;
+    if (model == Method::kVGICP) model = Method::kGICP;
+    Problem F(src, tgt, opt, model, opt.num_threads);
+    detail::finish_result(F, res, std::move(corr));
     if (res.status != "too_few_correspondences" && res.condition < 1e-4) {
         res.status = "degenerate";
         res.converged = false;

@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: BSD-3-Clause
-// Local registration: point-to-point, point-to-plane, GICP, symmetric ICP (Gauss-Newton with
-// Levenberg damping, OpenMP reductions) and robust non-linear ICP in Ceres, behind one API.
+// Local registration: point-to-point, point-to-plane (optionally over oriented normals), GICP,
+// voxelised GICP, symmetric ICP and robust non-linear point-to-plane ICP ("lm"): one damped
+// Gauss-Newton solver with OpenMP reductions behind one API.
 #pragma once
 
 #include <Eigen/Core>
@@ -40,7 +41,10 @@ enum class Method {
     kPointToPlane,  ///< (n_q . (q - T p))^2
     kGICP,          ///< (q - T p)^T (C_q + R C_p R^T)^-1 (q - T p)
     kSymmetric,     ///< ((n_q + R n_p) . (q - T p))^2 (Rusinkiewicz 2019)
-    kCeresLM,       ///< point-to-plane in Ceres' Levenberg-Marquardt with a robust loss
+    kLM,       ///< point-to-plane, Levenberg-Marquardt to convergence on each set of
+                    ///< correspondences (use a robust loss)
+    kVGICP,         ///< GICP against Gaussian voxels of the target (voxel edge = the stage's
+                    ///< correspondence distance; correspondence = the voxel a point falls in)
 };
 
 /// Robust kernel on the whitened residual (residual / point_sigma), scale `loss_scale` [m].
@@ -61,10 +65,18 @@ struct RegistrationOptions {
     Eigen::Matrix3d R_prior = Eigen::Matrix3d::Identity();  ///< prior R_target_source
     double rotation_prior_sigma = 0; ///< [rad]; 0 = fixed to R_prior
     bool lock_z = false;             ///< keep t_z of the initial guess
+    /// Point-to-plane family: normals of both clouds face their own sensor, so a pair counts
+    /// only when n_source . n_target >= min_normal_cos as they are (a wall's two faces, seen
+    /// from both rooms, never pair). Without it the source normal is flipped first (sign-free).
+    /// Points without a valid normal then take no part.
+    bool oriented = false;
+    double min_normal_cos = 0.5;     ///< point-to-plane family: pairs less aligned are dropped
+    int64_t max_source = 0;          ///< source points used at most (an even stride); 0 = all
+    int64_t min_correspondences = 0; ///< fewer: "too_few_correspondences" (0: the method's minimum)
     int num_threads = 0;             ///< 0 = all
 };
 
-/// Result of register_local().
+/// Result of register_local(). The one information convention of the registration core.
 struct RegistrationResult {
     Eigen::Matrix4d T_target_source = Eigen::Matrix4d::Identity();
     bool converged = false;
@@ -73,6 +85,9 @@ struct RegistrationResult {
     int64_t num_inliers = 0;  ///< source points with a target neighbour within the final distance
     double fitness = 0;       ///< num_inliers / source points
     double inlier_rmse = 0;   ///< RMS point distance of the inliers [m]
+    /// RMS of the method's own unweighted residual over the pairs it used [m]: the point-to-
+    /// plane distance for the plane family, the point distance otherwise
+    double residual_rmse = 0;
     double final_error = 0;   ///< cost at the solution (chi-square)
     /// 6x6 information (inverse covariance) of the pose, order (rx, ry, rz, tx, ty, tz), for a
     /// perturbation T = (exp(w) R, t + v) in the target frame [1/rad^2, 1/m^2]; assumes

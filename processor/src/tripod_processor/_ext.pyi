@@ -34,71 +34,485 @@ def octree_decode(data: bytes, depth: int, n_voxels: int, p0_table: Annotated[ND
     Decode an octree stream to sorted Morton codes (uint64); RuntimeError if corrupt.
     """
 
+class _SphericalGrid:
+    """The quantisation grid of a predictive stream"""
+
+    def __init__(self) -> None: ...
+
+    @property
+    def origin(self) -> list[float]:
+        """sensor origin [m]"""
+
+    @origin.setter
+    def origin(self, arg: Sequence[float], /) -> None: ...
+
+    @property
+    def range_step(self) -> float:
+        """[m]"""
+
+    @range_step.setter
+    def range_step(self, arg: float, /) -> None: ...
+
+    @property
+    def az_count(self) -> int:
+        """azimuth steps per turn"""
+
+    @az_count.setter
+    def az_count(self, arg: int, /) -> None: ...
+
+    @property
+    def el_step(self) -> float:
+        """[rad] (used when el_table is empty)"""
+
+    @el_step.setter
+    def el_step(self, arg: float, /) -> None: ...
+
+    @property
+    def el_table(self) -> list[float]:
+        """sorted elevations [rad], or empty"""
+
+    @el_table.setter
+    def el_table(self, arg: Sequence[float], /) -> None: ...
+
+    @property
+    def row_shift(self) -> int:
+        """without a table: scan row of elevation index e is e >> row_shift"""
+
+    @row_shift.setter
+    def row_shift(self, arg: int, /) -> None: ...
+
+    @property
+    def z_table(self) -> list[float]:
+        """per-laser heights [m] (size of el_table), or empty"""
+
+    @z_table.setter
+    def z_table(self, arg: Sequence[float], /) -> None: ...
+
+    @property
+    def az_predictor(self) -> int:
+        """
+        0: previous azimuth (predictive-sph1); 1: adaptive with the row predictor
+        """
+
+    @az_predictor.setter
+    def az_predictor(self, arg: int, /) -> None: ...
+
+class _PredictiveStats:
+    """What predictive_encode measured"""
+
+    @property
+    def max_error_m(self) -> float:
+        """largest distance of a decoded point from its input point [m]"""
+
+    @property
+    def checksum(self) -> int:
+        """FNV-1a of the quantised points (for the decoder)"""
+
+    @property
+    def part_bits(self) -> tuple[float, float, float]:
+        """estimated bits spent on (elevation, azimuth, range)"""
+
 def spherical_coordinates(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], origin: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C', device='cpu', writable=False)], num_threads: int = 0) -> Annotated[NDArray[numpy.float64], dict(shape=(None, 3))]:
     """
     (N,3) float64 (range [m], azimuth [rad], elevation [rad]) of points about origin.
     """
 
-def predictive_encode(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], origin: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C', device='cpu', writable=False)], range_step: float, az_count: int, el_step: float, el_table: Annotated[NDArray[numpy.float64], dict(shape=(None,), order='C', device='cpu', writable=False)], row_shift: int, z_table: Annotated[NDArray[numpy.float64], dict(shape=(None,), order='C', device='cpu', writable=False)], az_predictor: int, num_threads: int = 0) -> tuple:
+def predictive_encode(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], grid: _SphericalGrid, num_threads: int = 0) -> tuple[bytes, _PredictiveStats]:
     """
-    Code points (N,3) float32 [m] in order on a spherical grid about origin; returns (stream bytes, max point error [m], checksum of the quantised points, estimated bits spent on (elevation, azimuth, range)).
+    Code points (N,3) float32 [m] in order on the grid; returns (stream, stats).
     """
 
-def predictive_decode(data: bytes, n_points: int, origin: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C', device='cpu', writable=False)], range_step: float, az_count: int, el_step: float, el_table: Annotated[NDArray[numpy.float64], dict(shape=(None,), order='C', device='cpu', writable=False)], row_shift: int, z_table: Annotated[NDArray[numpy.float64], dict(shape=(None,), order='C', device='cpu', writable=False)], az_predictor: int, checksum: int, num_threads: int = 0) -> Annotated[NDArray[numpy.float32], dict(shape=(None, 3))]:
+def predictive_decode(data: bytes, n_points: int, grid: _SphericalGrid, checksum: int, num_threads: int = 0) -> Annotated[NDArray[numpy.float32], dict(shape=(None, 3))]:
     """
     Decode n_points (N,3) float32 [m] of a predictive stream; RuntimeError if corrupt.
     """
 
-def _scan_pcap_records(buf: Annotated[NDArray[numpy.uint8], dict(shape=(None,), order='C', device='cpu', writable=False)], big_endian: bool, nanosecond: bool, linktype: int, data_size: int, max_record_bytes: int) -> tuple:
+class _PcapLayout:
+    """Layout of a classic pcap (its header)"""
+
+    def __init__(self) -> None: ...
+
+    @property
+    def big_endian(self) -> bool:
+        """record headers big-endian"""
+
+    @big_endian.setter
+    def big_endian(self, arg: bool, /) -> None: ...
+
+    @property
+    def nanosecond(self) -> bool:
+        """fractions in ns, else us"""
+
+    @nanosecond.setter
+    def nanosecond(self, arg: bool, /) -> None: ...
+
+    @property
+    def linktype(self) -> int: ...
+
+    @linktype.setter
+    def linktype(self, arg: int, /) -> None: ...
+
+class _PcapScan:
+    """What one _scan_pcap_records call found"""
+
+    @property
+    def consumed(self) -> int:
+        """bytes of the whole records scanned"""
+
+    @property
+    def records(self) -> int:
+        """whole records scanned"""
+
+    @property
+    def oversize_bytes(self) -> int:
+        """bytes claimed by the record that stopped the scan as corrupt, or 0"""
+
+    @property
+    def data(self) -> Annotated[NDArray[numpy.uint8], dict(shape=(None, None))]:
+        """(n, data_size) uint8 payloads of plain Ethernet/IPv4/UDP records"""
+
+    @property
+    def data_t_ns(self) -> Annotated[NDArray[numpy.int64], dict(shape=(None,))]:
+        """(n,) int64 capture time [ns]"""
+
+    @property
+    def data_port(self) -> Annotated[NDArray[numpy.uint16], dict(shape=(None,))]:
+        """(n,) uint16 UDP destination port"""
+
+    @property
+    def data_record(self) -> Annotated[NDArray[numpy.int64], dict(shape=(None,))]:
+        """(n,) int64 record index"""
+
+    @property
+    def other(self) -> Annotated[NDArray[numpy.int64], dict(shape=(None, None))]:
+        """
+        (k, 4) int64 [t_ns, payload offset, length, port] of other plain payloads
+        """
+
+    @property
+    def slow(self) -> Annotated[NDArray[numpy.int64], dict(shape=(None, None))]:
+        """
+        (m, 4) int64 [t_ns, frame offset, length, record index] of records to parse in Python
+        """
+
+def _scan_pcap_records(buf: Annotated[NDArray[numpy.uint8], dict(shape=(None,), order='C', device='cpu', writable=False)], layout: _PcapLayout, data_size: int, max_record_bytes: int) -> _PcapScan:
     """
-    Scan whole classic-pcap records at the start of buf (uint8). Returns (consumed bytes, records, oversize record bytes or 0, data (n, data_size) uint8 payloads of plain Ethernet/IPv4/UDP records, data_t_ns (n,) int64, data_port (n,) uint16, data_record (n,) int64 record index, other (k, 4) int64 [t_ns, payload offset, length, port] of other plain payloads, slow (m, 4) int64 [t_ns, frame offset, length, record index] of records to parse in Python).
+    Scan the whole classic-pcap records at the start of buf (uint8) (private: use tripod_processor.io.pcap.PcapReader).
     """
+
+class _Vlp16DecoderConfig:
+    """
+    Filters of the batch decoder (velodyne-decoder's Config for the same purpose)
+    """
+
+    def __init__(self) -> None: ...
+
+    @property
+    def min_range_m(self) -> float:
+        """returns nearer than this are dropped [m]"""
+
+    @min_range_m.setter
+    def min_range_m(self, arg: float, /) -> None: ...
+
+    @property
+    def max_range_m(self) -> float:
+        """returns farther than this are dropped [m]"""
+
+    @max_range_m.setter
+    def max_range_m(self, arg: float, /) -> None: ...
+
+    @property
+    def min_angle_deg(self) -> float:
+        """keep azimuths from here [deg] ..."""
+
+    @min_angle_deg.setter
+    def min_angle_deg(self, arg: float, /) -> None: ...
+
+    @property
+    def max_angle_deg(self) -> float:
+        """... clockwise to here [deg]; across 0 when min > max"""
+
+    @max_angle_deg.setter
+    def max_angle_deg(self, arg: float, /) -> None: ...
+
+class _DecodedChunk:
+    """What one _Vlp16Decoder.decode call gave"""
+
+    @property
+    def points(self) -> Annotated[NDArray[numpy.uint8], dict(shape=(None, None))]:
+        """(M, 20) uint8 = POINT_DTYPE records"""
+
+    @property
+    def time_s(self) -> Annotated[NDArray[numpy.float32], dict(shape=(None,))]:
+        """(M,) float32 velodyne-decoder time since packet 0 [s], or empty"""
+
+    @property
+    def block_first_point(self) -> Annotated[NDArray[numpy.int64], dict(shape=(None,))]:
+        """(N*12+1,) int64 first point of each flat block"""
+
+    @property
+    def status(self) -> Annotated[NDArray[numpy.uint8], dict(shape=(None,))]:
+        """
+        (N,) uint8 per packet: 0 ok, 1 bad block header (the blocks before it kept)
+        """
+
+    @property
+    def time_offset_clipped(self) -> bool: ...
+
+    @property
+    def return_type_after(self) -> int:
+        """pass it as return_type_before of the next chunk"""
 
 class _Vlp16Decoder:
     """
     Batch VLP-16 / Puck Hi-Res decoder equal to velodyne-decoder 3.1 (private: use tripod_processor.decode)
     """
 
-    def __init__(self, corrections: Annotated[NDArray[numpy.float64], dict(shape=(16, 12), order='C', device='cpu', writable=False)], distance_resolution_m: float, rings: Annotated[NDArray[numpy.uint8], dict(shape=(16), order='C', device='cpu', writable=False)], min_range_m: float, max_range_m: float, min_angle_deg: float = 0.0, max_angle_deg: float = 360.0) -> None:
+    def __init__(self, corrections: Annotated[NDArray[numpy.float64], dict(shape=(16, 12), order='C', device='cpu', writable=False)], distance_resolution_m: float, rings: Annotated[NDArray[numpy.uint8], dict(shape=(16), order='C', device='cpu', writable=False)], config: _Vlp16DecoderConfig) -> None:
         """
         corrections: (16, 12) float64, per laser in firing order: rot_correction [rad], vert_correction [rad], dist_correction [m], two_pt_correction_available (0/1), dist_correction_x [m], dist_correction_y [m], vert_offset_correction [m], horiz_offset_correction [m], max_intensity, min_intensity, focal_distance, focal_slope. rings: (16,) uint8 rank of each laser by elevation.
         """
 
-    def decode(self, packets: Annotated[NDArray[numpy.uint8], dict(shape=(None, 1206), order='C', device='cpu', writable=False)], stamps_ns: Annotated[NDArray[numpy.int64], dict(shape=(None,), order='C', device='cpu', writable=False)], seg_first_block: object | None = None, seg_ref_ns: object | None = None, with_time_s: bool = False, num_threads: int = 0, return_type_before: int = 63) -> tuple:
+    def decode(self, packets: Annotated[NDArray[numpy.uint8], dict(shape=(None, 1206), order='C', device='cpu', writable=False)], stamps_ns: Annotated[NDArray[numpy.int64], dict(shape=(None,), order='C', device='cpu', writable=False)], seg_first_block: Annotated[NDArray[numpy.int64], dict(shape=(None,), order='C', device='cpu', writable=False)] | None = None, seg_ref_ns: Annotated[NDArray[numpy.int64], dict(shape=(None,), order='C', device='cpu', writable=False)] | None = None, with_time_s: bool = False, num_threads: int = 0, return_type_before: int = 63) -> _DecodedChunk:
         """
-        Decode (N, 1206) uint8 packets stamped (N,) int64 [ns]. Returns (points (M, 20) uint8 = POINT_DTYPE records, time_s (M,) float32 velodyne-decoder time since packet 0 [s] or empty, block_first_point (N*12+1,) int64, status (N,) uint8: 0 ok, 1 bad block header (the blocks before it kept), time_offset_clipped, return_type_after (pass it as return_type_before of the next chunk)).
+        Decode (N, 1206) uint8 packets stamped (N,) int64 [ns]; segments (frames) of the chunk: their first flat block (packet * 12 + block) and reference time [ns].
         """
+
+def voxel_local_shape(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], voxel_size: float, radius_voxels: int = 1, num_threads: int = 0) -> Annotated[NDArray[numpy.float32], dict(shape=(None, None))]:
+    """
+    Per-point normal, covariance eigenvalues and neighbour count from voxel moments.
+    points: (N,3) float32 [m]; returns (N,7) float32: nx ny nz l0 l1 l2 count.
+    """
+
+class _VoxelAssignment:
+    """What voxel_assign found"""
+
+    @property
+    def centroids(self) -> Annotated[NDArray[numpy.float32], dict(shape=(None, 3))]:
+        """(M, 3) float32 voxel centroids [m]"""
+
+    @property
+    def point_voxel(self) -> Annotated[NDArray[numpy.int32], dict(shape=(None,))]:
+        """(N,) int32 voxel of each point (-1 for non-finite points)"""
+
+    @property
+    def counts(self) -> Annotated[NDArray[numpy.int32], dict(shape=(None,))]:
+        """(M,) int32 points per voxel"""
+
+def voxel_assign(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], voxel_size: float, num_threads: int = 0) -> _VoxelAssignment:
+    """Group points (N,3) float32 [m] by voxel."""
+
+class _ColumnContextOptions:
+    """Settings of column_context"""
+
+    def __init__(self) -> None: ...
+
+    @property
+    def cell_size(self) -> float:
+        """side of a grid cell [m]"""
+
+    @cell_size.setter
+    def cell_size(self, arg: float, /) -> None: ...
+
+    @property
+    def z_low(self) -> float:
+        """occupancy band: points between z_low and z_high [m]"""
+
+    @z_low.setter
+    def z_low(self, arg: float, /) -> None: ...
+
+    @property
+    def z_high(self) -> float: ...
+
+    @z_high.setter
+    def z_high(self, arg: float, /) -> None: ...
+
+    @property
+    def num_directions(self) -> int:
+        """horizontal rays per occupied cell"""
+
+    @num_directions.setter
+    def num_directions(self, arg: int, /) -> None: ...
+
+    @property
+    def skip(self) -> float:
+        """rays start this far from their cell [m]"""
+
+    @skip.setter
+    def skip(self, arg: float, /) -> None: ...
+
+    @property
+    def max_range(self) -> float:
+        """a ray that leaves this far without a hit is open [m]"""
+
+    @max_range.setter
+    def max_range(self, arg: float, /) -> None: ...
+
+    @property
+    def num_threads(self) -> int:
+        """0 = all cores"""
+
+    @num_threads.setter
+    def num_threads(self, arg: int, /) -> None: ...
+
+def column_context(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], upright: Annotated[NDArray[numpy.uint8], dict(shape=(None,), order='C', device='cpu', writable=False)], options: _ColumnContextOptions) -> Annotated[NDArray[numpy.float32], dict(shape=(None, None))]:
+    """
+    Horizontal context per point of a z-up scan. points: (N,3) float32 [m]; upright: (N,)
+    uint8 flags of the points that count for column heights; returns (N,5) float32: open
+    fraction, mean free distance [m], column z-min [m], column z-max [m], log1p(count).
+    """
 
 def place_points(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], t_ns: Annotated[NDArray[numpy.int64], dict(shape=(None,), order='C', writable=False)], imu_t_ns: Annotated[NDArray[numpy.int64], dict(shape=(None,), order='C', writable=False)], imu_q_wxyz: Annotated[NDArray[numpy.float64], dict(shape=(None, 4), order='C', writable=False)], R_imu_lidar: Annotated[NDArray[numpy.float64], dict(shape=(3, 3), order='C', writable=False)], lever_arm: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C', writable=False)], anchor_ns: int, num_threads: int = 0) -> Annotated[NDArray[numpy.float32], dict(shape=(None, 3))]:
     """
     De-skew points into the lidar frame at anchor_ns (private: see tripod_processor.reconstruction.placement.place_points).
     """
 
-def optimize_pose_graph(T_world_node: Annotated[NDArray[numpy.float64], dict(shape=(None, 4, 4), order='C', device='cpu', writable=False)], edge_nodes: Annotated[NDArray[numpy.int64], dict(shape=(None, 2), order='C', device='cpu', writable=False)], T_from_to: Annotated[NDArray[numpy.float64], dict(shape=(None, 4, 4), order='C', device='cpu', writable=False)], information: Annotated[NDArray[numpy.float64], dict(shape=(None, 6, 6), order='C', device='cpu', writable=False)], is_loop: Annotated[NDArray[numpy.bool_], dict(shape=(None,), order='C', device='cpu', writable=False)], gravity_nodes: Annotated[NDArray[numpy.int64], dict(shape=(None,), order='C', device='cpu', writable=False)], gravity_up: Annotated[NDArray[numpy.float64], dict(shape=(None, 3), order='C', device='cpu', writable=False)], gravity_sigma: Annotated[NDArray[numpy.float64], dict(shape=(None,), order='C', device='cpu', writable=False)], loss: str, loss_scale: float, robust_odometry: bool, max_iterations: int, num_threads: int, fixed_node: int, outlier_chi2: float, max_rejection_rounds: int, reject_odometry: bool) -> dict:
+class _PoseGraphOptions:
+    """Settings of optimize_pose_graph"""
+
+    def __init__(self) -> None: ...
+
+    @property
+    def loss(self) -> str:
+        """none, huber, cauchy or soft_l1 (loop edges)"""
+
+    @loss.setter
+    def loss(self, arg: str, /) -> None: ...
+
+    @property
+    def loss_scale(self) -> float:
+        """robust kernel scale [sigmas]"""
+
+    @loss_scale.setter
+    def loss_scale(self, arg: float, /) -> None: ...
+
+    @property
+    def robust_odometry(self) -> bool:
+        """odometry edges robust too"""
+
+    @robust_odometry.setter
+    def robust_odometry(self, arg: bool, /) -> None: ...
+
+    @property
+    def max_iterations(self) -> int: ...
+
+    @max_iterations.setter
+    def max_iterations(self, arg: int, /) -> None: ...
+
+    @property
+    def num_threads(self) -> int:
+        """0 = all cores"""
+
+    @num_threads.setter
+    def num_threads(self, arg: int, /) -> None: ...
+
+    @property
+    def fixed_node(self) -> int:
+        """node held constant (-1: none)"""
+
+    @fixed_node.setter
+    def fixed_node(self, arg: int, /) -> None: ...
+
+    @property
+    def outlier_chi2(self) -> float:
+        """reject loop edges above this chi2"""
+
+    @outlier_chi2.setter
+    def outlier_chi2(self, arg: float, /) -> None: ...
+
+    @property
+    def max_rejection_rounds(self) -> int: ...
+
+    @max_rejection_rounds.setter
+    def max_rejection_rounds(self, arg: int, /) -> None: ...
+
+    @property
+    def reject_odometry(self) -> bool:
+        """odometry edges rejectable when the graph stays connected"""
+
+    @reject_odometry.setter
+    def reject_odometry(self, arg: bool, /) -> None: ...
+
+class _PoseGraphResult:
+    """What optimize_pose_graph found"""
+
+    @property
+    def T_world_node(self) -> Annotated[NDArray[numpy.float64], dict(shape=(None, 4, 4))]:
+        """(n, 4, 4) float64 optimised poses"""
+
+    @property
+    def edge_chi2(self) -> Annotated[NDArray[numpy.float64], dict(shape=(None,))]:
+        """(m,) float64 whitened squared error of each edge"""
+
+    @property
+    def edge_inlier(self) -> Annotated[NDArray[numpy.uint8], dict(shape=(None,))]:
+        """(m,) uint8: 0 for rejected edges"""
+
+    @property
+    def initial_cost(self) -> float: ...
+
+    @property
+    def final_cost(self) -> float: ...
+
+    @property
+    def iterations(self) -> int:
+        """summed over all solves"""
+
+    @property
+    def rejected(self) -> int:
+        """rejected edges"""
+
+    @property
+    def converged(self) -> bool: ...
+
+    @property
+    def message(self) -> str:
+        """Ceres' termination message of the last solve"""
+
+def optimize_pose_graph(T_world_node: Annotated[NDArray[numpy.float64], dict(shape=(None, 4, 4), order='C', device='cpu', writable=False)], edge_nodes: Annotated[NDArray[numpy.int64], dict(shape=(None, 2), order='C', device='cpu', writable=False)], T_from_to: Annotated[NDArray[numpy.float64], dict(shape=(None, 4, 4), order='C', device='cpu', writable=False)], information: Annotated[NDArray[numpy.float64], dict(shape=(None, 6, 6), order='C', device='cpu', writable=False)], is_loop: Annotated[NDArray[numpy.bool_], dict(shape=(None,), order='C', device='cpu', writable=False)], gravity_nodes: Annotated[NDArray[numpy.int64], dict(shape=(None,), order='C', device='cpu', writable=False)], gravity_up: Annotated[NDArray[numpy.float64], dict(shape=(None, 3), order='C', device='cpu', writable=False)], gravity_sigma: Annotated[NDArray[numpy.float64], dict(shape=(None,), order='C', device='cpu', writable=False)], options: _PoseGraphOptions) -> _PoseGraphResult:
     """
-    Pose-graph optimisation in Ceres (private: use tripod_processor.pose_graph).
+    Pose-graph optimisation in Ceres (private: use tripod_processor.registration.pose_graph).
     """
+
+class _Normals:
+    """What estimate_normals found"""
+
+    @property
+    def normals(self) -> Annotated[NDArray[numpy.float64], dict(shape=(None, 3))]:
+        """(N, 3) float64 unit normals towards the viewpoint"""
+
+    @property
+    def covariances(self) -> Annotated[NDArray[numpy.float64], dict(shape=(None, 9))]:
+        """(N, 9) float64 row-major 3x3 [m^2]"""
+
+    @property
+    def curvature(self) -> Annotated[NDArray[numpy.float64], dict(shape=(None,))]:
+        """(N,) float64 lambda_min / sum (0 = flat)"""
+
+    @property
+    def valid(self) -> Annotated[NDArray[numpy.bool_], dict(shape=(None,))]:
+        """(N,) bool: >= 3 non-collinear neighbours"""
 
 def voxel_downsample(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], voxel_size: float, num_threads: int = 0, align_min_bound: bool = False) -> Annotated[NDArray[numpy.float32], dict(shape=(None, 3))]:
     """
     Voxel-grid downsampling with centroids. points: (N,3) float32 [m]; returns (M,3).
     """
 
-def estimate_normals(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], k_neighbors: int, radius: float, viewpoint: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C')], num_threads: int) -> tuple:
+def estimate_normals(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], k_neighbors: int, radius: float, viewpoint: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C')], num_threads: int) -> _Normals:
     """
-    PCA normals: (normals (N,3), covariances (N,9), curvature (N,), valid (N,)).
+    PCA normals of points (N,3) float32 [m] over k neighbours within radius [m].
     """
 
-def statistical_outlier_removal(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], k_neighbors: int, std_ratio: float, num_threads: int) -> Annotated[NDArray[numpy.int64], dict(shape=(None,), order='C')]:
+def statistical_outlier_removal(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], k_neighbors: int, std_ratio: float, num_threads: int) -> Annotated[NDArray[numpy.int64], dict(shape=(None,))]:
     """Indices of the kept rows."""
 
 def mls_smooth(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], radius: float, num_threads: int, fit_voxel: float = 0.0) -> Annotated[NDArray[numpy.float32], dict(shape=(None, 3))]:
     """MLS-smoothed points (N,3)."""
 
-def normal_space_sampling(normals: Annotated[NDArray[numpy.float64], dict(shape=(None, 3), order='C')], num_samples: int, bins_per_axis: int, seed: int) -> Annotated[NDArray[numpy.int64], dict(shape=(None,), order='C')]:
+def normal_space_sampling(normals: Annotated[NDArray[numpy.float64], dict(shape=(None, 3), order='C')], num_samples: int, bins_per_axis: int, seed: int) -> Annotated[NDArray[numpy.int64], dict(shape=(None,))]:
     """Sorted sample indices."""
 
-def compute_fpfh(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], normals: Annotated[NDArray[numpy.float64], dict(shape=(None, 3), order='C')], radius: float, max_neighbors: int, num_threads: int) -> Annotated[NDArray[numpy.float32], dict(shape=(None, 33), order='C')]:
+def compute_fpfh(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], normals: Annotated[NDArray[numpy.float64], dict(shape=(None, 3), order='C')], radius: float, max_neighbors: int, num_threads: int) -> Annotated[NDArray[numpy.float32], dict(shape=(None, 33))]:
     """FPFH descriptors (N,33) float32."""
 
 class _PreparedCloud:
@@ -124,36 +538,265 @@ def prepare_cloud(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3)
     Finite points + k-d tree + normals + GICP covariances (see registration.prepare).
     """
 
-def register_local(source: _PreparedCloud, target: _PreparedCloud, T_init: Annotated[NDArray[numpy.float64], dict(shape=(4, 4), order='F')], method: str, max_correspondence_distances: Sequence[float], max_iterations: int, rotation_eps: float, translation_eps: float, point_sigma: float, loss: str, loss_scale: float, R_prior: Annotated[NDArray[numpy.float64], dict(shape=(3, 3), order='F')] | None, rotation_prior_sigma: float, lock_z: bool, num_threads: int) -> dict:
-    """
-    Local registration of prepared clouds; returns a dict (see registration.register).
-    """
+class _RegistrationOptions:
+    def __init__(self) -> None: ...
 
-def oriented_point_to_plane(source: _PreparedCloud, target: _PreparedCloud, T_init: Annotated[NDArray[numpy.float64], dict(shape=(4, 4), order='F')], max_distance: float, iterations: int, point_sigma: float, min_normal_dot: float, max_source: int, num_threads: int) -> dict:
-    """
-    Point-to-plane ICP over oriented normals (see reconstruction.odometry.oriented_refine).
-    """
+    @property
+    def method(self) -> str: ...
 
-def register_global(source: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], target: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], normal_radius: float, feature_radius: float, max_neighbors: int, inlier_distance: float, edge_length_ratio: float, mutual_filter: bool, max_iterations: int, confidence: float, up_source: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C')], up_target: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C')], viewpoint_source: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C')], viewpoint_target: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C')], R_prior: Annotated[NDArray[numpy.float64], dict(shape=(3, 3), order='F')] | None, rotation_tolerance: float, seed: int, num_threads: int) -> dict:
-    """
-    FPFH + RANSAC global registration; returns a dict (see registration.register_global).
-    """
+    @method.setter
+    def method(self, arg: str, /) -> None: ...
 
-def voxel_local_shape(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], voxel_size: float, radius_voxels: int = 1, num_threads: int = 0) -> Annotated[NDArray[numpy.float32], dict(shape=(None, None))]:
-    """
-    Per-point normal, covariance eigenvalues and neighbour count from voxel moments.
-    points: (N,3) float32 [m]; returns (N,7) float32: nx ny nz l0 l1 l2 count.
-    """
+    @property
+    def max_correspondence_distances(self) -> list[float]: ...
 
-def voxel_assign(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], voxel_size: float, num_threads: int = 0) -> tuple:
-    """
-    Group points by voxel. points: (N,3) float32 [m]; returns (centroids (M,3) float32,
-    point_voxel (N,) int32 (-1 for non-finite points), counts (M,) int32).
-    """
+    @max_correspondence_distances.setter
+    def max_correspondence_distances(self, arg: Sequence[float], /) -> None: ...
 
-def column_context(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], upright: Annotated[NDArray[numpy.uint8], dict(shape=(None,), order='C', device='cpu', writable=False)], cell_size: float, z_low: float, z_high: float, num_directions: int = 16, skip: float = 0.25, max_range: float = 8.0, num_threads: int = 0) -> Annotated[NDArray[numpy.float32], dict(shape=(None, None))]:
-    """
-    Horizontal context per point of a z-up scan. points: (N,3) float32 [m]; upright: (N,)
-    uint8 flags of the points that count for column heights; returns (N,5) float32: open
-    fraction, mean free distance [m], column z-min [m], column z-max [m], log1p(count).
-    """
+    @property
+    def max_iterations(self) -> int: ...
+
+    @max_iterations.setter
+    def max_iterations(self, arg: int, /) -> None: ...
+
+    @property
+    def rotation_eps(self) -> float: ...
+
+    @rotation_eps.setter
+    def rotation_eps(self, arg: float, /) -> None: ...
+
+    @property
+    def translation_eps(self) -> float: ...
+
+    @translation_eps.setter
+    def translation_eps(self, arg: float, /) -> None: ...
+
+    @property
+    def point_sigma(self) -> float: ...
+
+    @point_sigma.setter
+    def point_sigma(self, arg: float, /) -> None: ...
+
+    @property
+    def loss(self) -> str: ...
+
+    @loss.setter
+    def loss(self, arg: str, /) -> None: ...
+
+    @property
+    def loss_scale(self) -> float: ...
+
+    @loss_scale.setter
+    def loss_scale(self, arg: float, /) -> None: ...
+
+    @property
+    def R_prior(self) -> Annotated[NDArray[numpy.float64], dict(shape=(3, 3), order='F')] | None: ...
+
+    @R_prior.setter
+    def R_prior(self, R: Annotated[NDArray[numpy.float64], dict(shape=(3, 3), order='F')] | None) -> None: ...
+
+    @property
+    def rotation_prior_sigma(self) -> float: ...
+
+    @rotation_prior_sigma.setter
+    def rotation_prior_sigma(self, arg: float, /) -> None: ...
+
+    @property
+    def lock_z(self) -> bool: ...
+
+    @lock_z.setter
+    def lock_z(self, arg: bool, /) -> None: ...
+
+    @property
+    def oriented(self) -> bool: ...
+
+    @oriented.setter
+    def oriented(self, arg: bool, /) -> None: ...
+
+    @property
+    def min_normal_cos(self) -> float: ...
+
+    @min_normal_cos.setter
+    def min_normal_cos(self, arg: float, /) -> None: ...
+
+    @property
+    def max_source(self) -> int: ...
+
+    @max_source.setter
+    def max_source(self, arg: int, /) -> None: ...
+
+    @property
+    def min_correspondences(self) -> int: ...
+
+    @min_correspondences.setter
+    def min_correspondences(self, arg: int, /) -> None: ...
+
+    @property
+    def num_threads(self) -> int: ...
+
+    @num_threads.setter
+    def num_threads(self, arg: int, /) -> None: ...
+
+class _RegistrationResult:
+    @property
+    def T_target_source(self) -> Annotated[NDArray[numpy.float64], dict(shape=(4, 4), order='F')]: ...
+
+    @property
+    def converged(self) -> bool: ...
+
+    @property
+    def status(self) -> str: ...
+
+    @property
+    def iterations(self) -> int: ...
+
+    @property
+    def num_inliers(self) -> int: ...
+
+    @property
+    def fitness(self) -> float: ...
+
+    @property
+    def inlier_rmse(self) -> float: ...
+
+    @property
+    def residual_rmse(self) -> float: ...
+
+    @property
+    def final_error(self) -> float: ...
+
+    @property
+    def information(self) -> Annotated[NDArray[numpy.float64], dict(shape=(6, 6), order='F')]: ...
+
+    @property
+    def condition(self) -> float: ...
+
+def register_local(source: _PreparedCloud, target: _PreparedCloud, T_init: Annotated[NDArray[numpy.float64], dict(shape=(4, 4), order='F')], options: _RegistrationOptions) -> _RegistrationResult:
+    """Local registration of prepared clouds (see registration.register)."""
+
+class _GlobalOptions:
+    def __init__(self) -> None: ...
+
+    @property
+    def normal_radius(self) -> float: ...
+
+    @normal_radius.setter
+    def normal_radius(self, arg: float, /) -> None: ...
+
+    @property
+    def feature_radius(self) -> float: ...
+
+    @feature_radius.setter
+    def feature_radius(self, arg: float, /) -> None: ...
+
+    @property
+    def max_neighbors(self) -> int: ...
+
+    @max_neighbors.setter
+    def max_neighbors(self, arg: int, /) -> None: ...
+
+    @property
+    def inlier_distance(self) -> float: ...
+
+    @inlier_distance.setter
+    def inlier_distance(self, arg: float, /) -> None: ...
+
+    @property
+    def edge_length_ratio(self) -> float: ...
+
+    @edge_length_ratio.setter
+    def edge_length_ratio(self, arg: float, /) -> None: ...
+
+    @property
+    def mutual_filter(self) -> bool: ...
+
+    @mutual_filter.setter
+    def mutual_filter(self, arg: bool, /) -> None: ...
+
+    @property
+    def max_iterations(self) -> int: ...
+
+    @max_iterations.setter
+    def max_iterations(self, arg: int, /) -> None: ...
+
+    @property
+    def confidence(self) -> float: ...
+
+    @confidence.setter
+    def confidence(self, arg: float, /) -> None: ...
+
+    @property
+    def up_source(self) -> Annotated[NDArray[numpy.float64], dict(shape=(3), order='C')]: ...
+
+    @up_source.setter
+    def up_source(self, arg: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C')], /) -> None: ...
+
+    @property
+    def up_target(self) -> Annotated[NDArray[numpy.float64], dict(shape=(3), order='C')]: ...
+
+    @up_target.setter
+    def up_target(self, arg: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C')], /) -> None: ...
+
+    @property
+    def R_prior(self) -> Annotated[NDArray[numpy.float64], dict(shape=(3, 3), order='F')] | None: ...
+
+    @R_prior.setter
+    def R_prior(self, R: Annotated[NDArray[numpy.float64], dict(shape=(3, 3), order='F')] | None) -> None: ...
+
+    @property
+    def rotation_tolerance(self) -> float: ...
+
+    @rotation_tolerance.setter
+    def rotation_tolerance(self, arg: float, /) -> None: ...
+
+    @property
+    def viewpoint_source(self) -> Annotated[NDArray[numpy.float64], dict(shape=(3), order='C')]: ...
+
+    @viewpoint_source.setter
+    def viewpoint_source(self, arg: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C')], /) -> None: ...
+
+    @property
+    def viewpoint_target(self) -> Annotated[NDArray[numpy.float64], dict(shape=(3), order='C')]: ...
+
+    @viewpoint_target.setter
+    def viewpoint_target(self, arg: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C')], /) -> None: ...
+
+    @property
+    def seed(self) -> int: ...
+
+    @seed.setter
+    def seed(self, arg: int, /) -> None: ...
+
+    @property
+    def num_threads(self) -> int: ...
+
+    @num_threads.setter
+    def num_threads(self, arg: int, /) -> None: ...
+
+class _GlobalResult:
+    @property
+    def T_target_source(self) -> Annotated[NDArray[numpy.float64], dict(shape=(4, 4), order='F')]: ...
+
+    @property
+    def success(self) -> bool: ...
+
+    @property
+    def status(self) -> str: ...
+
+    @property
+    def num_correspondences(self) -> int: ...
+
+    @property
+    def num_inlier_correspondences(self) -> int: ...
+
+    @property
+    def iterations(self) -> int: ...
+
+    @property
+    def fitness(self) -> float: ...
+
+    @property
+    def inlier_rmse(self) -> float: ...
+
+def register_global(source: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], target: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], options: _GlobalOptions) -> _GlobalResult:
+    """FPFH + RANSAC global registration (see registration.register_global)."""

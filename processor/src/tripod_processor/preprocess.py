@@ -83,10 +83,10 @@ def estimate_normals(
     pts = _finite_cloud(points)
     if num_neighbors < 1 and not radius > 0:
         raise ValueError("num_neighbors must be >= 1 (or give a radius)")
-    n, c, k, v = _ext.estimate_normals(pts, int(num_neighbors), float(radius),
-                                       np.asarray(viewpoint, dtype=np.float64).reshape(3),
-                                       int(num_threads))
-    return n, c.reshape(-1, 3, 3), k, v
+    g = _ext.estimate_normals(pts, int(num_neighbors), float(radius),
+                              np.asarray(viewpoint, dtype=np.float64).reshape(3),
+                              int(num_threads))
+    return g.normals, g.covariances.reshape(-1, 3, 3), g.curvature, g.valid
 
 
 def statistical_outlier_removal(
@@ -229,7 +229,8 @@ def voxel_assign(points, voxel_size: float, num_threads: int = 0):
     centroids (M, 3) float32 [m], point_voxel (N,) int32 (-1 for non-finite points),
     counts (M,) int32.
     """
-    return _ext.voxel_assign(as_cloud(points), float(voxel_size), int(num_threads))
+    v = _ext.voxel_assign(as_cloud(points), float(voxel_size), int(num_threads))
+    return v.centroids, v.point_voxel, v.counts
 
 
 def point_normals(points, voxel_size: float = 0.05, num_threads: int = 0) -> np.ndarray:
@@ -243,3 +244,72 @@ def _finite_cloud(points) -> np.ndarray:
         raise ValueError("points contain NaN or inf: drop them first (e.g. "
                          "points[np.isfinite(points).all(axis=1)])")
     return pts
+
+
+# ---- per-voxel attributes (numpy): the same lattice as ``voxel_downsample(align="origin")`` ----
+_KEY_BITS = 21  # per axis: |index| < 2^20 voxels (20 km at 2 cm)
+
+
+def voxel_keys(points, voxel_size: float) -> np.ndarray:
+    """(N,) int64 key of each point's voxel on the origin lattice (index = floor(p / size)),
+    the lattice of :func:`voxel_downsample`; a centroid it returns has its voxel's key (but for
+    float rounding on a voxel face)."""
+    idx = np.floor(np.asarray(points, dtype=np.float64)[:, :3] / voxel_size).astype(np.int64)
+    idx += 1 << (_KEY_BITS - 1)
+    np.clip(idx, 0, (1 << _KEY_BITS) - 1, out=idx)
+    return (idx[:, 0] << (2 * _KEY_BITS)) | (idx[:, 1] << _KEY_BITS) | idx[:, 2]
+
+
+def voxel_sums(keys: np.ndarray, values: np.ndarray, counts: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sum and count of the finite ``values`` (N,) per voxel key: (sorted unique keys (M,),
+    sums (M,) float64, counts (M,) int64). ``counts`` (N,): each entry stands for that many
+    points (to merge partial sums: pass the sums as ``values``)."""
+    v = np.asarray(values, dtype=np.float64)
+    c = np.ones(len(v), np.int64) if counts is None else np.asarray(counts, dtype=np.int64)
+    ok = np.isfinite(v)
+    if not ok.all():
+        keys, v, c = keys[ok], v[ok], c[ok]
+    if len(keys) == 0:
+        return np.zeros(0, np.int64), np.zeros(0), np.zeros(0, np.int64)
+    order = np.argsort(keys)
+    ks = keys[order]
+    start = np.flatnonzero(np.concatenate(([True], ks[1:] != ks[:-1])))
+    return ks[start], np.add.reduceat(v[order], start), np.add.reduceat(c[order], start)
+
+
+def voxel_mean(keys: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean of the finite ``values`` (N,) per voxel key: (sorted unique keys (M,), means (M,)
+    float32); a voxel with no finite value is absent."""
+    uk, s, c = voxel_sums(keys, values)
+    return uk, (s / np.maximum(c, 1)).astype(np.float32)
+
+
+def voxel_majority(keys: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The most frequent integer value per voxel key (ties: the smallest value): (sorted unique
+    keys (M,), values (M,) int64)."""
+    vals = np.asarray(values, dtype=np.int64)
+    order = np.lexsort((vals, keys))
+    k, v = keys[order], vals[order]
+    new_run = np.ones(len(k), bool)
+    new_run[1:] = (k[1:] != k[:-1]) | (v[1:] != v[:-1])
+    starts = np.flatnonzero(new_run)
+    run_len = np.diff(np.append(starts, len(k)))
+    rk, rv = k[starts], v[starts]
+    # per key, the longest run first (stable: the smallest value among equal lengths)
+    best = np.lexsort((-run_len, rk))
+    rk, rv = rk[best], rv[best]
+    first = np.ones(len(rk), bool)
+    first[1:] = rk[1:] != rk[:-1]
+    return rk[first], rv[first]
+
+
+def lookup_keys(table_keys: np.ndarray, table_values: np.ndarray, keys: np.ndarray,
+                missing) -> np.ndarray:
+    """``table_values`` at ``keys`` in the sorted ``table_keys``; ``missing`` where absent."""
+    if len(table_keys) == 0:
+        return np.full(len(keys), missing, dtype=np.asarray(table_values).dtype)
+    i = np.searchsorted(table_keys, keys)
+    i = np.minimum(i, len(table_keys) - 1)
+    hit = table_keys[i] == keys
+    return np.where(hit, np.asarray(table_values)[i], missing)

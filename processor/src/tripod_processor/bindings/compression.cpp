@@ -1,7 +1,15 @@
 // SPDX-License-Identifier: BSD-3-Clause
-// Bindings: octree geometry codec (tripod_processor.compression). Conversions and docstrings only.
+// Bindings: the geometry codecs, octree (tripod_core/octree_codec.hpp) and predictive scan
+// coding (tripod_core/predictive_codec.hpp). Conversions and docstrings only. Python owners:
+// tripod_processor.compression.codec (octree) and .predictive.
+#include <nanobind/stl/array.h>
+#include <nanobind/stl/tuple.h>
+#include <nanobind/stl/vector.h>
+
+#include <array>
 #include <stdexcept>
 #include <string>
+#include <tuple>
 
 #include "common.hpp"
 #include "tripod_core/octree_codec.hpp"
@@ -15,33 +23,8 @@ using CodesIn = nb::ndarray<const uint64_t, nb::ndim<1>, nb::c_contig, nb::devic
 using TableIn = nb::ndarray<const uint16_t, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
 using OriginIn = nb::ndarray<const double, nb::shape<3>, nb::c_contig, nb::device::cpu>;
 
-/// Move a std::vector into a 1-D numpy array owned by a capsule (no copy).
-template <class T>
-nb::ndarray<nb::numpy, T, nb::ndim<1>> vector_to_numpy(std::vector<T>&& v) {
-    auto* heap = new std::vector<T>(std::move(v));
-    nb::capsule owner(heap, [](void* p) noexcept { delete static_cast<std::vector<T>*>(p); });
-    return nb::ndarray<nb::numpy, T, nb::ndim<1>>(heap->data(), {heap->size()}, owner);
-}
-
 std::vector<uint64_t> to_codes(const CodesIn& a) {
     return std::vector<uint64_t>(a.data(), a.data() + a.shape(0));
-}
-
-using TableF64In = nb::ndarray<const double, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
-
-tripod::SphericalGrid make_grid(OriginIn origin, double range_step, int64_t az_count,
-                                double el_step, TableF64In el_table, int row_shift,
-                                TableF64In z_table, int az_predictor) {
-    tripod::SphericalGrid g;
-    for (int i = 0; i < 3; ++i) g.origin[i] = origin(i);
-    g.range_step = range_step;
-    g.az_count = az_count;
-    g.el_step = el_step;
-    g.el_table.assign(el_table.data(), el_table.data() + el_table.shape(0));
-    g.row_shift = row_shift;
-    g.z_table.assign(z_table.data(), z_table.data() + z_table.shape(0));
-    g.az_predictor = az_predictor;
-    return g;
 }
 
 const uint16_t* check_table(const TableIn& t) {
@@ -50,9 +33,12 @@ const uint16_t* check_table(const TableIn& t) {
                                     std::to_string(tripod::kOctreeContextBits) + " entries");
     return t.data();
 }
-}  // namespace
 
-TRIPOD_BINDING(compression) {
+nb::bytes as_bytes(const std::vector<uint8_t>& v) {
+    return nb::bytes(reinterpret_cast<const char*>(v.data()), v.size());
+}
+
+void bind_octree(nb::module_& m) {
     m.attr("OCTREE_CONTEXT_BITS") = tripod::kOctreeContextBits;
     m.attr("OCTREE_MAX_DEPTH") = tripod::kOctreeMaxDepth;
 
@@ -66,7 +52,7 @@ TRIPOD_BINDING(compression) {
                 nb::gil_scoped_release release;
                 codes = tripod::voxelize_morton(in, o, voxel_size, depth, num_threads);
             }
-            return vector_to_numpy(std::move(codes));
+            return owned_array(std::move(codes));
         },
         nb::arg("points"), nb::arg("origin"), nb::arg("voxel_size"), nb::arg("depth"),
         nb::arg("num_threads") = 0,
@@ -98,7 +84,7 @@ TRIPOD_BINDING(compression) {
                 nb::gil_scoped_release release;
                 tripod::octree_contexts(c, depth, ctx, bits);
             }
-            return nb::make_tuple(vector_to_numpy(std::move(ctx)), vector_to_numpy(std::move(bits)));
+            return nb::make_tuple(owned_array(std::move(ctx)), owned_array(std::move(bits)));
         },
         nb::arg("codes"), nb::arg("depth"),
         "(contexts uint32, bits uint8) of every coded occupancy bit, in coding order.");
@@ -113,7 +99,7 @@ TRIPOD_BINDING(compression) {
                 nb::gil_scoped_release release;
                 out = tripod::octree_encode(c, depth, table, adapt_shift, adapt_prior);
             }
-            return nb::bytes(reinterpret_cast<const char*>(out.data()), out.size());
+            return as_bytes(out);
         },
         nb::arg("codes"), nb::arg("depth"), nb::arg("p0_table"), nb::arg("adapt_shift"),
         nb::arg("adapt_prior") = 0,
@@ -132,11 +118,42 @@ TRIPOD_BINDING(compression) {
                 codes = tripod::octree_decode(in.data(), in.size(), depth, n_voxels, table,
                                               adapt_shift, adapt_prior);
             }
-            return vector_to_numpy(std::move(codes));
+            return owned_array(std::move(codes));
         },
         nb::arg("data"), nb::arg("depth"), nb::arg("n_voxels"), nb::arg("p0_table"),
         nb::arg("adapt_shift"), nb::arg("adapt_prior") = 0,
         "Decode an octree stream to sorted Morton codes (uint64); RuntimeError if corrupt.");
+}
+
+void bind_predictive(nb::module_& m) {
+    using Grid = tripod::SphericalGrid;
+    nb::class_<Grid>(m, "_SphericalGrid", "The quantisation grid of a predictive stream")
+        .def(nb::init<>())
+        .def_prop_rw(
+            "origin", [](const Grid& g) { return std::array<double, 3>{g.origin[0], g.origin[1],
+                                                                        g.origin[2]}; },
+            [](Grid& g, const std::array<double, 3>& o) { std::copy(o.begin(), o.end(), g.origin); },
+            "sensor origin [m]")
+        .def_rw("range_step", &Grid::range_step, "[m]")
+        .def_rw("az_count", &Grid::az_count, "azimuth steps per turn")
+        .def_rw("el_step", &Grid::el_step, "[rad] (used when el_table is empty)")
+        .def_rw("el_table", &Grid::el_table, "sorted elevations [rad], or empty")
+        .def_rw("row_shift", &Grid::row_shift,
+                "without a table: scan row of elevation index e is e >> row_shift")
+        .def_rw("z_table", &Grid::z_table, "per-laser heights [m] (size of el_table), or empty")
+        .def_rw("az_predictor", &Grid::az_predictor,
+                "0: previous azimuth (predictive-sph1); 1: adaptive with the row predictor");
+
+    using Stats = tripod::PredictiveStats;
+    nb::class_<Stats>(m, "_PredictiveStats", "What predictive_encode measured")
+        .def_ro("max_error_m", &Stats::max_error_m,
+                "largest distance of a decoded point from its input point [m]")
+        .def_ro("checksum", &Stats::checksum, "FNV-1a of the quantised points (for the decoder)")
+        .def_prop_ro(
+            "part_bits",
+            [](const Stats& s) { return std::make_tuple(s.part_bits[0], s.part_bits[1],
+                                                        s.part_bits[2]); },
+            "estimated bits spent on (elevation, azimuth, range)");
 
     m.def(
         "spherical_coordinates",
@@ -149,50 +166,30 @@ TRIPOD_BINDING(compression) {
                 sph = tripod::cartesian_to_spherical(in, o, num_threads);
             }
             const size_t n = sph.size() / 3;
-            auto* heap = new std::vector<double>(std::move(sph));
-            nb::capsule owner(heap, [](void* p) noexcept {
-                delete static_cast<std::vector<double>*>(p);
-            });
-            return nb::ndarray<nb::numpy, double, nb::shape<-1, 3>>(heap->data(), {n, 3}, owner);
+            return owned_array<nb::shape<-1, 3>>(std::move(sph), {n, 3});
         },
         nb::arg("points"), nb::arg("origin"), nb::arg("num_threads") = 0,
         "(N,3) float64 (range [m], azimuth [rad], elevation [rad]) of points about origin.");
 
     m.def(
         "predictive_encode",
-        [](CloudIn points, OriginIn origin, double range_step, int64_t az_count, double el_step,
-           TableF64In el_table, int row_shift, TableF64In z_table, int az_predictor,
-           int num_threads) {
+        [](CloudIn points, const Grid& grid, int num_threads) {
             tripod::PointsXYZ in = to_eigen(points);
-            const tripod::SphericalGrid grid =
-                make_grid(origin, range_step, az_count, el_step, el_table, row_shift, z_table,
-                          az_predictor);
-            tripod::PredictiveStats stats;
+            Stats stats;
             std::vector<uint8_t> out;
             {
                 nb::gil_scoped_release release;
                 out = tripod::predictive_encode(in, grid, &stats, num_threads);
             }
-            return nb::make_tuple(nb::bytes(reinterpret_cast<const char*>(out.data()), out.size()),
-                                  stats.max_error_m, stats.checksum,
-                                  nb::make_tuple(stats.part_bits[0], stats.part_bits[1],
-                                                 stats.part_bits[2]));
+            return std::make_tuple(as_bytes(out), stats);
         },
-        nb::arg("points"), nb::arg("origin"), nb::arg("range_step"), nb::arg("az_count"),
-        nb::arg("el_step"), nb::arg("el_table"), nb::arg("row_shift"), nb::arg("z_table"),
-        nb::arg("az_predictor"), nb::arg("num_threads") = 0,
-        "Code points (N,3) float32 [m] in order on a spherical grid about origin; returns "
-        "(stream bytes, max point error [m], checksum of the quantised points, estimated bits "
-        "spent on (elevation, azimuth, range)).");
+        nb::arg("points"), nb::arg("grid"), nb::arg("num_threads") = 0,
+        "Code points (N,3) float32 [m] in order on the grid; returns (stream, stats).");
 
     m.def(
         "predictive_decode",
-        [](nb::bytes data, uint64_t n_points, OriginIn origin, double range_step,
-           int64_t az_count, double el_step, TableF64In el_table, int row_shift,
-           TableF64In z_table, int az_predictor, uint32_t checksum, int num_threads) {
-            const tripod::SphericalGrid grid =
-                make_grid(origin, range_step, az_count, el_step, el_table, row_shift, z_table,
-                          az_predictor);
+        [](nb::bytes data, uint64_t n_points, const Grid& grid, uint32_t checksum,
+           int num_threads) {
             std::vector<uint8_t> in(static_cast<const uint8_t*>(data.data()),
                                     static_cast<const uint8_t*>(data.data()) + data.size());
             tripod::PointsXYZ out;
@@ -203,9 +200,13 @@ TRIPOD_BINDING(compression) {
             }
             return to_numpy(std::move(out));
         },
-        nb::arg("data"), nb::arg("n_points"), nb::arg("origin"), nb::arg("range_step"),
-        nb::arg("az_count"), nb::arg("el_step"), nb::arg("el_table"), nb::arg("row_shift"),
-        nb::arg("z_table"), nb::arg("az_predictor"), nb::arg("checksum"),
+        nb::arg("data"), nb::arg("n_points"), nb::arg("grid"), nb::arg("checksum"),
         nb::arg("num_threads") = 0,
         "Decode n_points (N,3) float32 [m] of a predictive stream; RuntimeError if corrupt.");
+}
+}  // namespace
+
+TRIPOD_BINDING(compression) {
+    bind_octree(m);
+    bind_predictive(m);
 }

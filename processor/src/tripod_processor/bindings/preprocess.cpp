@@ -1,5 +1,7 @@
 // SPDX-License-Identifier: BSD-3-Clause
-// Bindings: preprocessing (voxel grid, ...). Conversions and docstrings only.
+// Bindings: preprocessing (voxel grid: tripod_core/voxel_grid.hpp; normals, outliers, sampling,
+// FPFH: tripod_core/features.hpp). Conversions and docstrings only. Python owner:
+// tripod_processor.preprocess.
 #include <nanobind/eigen/dense.h>
 
 #include "common.hpp"
@@ -11,12 +13,27 @@ using namespace tripod_bind;
 using nb::literals::operator""_a;
 
 namespace {
-Eigen::Matrix<int64_t, Eigen::Dynamic, 1> as_index(const std::vector<int64_t>& v) {
-    return Eigen::Map<const Eigen::Matrix<int64_t, Eigen::Dynamic, 1>>(v.data(), v.size());
+/// Local geometry of every point, as numpy arrays (the result class of estimate_normals).
+struct Normals {
+    nb::ndarray<nb::numpy, double, nb::shape<-1, 3>> normals;
+    nb::ndarray<nb::numpy, double, nb::shape<-1, 9>> covariances;
+    nb::ndarray<nb::numpy, double, nb::ndim<1>> curvature;
+    nb::ndarray<nb::numpy, bool, nb::ndim<1>> valid;
+};
+
+/// (N, 33) float32 FPFH rows, moved to numpy.
+nb::ndarray<nb::numpy, float, nb::shape<-1, 33>> fpfh_to_numpy(tripod::MatrixX33f&& f) {
+    const size_t n = static_cast<size_t>(f.rows());
+    return owned_array<nb::shape<-1, 33>>(std::move(f), {n, 33});
 }
 }  // namespace
 
 TRIPOD_BINDING(preprocess) {
+    nb::class_<Normals>(m, "_Normals", "What estimate_normals found")
+        .def_ro("normals", &Normals::normals, "(N, 3) float64 unit normals towards the viewpoint", nb::rv_policy::reference)
+        .def_ro("covariances", &Normals::covariances, "(N, 9) float64 row-major 3x3 [m^2]", nb::rv_policy::reference)
+        .def_ro("curvature", &Normals::curvature, "(N,) float64 lambda_min / sum (0 = flat)", nb::rv_policy::reference)
+        .def_ro("valid", &Normals::valid, "(N,) bool: >= 3 non-collinear neighbours", nb::rv_policy::reference);
     m.def(
         "voxel_downsample",
         [](CloudIn points, double voxel_size, int num_threads, bool align_min_bound) {
@@ -45,12 +62,16 @@ TRIPOD_BINDING(preprocess) {
                 g = tripod::estimate_local_geometry(in, tripod::Neighborhood{k_neighbors, radius},
                                                     viewpoint, num_threads);
             }
-            Eigen::Matrix<bool, Eigen::Dynamic, 1> valid(g.valid.size());
-            for (size_t i = 0; i < g.valid.size(); ++i) valid[i] = g.valid[i] != 0;
-            return nb::make_tuple(g.normals, g.covariances, g.curvature, valid);
+            const size_t n = static_cast<size_t>(g.normals.rows());
+            std::unique_ptr<bool[]> valid(new bool[n ? n : 1]);
+            for (size_t i = 0; i < n; ++i) valid[i] = g.valid[i] != 0;
+            return Normals{owned_array<nb::shape<-1, 3>>(std::move(g.normals), {n, 3}),
+                           owned_array<nb::shape<-1, 9>>(std::move(g.covariances), {n, 9}),
+                           owned_array<nb::ndim<1>>(std::move(g.curvature), {n}),
+                           owned_array<nb::ndim<1>>(std::move(valid), {n})};
         },
         "points"_a, "k_neighbors"_a, "radius"_a, "viewpoint"_a, "num_threads"_a,
-        "PCA normals: (normals (N,3), covariances (N,9), curvature (N,), valid (N,)).");
+        "PCA normals of points (N,3) float32 [m] over k neighbours within radius [m].");
     m.def(
         "statistical_outlier_removal",
         [](CloudIn points, int k_neighbors, double std_ratio, int num_threads) {
@@ -60,7 +81,7 @@ TRIPOD_BINDING(preprocess) {
                 nb::gil_scoped_release release;
                 kept = tripod::statistical_outlier_removal(in, k_neighbors, std_ratio, num_threads);
             }
-            return as_index(kept);
+            return owned_array(std::move(kept));
         },
         "points"_a, "k_neighbors"_a, "std_ratio"_a, "num_threads"_a, "Indices of the kept rows.");
     m.def(
@@ -78,7 +99,7 @@ TRIPOD_BINDING(preprocess) {
     m.def(
         "normal_space_sampling",
         [](const tripod::MatrixX3d& normals, int64_t num_samples, int bins, uint64_t seed) {
-            return as_index(tripod::normal_space_sampling(normals, num_samples, bins, seed));
+            return owned_array(tripod::normal_space_sampling(normals, num_samples, bins, seed));
         },
         "normals"_a, "num_samples"_a, "bins_per_axis"_a, "seed"_a, "Sorted sample indices.");
     m.def(
@@ -91,7 +112,7 @@ TRIPOD_BINDING(preprocess) {
                 nb::gil_scoped_release release;
                 f = tripod::compute_fpfh(in, normals, radius, max_neighbors, num_threads);
             }
-            return f;
+            return fpfh_to_numpy(std::move(f));
         },
         "points"_a, "normals"_a, "radius"_a, "max_neighbors"_a, "num_threads"_a,
         "FPFH descriptors (N,33) float32.");

@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: BSD-3-Clause
-// Bindings: local and global registration. Conversions and docstrings only; the public API with
-// full documentation is tripod_processor.registration.
+// Bindings: local and global registration, their option and result structs as classes.
+// Conversions and docstrings only; the public API with full documentation is
+// tripod_processor.registration.
 #include <nanobind/eigen/dense.h>
 #include <nanobind/stl/optional.h>
 #include <nanobind/stl/shared_ptr.h>
@@ -11,7 +12,6 @@
 
 #include "common.hpp"
 #include "tripod_core/global_registration.hpp"
-#include "tripod_core/oriented_icp.hpp"
 #include "tripod_core/registration.hpp"
 
 namespace nb = nanobind;
@@ -24,8 +24,30 @@ tripod::Method parse_method(const std::string& s) {
     if (s == "plane" || s == "point_to_plane") return tripod::Method::kPointToPlane;
     if (s == "gicp") return tripod::Method::kGICP;
     if (s == "symmetric") return tripod::Method::kSymmetric;
-    if (s == "lm") return tripod::Method::kCeresLM;
-    throw std::invalid_argument("unknown method '" + s + "' (icp, plane, gicp, symmetric, lm)");
+    if (s == "lm") return tripod::Method::kLM;
+    if (s == "vgicp") return tripod::Method::kVGICP;
+    throw std::invalid_argument("unknown method '" + s +
+                                "' (icp, plane, gicp, vgicp, symmetric, lm)");
+}
+std::string method_name(tripod::Method m) {
+    switch (m) {
+        case tripod::Method::kPointToPoint: return "icp";
+        case tripod::Method::kPointToPlane: return "plane";
+        case tripod::Method::kGICP: return "gicp";
+        case tripod::Method::kVGICP: return "vgicp";
+        case tripod::Method::kSymmetric: return "symmetric";
+        case tripod::Method::kLM: return "lm";
+    }
+    return "?";
+}
+std::string loss_name(tripod::Loss l) {
+    switch (l) {
+        case tripod::Loss::kNone: return "none";
+        case tripod::Loss::kHuber: return "huber";
+        case tripod::Loss::kCauchy: return "cauchy";
+        case tripod::Loss::kTukey: return "tukey";
+    }
+    return "?";
 }
 tripod::Loss parse_loss(const std::string& s) {
     if (s == "none") return tripod::Loss::kNone;
@@ -66,127 +88,109 @@ TRIPOD_BINDING(registration) {
         "points"_a, "k_neighbors"_a, "radius"_a, "viewpoint"_a, "point_sigma"_a, "num_threads"_a,
         "Finite points + k-d tree + normals + GICP covariances (see registration.prepare).");
 
+    nb::class_<tripod::RegistrationOptions>(m, "_RegistrationOptions")
+        .def(nb::init<>())
+        .def_prop_rw(
+            "method", [](const tripod::RegistrationOptions& o) { return method_name(o.method); },
+            [](tripod::RegistrationOptions& o, const std::string& s) { o.method = parse_method(s); })
+        .def_rw("max_correspondence_distances",
+                &tripod::RegistrationOptions::max_correspondence_distances)
+        .def_rw("max_iterations", &tripod::RegistrationOptions::max_iterations)
+        .def_rw("rotation_eps", &tripod::RegistrationOptions::rotation_eps)
+        .def_rw("translation_eps", &tripod::RegistrationOptions::translation_eps)
+        .def_rw("point_sigma", &tripod::RegistrationOptions::point_sigma)
+        .def_prop_rw(
+            "loss", [](const tripod::RegistrationOptions& o) { return loss_name(o.loss); },
+            [](tripod::RegistrationOptions& o, const std::string& s) { o.loss = parse_loss(s); })
+        .def_rw("loss_scale", &tripod::RegistrationOptions::loss_scale)
+        .def_prop_rw(
+            "R_prior",
+            [](const tripod::RegistrationOptions& o) {
+                return o.has_rotation_prior ? std::optional<Eigen::Matrix3d>(o.R_prior)
+                                            : std::nullopt;
+            },
+            [](tripod::RegistrationOptions& o, std::optional<Eigen::Matrix3d> R) {
+                o.has_rotation_prior = R.has_value();
+                o.R_prior = R.value_or(Eigen::Matrix3d::Identity());
+            },
+            nb::arg("R").none())
+        .def_rw("rotation_prior_sigma", &tripod::RegistrationOptions::rotation_prior_sigma)
+        .def_rw("lock_z", &tripod::RegistrationOptions::lock_z)
+        .def_rw("oriented", &tripod::RegistrationOptions::oriented)
+        .def_rw("min_normal_cos", &tripod::RegistrationOptions::min_normal_cos)
+        .def_rw("max_source", &tripod::RegistrationOptions::max_source)
+        .def_rw("min_correspondences", &tripod::RegistrationOptions::min_correspondences)
+        .def_rw("num_threads", &tripod::RegistrationOptions::num_threads);
+
+    nb::class_<tripod::RegistrationResult>(m, "_RegistrationResult")
+        .def_ro("T_target_source", &tripod::RegistrationResult::T_target_source)
+        .def_ro("converged", &tripod::RegistrationResult::converged)
+        .def_ro("status", &tripod::RegistrationResult::status)
+        .def_ro("iterations", &tripod::RegistrationResult::iterations)
+        .def_ro("num_inliers", &tripod::RegistrationResult::num_inliers)
+        .def_ro("fitness", &tripod::RegistrationResult::fitness)
+        .def_ro("inlier_rmse", &tripod::RegistrationResult::inlier_rmse)
+        .def_ro("residual_rmse", &tripod::RegistrationResult::residual_rmse)
+        .def_ro("final_error", &tripod::RegistrationResult::final_error)
+        .def_ro("information", &tripod::RegistrationResult::information)
+        .def_ro("condition", &tripod::RegistrationResult::condition);
+
     m.def(
         "register_local",
         [](const tripod::PreparedCloud& source, const tripod::PreparedCloud& target,
-           const Eigen::Matrix4d& T_init, const std::string& method,
-           const std::vector<double>& max_correspondence_distances, int max_iterations,
-           double rotation_eps, double translation_eps, double point_sigma, const std::string& loss,
-           double loss_scale, std::optional<Eigen::Matrix3d> R_prior, double rotation_prior_sigma,
-           bool lock_z, int num_threads) {
-            tripod::RegistrationOptions opt;
-            opt.method = parse_method(method);
-            opt.max_correspondence_distances = max_correspondence_distances;
-            opt.max_iterations = max_iterations;
-            opt.rotation_eps = rotation_eps;
-            opt.translation_eps = translation_eps;
-            opt.point_sigma = point_sigma;
-            opt.loss = parse_loss(loss);
-            opt.loss_scale = loss_scale;
-            opt.has_rotation_prior = R_prior.has_value();
-            if (R_prior) opt.R_prior = *R_prior;
-            opt.rotation_prior_sigma = rotation_prior_sigma;
-            opt.lock_z = lock_z;
-            opt.num_threads = num_threads;
-            tripod::RegistrationResult r;
-            {
-                nb::gil_scoped_release release;
-                r = tripod::register_local(source, target, T_init, opt);
-            }
-            nb::dict d;
-            d["T_target_source"] = r.T_target_source;
-            d["converged"] = r.converged;
-            d["status"] = r.status;
-            d["iterations"] = r.iterations;
-            d["num_inliers"] = r.num_inliers;
-            d["fitness"] = r.fitness;
-            d["inlier_rmse"] = r.inlier_rmse;
-            d["final_error"] = r.final_error;
-            d["information"] = r.information;
-            d["condition"] = r.condition;
-            return d;
+           const Eigen::Matrix4d& T_init, const tripod::RegistrationOptions& opt) {
+            nb::gil_scoped_release release;
+            return tripod::register_local(source, target, T_init, opt);
         },
-        "source"_a, "target"_a, "T_init"_a, "method"_a, "max_correspondence_distances"_a,
-        "max_iterations"_a, "rotation_eps"_a, "translation_eps"_a, "point_sigma"_a, "loss"_a,
-        "loss_scale"_a, "R_prior"_a.none(), "rotation_prior_sigma"_a, "lock_z"_a, "num_threads"_a,
-        "Local registration of prepared clouds; returns a dict (see registration.register).");
+        "source"_a, "target"_a, "T_init"_a, "options"_a,
+        "Local registration of prepared clouds (see registration.register).");
 
-    m.def(
-        "oriented_point_to_plane",
-        [](const tripod::PreparedCloud& source, const tripod::PreparedCloud& target,
-           const Eigen::Matrix4d& T_init, double max_distance, int iterations,
-           double point_sigma, double min_normal_dot, int64_t max_source, int num_threads) {
-            tripod::OrientedIcpOptions opt;
-            opt.max_distance = max_distance;
-            opt.iterations = iterations;
-            opt.point_sigma = point_sigma;
-            opt.min_normal_dot = min_normal_dot;
-            opt.max_source = max_source;
-            opt.num_threads = num_threads;
-            tripod::OrientedIcpResult r;
-            {
-                nb::gil_scoped_release release;
-                r = tripod::oriented_point_to_plane(source, target, T_init, opt);
-            }
-            nb::dict d;
-            d["T_target_source"] = r.T_target_source;
-            d["H"] = r.H;
-            d["fitness"] = r.fitness;
-            d["rmse"] = r.rmse;
-            d["iterations"] = r.iterations;
-            d["linearized"] = r.linearized;
-            return d;
-        },
-        "source"_a, "target"_a, "T_init"_a, "max_distance"_a, "iterations"_a, "point_sigma"_a,
-        "min_normal_dot"_a, "max_source"_a, "num_threads"_a,
-        "Point-to-plane ICP over oriented normals (see reconstruction.odometry.oriented_refine).");
+    nb::class_<tripod::GlobalOptions>(m, "_GlobalOptions")
+        .def(nb::init<>())
+        .def_rw("normal_radius", &tripod::GlobalOptions::normal_radius)
+        .def_rw("feature_radius", &tripod::GlobalOptions::feature_radius)
+        .def_rw("max_neighbors", &tripod::GlobalOptions::max_neighbors)
+        .def_rw("inlier_distance", &tripod::GlobalOptions::inlier_distance)
+        .def_rw("edge_length_ratio", &tripod::GlobalOptions::edge_length_ratio)
+        .def_rw("mutual_filter", &tripod::GlobalOptions::mutual_filter)
+        .def_rw("max_iterations", &tripod::GlobalOptions::max_iterations)
+        .def_rw("confidence", &tripod::GlobalOptions::confidence)
+        .def_rw("up_source", &tripod::GlobalOptions::up_source)
+        .def_rw("up_target", &tripod::GlobalOptions::up_target)
+        .def_prop_rw(
+            "R_prior",
+            [](const tripod::GlobalOptions& o) {
+                return o.has_rotation_prior ? std::optional<Eigen::Matrix3d>(o.R_prior)
+                                            : std::nullopt;
+            },
+            [](tripod::GlobalOptions& o, std::optional<Eigen::Matrix3d> R) {
+                o.has_rotation_prior = R.has_value();
+                o.R_prior = R.value_or(Eigen::Matrix3d::Identity());
+            },
+            nb::arg("R").none())
+        .def_rw("rotation_tolerance", &tripod::GlobalOptions::rotation_tolerance)
+        .def_rw("viewpoint_source", &tripod::GlobalOptions::viewpoint_source)
+        .def_rw("viewpoint_target", &tripod::GlobalOptions::viewpoint_target)
+        .def_rw("seed", &tripod::GlobalOptions::seed)
+        .def_rw("num_threads", &tripod::GlobalOptions::num_threads);
+
+    nb::class_<tripod::GlobalResult>(m, "_GlobalResult")
+        .def_ro("T_target_source", &tripod::GlobalResult::T_target_source)
+        .def_ro("success", &tripod::GlobalResult::success)
+        .def_ro("status", &tripod::GlobalResult::status)
+        .def_ro("num_correspondences", &tripod::GlobalResult::num_correspondences)
+        .def_ro("num_inlier_correspondences", &tripod::GlobalResult::num_inlier_correspondences)
+        .def_ro("iterations", &tripod::GlobalResult::iterations)
+        .def_ro("fitness", &tripod::GlobalResult::fitness)
+        .def_ro("inlier_rmse", &tripod::GlobalResult::inlier_rmse);
 
     m.def(
         "register_global",
-        [](CloudIn source, CloudIn target, double normal_radius, double feature_radius,
-           int max_neighbors, double inlier_distance, double edge_length_ratio, bool mutual_filter,
-           int64_t max_iterations, double confidence, const Eigen::Vector3d& up_source,
-           const Eigen::Vector3d& up_target, const Eigen::Vector3d& viewpoint_source,
-           const Eigen::Vector3d& viewpoint_target, std::optional<Eigen::Matrix3d> R_prior,
-           double rotation_tolerance, uint64_t seed, int num_threads) {
+        [](CloudIn source, CloudIn target, const tripod::GlobalOptions& opt) {
             tripod::PointsXYZ s = to_eigen(source), t = to_eigen(target);
-            tripod::GlobalOptions opt;
-            opt.normal_radius = normal_radius;
-            opt.feature_radius = feature_radius;
-            opt.max_neighbors = max_neighbors;
-            opt.inlier_distance = inlier_distance;
-            opt.edge_length_ratio = edge_length_ratio;
-            opt.mutual_filter = mutual_filter;
-            opt.max_iterations = max_iterations;
-            opt.confidence = confidence;
-            opt.up_source = up_source;
-            opt.up_target = up_target;
-            opt.viewpoint_source = viewpoint_source;
-            opt.viewpoint_target = viewpoint_target;
-            opt.has_rotation_prior = R_prior.has_value();
-            if (R_prior) opt.R_prior = *R_prior;
-            opt.rotation_tolerance = rotation_tolerance;
-            opt.seed = seed;
-            opt.num_threads = num_threads;
-            tripod::GlobalResult r;
-            {
-                nb::gil_scoped_release release;
-                r = tripod::register_global(s, t, opt);
-            }
-            nb::dict d;
-            d["T_target_source"] = r.T_target_source;
-            d["success"] = r.success;
-            d["status"] = r.status;
-            d["num_correspondences"] = r.num_correspondences;
-            d["num_inlier_correspondences"] = r.num_inlier_correspondences;
-            d["iterations"] = r.iterations;
-            d["fitness"] = r.fitness;
-            d["inlier_rmse"] = r.inlier_rmse;
-            return d;
+            nb::gil_scoped_release release;
+            return tripod::register_global(s, t, opt);
         },
-        "source"_a, "target"_a, "normal_radius"_a, "feature_radius"_a, "max_neighbors"_a,
-        "inlier_distance"_a, "edge_length_ratio"_a, "mutual_filter"_a, "max_iterations"_a,
-        "confidence"_a, "up_source"_a, "up_target"_a, "viewpoint_source"_a, "viewpoint_target"_a,
-        "R_prior"_a.none(), "rotation_tolerance"_a, "seed"_a, "num_threads"_a,
-        "FPFH + RANSAC global registration; returns a dict (see registration.register_global).");
+        "source"_a, "target"_a, "options"_a,
+        "FPFH + RANSAC global registration (see registration.register_global).");
 }

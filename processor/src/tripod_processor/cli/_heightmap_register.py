@@ -4,11 +4,10 @@
 from __future__ import annotations
 
 import json
-import sys
 import time
 from pathlib import Path
 
-from ._common import fail
+from ._common import EXIT_FAILED, fail, unit_hint
 
 
 def register_heightmaps_cmd(source: Path, target: Path, output: Path | None, threads: int,
@@ -45,7 +44,7 @@ def register_heightmaps_cmd(source: Path, target: Path, output: Path | None, thr
         output.write_text(text + "\n")
         output.with_name(output.stem + ".options.json").write_text(
             json.dumps({"method": "heightmaps", "threads": threads}, indent=2))
-    if not r.success:
-        print("tripod: warning: heightmap registration did not pass its check (too little verified "
-              "overlap, free space seen through, or an equally good answer elsewhere)",
-              file=sys.stderr)
+    if not r.success:  # exit 1 as for a failed local or global registration
+        fail("heightmap registration did not pass its check (too little verified overlap, free "
+             "space seen through, or an equally good answer elsewhere)" + unit_hint(src, tgt),
+             code=EXIT_FAILED)

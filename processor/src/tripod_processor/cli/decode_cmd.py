@@ -8,6 +8,7 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import NoReturn
 
 import typer
 
@@ -17,32 +18,59 @@ from ._common import console, fail
 FORMATS = ("ply", "pcd")
 
 
-def write_frames(run, outdir: Path | None, fmt: str = "ply", progress: bool = True) -> dict:
-    """Iterate a :class:`~tripod_processor.decode.decoder.DecodeRun`, write each frame to ``outdir``
+FRAME_GLOB = "frame_[0-9][0-9][0-9][0-9][0-9][0-9].*"  # the frames write_frames names
+OWN_FILES = ("summary.json", "decode_config.yaml")
+
+
+def _write_frame(path: Path, frame, sensor: str, fmt: str) -> None:
+    from ..io.clouds import write_pcd, write_ply
+
+    if fmt == "ply":
+        write_ply(path, frame.points, comments=[
+            f"tripod decode frame {frame.index}",
+            f"sensor {sensor}",
+            f"stamp_host_ns {frame.stamp_host_ns}",
+            f"stamp_device_ns {frame.stamp_device_ns}",
+            "frame lidar: x forward, y left, z up [m]; time_offset_ns since "
+            "stamp_device_ns (lidar clock)",
+        ])
+    else:
+        write_pcd(path, frame.points)
+
+
+def clear_old_output(outdir: Path) -> int:
+    """Remove the files an earlier ``tripod decode`` left in ``outdir`` (its frames,
+    summary.json, decode_config.yaml), so the folder describes one run; returns how many
+    frames went. Other files are left alone."""
+    old = [p for p in outdir.glob(FRAME_GLOB) if p.suffix in (".ply", ".pcd")]
+    for p in old:
+        p.unlink()
+    for name in OWN_FILES:
+        (outdir / name).unlink(missing_ok=True)
+    return len(old)
+
+
+def write_frames(run, outdir: Path | None, fmt: str = "ply", progress: bool = True,
+                 on_first_frame=None) -> dict:
+    """Iterate a :class:`~tripod_processor.decode.decoder.DecodeRun`, write each frame to
+    ``outdir``
     (when given) as ``frame_NNNNNN.<fmt>``; return timing figures. Raises the decoder's errors.
+
+    ``on_first_frame()`` is called once the decoder has accepted the input (the sensor is
+    known and a first frame is ready), before anything is written.
     """
     from tqdm import tqdm
-
-    from ..io.clouds import write_pcd, write_ply
 
     bar = tqdm(total=None, unit=" frames", disable=None if progress else True, file=sys.stderr,
                leave=False, desc="decode")
     t0 = time.perf_counter()
     n = 0
     for frame in run:
+        if n == 0 and on_first_frame is not None:
+            on_first_frame()
         if outdir is not None:
-            path = outdir / f"frame_{frame.index:06d}.{fmt}"
-            if fmt == "ply":
-                write_ply(path, frame.points, comments=[
-                    f"tripod decode frame {frame.index}",
-                    f"sensor {run.report.sensor}",
-                    f"stamp_host_ns {frame.stamp_host_ns}",
-                    f"stamp_device_ns {frame.stamp_device_ns}",
-                    "frame lidar: x forward, y left, z up [m]; time_offset_ns since "
-                    "stamp_device_ns (lidar clock)",
-                ])
-            else:
-                write_pcd(path, frame.points)
+            _write_frame(outdir / f"frame_{frame.index:06d}.{fmt}", frame, run.report.sensor,
+                         fmt)
         n += 1
         bar.update(1)
     bar.close()
@@ -106,24 +134,51 @@ def run_decode(input_path: Path, outdir: Path | None, *, summary_only: bool = Fa
         fail(str(exc))
     try:
         run = decode_file(input_path, cfg, set(ports) if ports else None)
-    except FileNotFoundError as exc:
+    except (FileNotFoundError, SourceError) as exc:  # their messages name the input
         fail(str(exc))
-    except SourceError as exc:
-        fail(str(exc))
-    if outdir is not None:
+    if outdir is not None and outdir.exists() and not outdir.is_dir():
+        fail(f"the output {outdir} exists and is not a folder")
+    created = outdir is not None and not outdir.exists()
+    prepared = False
+
+    def prepare_output() -> None:
+        # only once the decoder has accepted the input: a refused input leaves no folder, and
+        # an earlier run's output stays until this one has something to replace it with
+        nonlocal prepared
+        prepared = True
+        if outdir is None:
+            return
         try:
             outdir.mkdir(parents=True, exist_ok=True)
+            removed = clear_old_output(outdir)
         except OSError as exc:
-            fail(f"cannot create the output folder {outdir}: {exc.strerror}")
+            fail(f"cannot prepare the output folder {outdir}: {exc.strerror}")
+        if removed:
+            print(f"tripod: note: {outdir}: removed {removed} frame files of an earlier decode",
+                  file=sys.stderr)
         dump_config(cfg, outdir / "decode_config.yaml")
+
+    def failed(message: str) -> NoReturn:
+        if outdir is not None and prepared:  # leave no half-written run behind
+            clear_old_output(outdir)
+            if created and not any(outdir.iterdir()):
+                outdir.rmdir()
+        fail(message)
+
     try:
-        timing = write_frames(run, outdir, fmt, progress=progress)
-    except (DecodeError, SourceError) as exc:
-        fail(f"{input_path}: {exc}")
+        timing = write_frames(run, outdir, fmt, progress=progress, on_first_frame=prepare_output)
+    except typer.Exit:  # fail() in prepare_output (click's Exit is a RuntimeError)
+        raise
+    except SourceError as exc:  # names the input already
+        failed(str(exc))
+    except DecodeError as exc:
+        failed(f"{input_path}: {exc}")
     except OSError as exc:
-        fail(f"{input_path}: {exc}")
+        failed(f"{input_path}: {exc}")
     except RuntimeError as exc:  # velodyne-decoder's way of refusing a packet
-        fail(f"{input_path}: velodyne-decoder: {exc}")
+        failed(f"{input_path}: velodyne-decoder: {exc}")
+    if not prepared:  # no frame at all
+        prepare_output()
     summary = run.report.summary()
     summary["input"] = str(input_path)
     summary["input_format"] = run.source.kind
@@ -151,6 +206,12 @@ def decode_command(
     sensor: str = typer.Option(None, "--sensor", help="auto, VLP-16 or 'Puck Hi-Res'"),
     min_range: float = typer.Option(None, "--min-range", help="drop nearer returns [m]"),
     max_range: float = typer.Option(None, "--max-range", help="drop farther returns [m]"),
+    azimuth_min: float = typer.Option(
+        None, "--azimuth-min", help="keep returns from this azimuth [deg] (0 = forward, "
+        "clockwise seen from above)"),
+    azimuth_max: float = typer.Option(
+        None, "--azimuth-max", help="keep returns up to this azimuth [deg]; the range may "
+        "cross 0 (--azimuth-min 270 --azimuth-max 90 keeps the front half)"),
     calibration: str = typer.Option(None, "--calibration",
                                     help="veloview, manual, or a velodyne YAML file"),
     decoder: str = typer.Option(None, "--decoder",
@@ -167,6 +228,7 @@ def decode_command(
     if output is None and not summary:
         fail("give -o OUTDIR to write the frames, or --summary for the JSON summary")
     overrides = {"sensor": sensor, "min_range_m": min_range, "max_range_m": max_range,
+                 "azimuth_min_deg": azimuth_min, "azimuth_max_deg": azimuth_max,
                  "calibration": calibration, "decoder": decoder}
     run_decode(input_path, output, summary_only=summary, fmt=fmt, config_path=config,
                overrides=overrides, ports=port or None, progress=not (quiet or summary))

@@ -25,7 +25,7 @@ def heightmaps_cmd(
     threads: int = typer.Option(0, "--threads", help="CPU threads, 0 = all"),
 ) -> None:
     """Planes per class with outlines, a 16-bit PNG + JSON heightmap per plane, the low-poly room
-    (room_lowpoly.ply), planes.json and overview.png in OUTPUT."""
+    (room_lowpoly.ply and room_lowpoly.obj + .mtl), planes.json and overview.png in OUTPUT."""
     import numpy as np
     from rich.table import Table
 

@@ -67,6 +67,10 @@ def reconstruct_command(
     calibration: Path = typer.Option(
         None, "--calibration", help="lidar-IMU extrinsic: YAML/JSON with q_imu_lidar and "
                                     "lever_arm_m, or a simulator's gt/calibration.json"),
+    survey: bool = typer.Option(
+        False, "--survey", help="also write the survey files: stations.e57 (one scan per "
+                                "station with its pose) and map.laz (intensity, station, ASPRS "
+                                "classes); = --set output.write_e57=true output.write_las=laz"),
     set_: list[str] = typer.Option(None, "--set", help="override a config key: a.b=value"),
     quiet: bool = typer.Option(False, "--quiet", help="no progress bars"),
     print_default_config: bool = typer.Option(False, "--print-default-config",
@@ -86,6 +90,9 @@ def reconstruct_command(
     if not recording:
         fail("give a recording (MCAP, pcap + --imu, or a simulate folder)")
     overrides = _parse_sets(set_)
+    if survey:
+        overrides.setdefault("output.write_e57", True)
+        overrides.setdefault("output.write_las", "laz")
     if calibration is not None:
         from ..reconstruction.placement import load_extrinsic_file
 

@@ -13,7 +13,10 @@ from typing import Optional
 import typer
 
 from . import app
-from ._common import fail
+from ._common import EXIT_FAILED, fail, unit_hint
+
+#: local statuses that mean no usable alignment ("max_iterations" is kept, with a warning)
+FAILED_STATUSES = ("too_few_correspondences", "degenerate")
 
 
 @app.command("register", rich_help_panel="Processing")
@@ -73,24 +76,36 @@ def register_cmd(
         T0 = np.eye(4) if init == "identity" else cloud_io.read_matrix4(init)
     except (OSError, ValueError) as exc:
         fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
+    for path, pts in ((source, src), (target, tgt)):
+        if not len(pts):
+            fail(f"{path}: the cloud has no points")
 
     out: dict = {"source": str(source), "target": str(target), "method": method}
     t0 = time.perf_counter()
+    failure = ""
+    r = None
     try:
         if global_:
             g = reg.register_global(src, tgt, voxel_size=voxel, gravity_aligned=gravity,
                                     num_threads=threads)
             out["global"] = g.to_dict()
             if not g.success:
-                fail(f"global registration failed: {g.status}", code=1)
+                failure = f"global registration failed: {g.status}"
             T0 = g.T_target_source
-        r = reg.register(src, tgt, method=method, init=T0, voxel_size=voxel,
-                         max_correspondence_distance=dists, max_iterations=max_iterations,
-                         loss=loss, loss_scale=loss_scale, lock_z=lock_z, point_sigma=point_sigma,
-                         num_threads=threads)
+        if not failure:
+            r = reg.register(src, tgt, method=method, init=T0, voxel_size=voxel,
+                             max_correspondence_distance=dists, max_iterations=max_iterations,
+                             loss=loss, loss_scale=loss_scale, lock_z=lock_z,
+                             point_sigma=point_sigma, num_threads=threads)
     except ValueError as exc:
         fail(str(exc))
-    out.update(r.to_dict())
+    if r is not None:
+        out.update(r.to_dict())
+        if r.status in FAILED_STATUSES:
+            failure = f"registration failed: {r.status}"
+    else:
+        out["T_target_source"] = np.eye(4).tolist()
+    out["success"] = not failure
     out["wall_time_s"] = time.perf_counter() - t0
     text = _dumps(out)
     print(text)
@@ -102,6 +117,8 @@ def register_cmd(
                    "loss": loss, "loss_scale": loss_scale, "lock_z": lock_z,
                    "point_sigma": point_sigma, "threads": threads}
         output.with_name(output.stem + ".options.json").write_text(json.dumps(options, indent=2))
+    if failure:  # the JSON above still says what was tried; exit 1 as for any failed job
+        fail(failure + unit_hint(src, tgt), code=EXIT_FAILED)
     if not r.converged:
         print(f"tripod: warning: registration status {r.status}", file=sys.stderr)
 

@@ -62,6 +62,19 @@ class ScanGrid:
     az_predictor: int = 1  # 0: previous azimuth (sph1 files); 1: adaptive row predictor
     az_lattice: int = 0  # azimuth lattice steps per turn, 0 = none (information only)
 
+    def native(self):
+        """The grid as the C++ codec takes it (``_ext._SphericalGrid``)."""
+        from .. import _ext
+
+        g = _ext._SphericalGrid()
+        g.origin = tuple(float(v) for v in np.asarray(self.origin, np.float64).reshape(3))
+        g.range_step, g.az_count, g.el_step = (float(self.range_step), int(self.az_count),
+                                               float(self.el_step))
+        g.el_table = np.asarray(self.el_table, np.float64).tolist()
+        g.z_table = np.asarray(self.z_table, np.float64).tolist()
+        g.row_shift, g.az_predictor = int(self.row_shift), int(self.az_predictor)
+        return g
+
     def header(self) -> dict:
         """Header fields; a uniform elevation table is stored as el_uniform = (start, step)."""
         out = {"origin": [float(v) for v in self.origin], "range_step": float(self.range_step),
@@ -403,9 +416,8 @@ def encode_points(points: np.ndarray, max_error: float, origin=None, num_threads
                 return None
             if az_exact and (best is not None and best[1].az_count == grid.az_count):
                 break  # the same grid: the lattice was already exact (or there is none)
-            stream, worst, checksum, part_bits = _ext.predictive_encode(
-                points, grid.origin, grid.range_step, grid.az_count, grid.el_step,
-                grid.el_table, grid.row_shift, grid.z_table, grid.az_predictor, num_threads)
+            stream, stats = _ext.predictive_encode(points, grid.native(), num_threads)
+            worst, checksum, part_bits = stats.max_error_m, stats.checksum, stats.part_bits
             if worst <= max_error and (best is None or len(stream) < len(best[0])):
                 best = stream, grid, int(checksum), float(worst), part_bits
             if grid.az_lattice == 0 or not len(grid.el_table):
@@ -420,9 +432,7 @@ def decode_points(stream: bytes, n_points: int, grid: ScanGrid, checksum: int,
     """(N, 3) float32 [m] points of a stream of :func:`encode_points`, in coding order."""
     from .. import _ext
 
-    return _ext.predictive_decode(stream, n_points, grid.origin, grid.range_step, grid.az_count,
-                                  grid.el_step, grid.el_table, grid.row_shift, grid.z_table,
-                                  grid.az_predictor, checksum, num_threads)
+    return _ext.predictive_decode(stream, n_points, grid.native(), checksum, num_threads)
 
 
 __all__ = ["CODEC_NAME", "CODEC_NAMES", "ScanGrid", "angle_lattice", "decode_points",

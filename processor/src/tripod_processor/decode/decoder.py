@@ -93,6 +93,13 @@ class DecodeConfig(StrictModel):
         0.001, ge=0, description="drop returns nearer than this [m] (zero distance = no return "
         "is always dropped; the default keeps every other return, like VeloView)")
     max_range_m: float = Field(200.0, gt=0, description="drop returns farther than this [m]")
+    azimuth_min_deg: float = Field(
+        0.0, ge=0, le=360, description="keep only returns with azimuth in [azimuth_min_deg, azimuth_max_deg] "
+        "[deg] (the view width; velodyne-decoder's min_angle). Azimuth is the sensor's own: "
+        "0 along +x (forward), growing clockwise seen from above (90 = -y, right); a range "
+        "that crosses 0 (e.g. 270 to 90) keeps the front half. Equal values keep everything")
+    azimuth_max_deg: float = Field(
+        360.0, ge=0, le=360, description="end of the kept azimuth range [deg] (velodyne-decoder's max_angle)")
     max_gap_in_frame_s: float = Field(
         0.2, gt=0, description="a silence longer than this [s] starts a new frame")
     gap_factor: float = Field(
@@ -297,6 +304,23 @@ def identify_sensor(product_id: int, return_byte: int, period_us: float | None) 
                       f"0x{product_id:02x}): tripod decodes VLP-16 captures only")
 
 
+def forced_sensor_doubt(sensor: str, product_id: int, return_byte: int,
+                        period_us: float | None) -> str:
+    """Why the capture does not look like the ``sensor`` forced by the config ('' if it does):
+    a VLP-16 or Puck Hi-Res sends a data packet every 1327 µs (664 µs in dual return); an
+    HDL-32E every 553 µs."""
+    if period_us is None:
+        return ""
+    single, dual = vl.VLP16_PACKET_PERIOD_US["single"], vl.VLP16_PACKET_PERIOD_US["dual"]
+    if abs(period_us - single) < 0.15 * single or (
+            abs(period_us - dual) < 0.1 * dual and return_byte == vl.RETURN_DUAL):
+        return ""
+    return (f"sensor {sensor!r} was forced (--sensor / config key sensor), but the data packets come every {period_us:.0f} µs "
+            f"(a {sensor} sends one every {single:.0f} µs, {dual:.0f} µs in dual return; the "
+            f"product byte 0x{product_id:02x} says {vl.product_name(product_id)}): the points "
+            "are likely wrong")
+
+
 _BUNDLED_CALIBRATION = {"VLP-16": "VLP-16.yml", "Puck Hi-Res": "Puck Hi-Res.yml"}
 
 
@@ -418,6 +442,9 @@ class FrameDecoder:
             sensor = identify_sensor(product, ret, period)
         else:
             sensor = cfg.sensor
+            doubt = forced_sensor_doubt(sensor, product, ret, period)
+            if doubt:
+                rep.warn(doubt)
         rep.sensor, rep.product_id, rep.packet_period_us = sensor, product, period
         rep.return_mode = vl.RETURN_MODES.get(ret, f"unknown(0x{ret:02x})")
         self._return_mode_byte = ret
@@ -431,13 +458,18 @@ class FrameDecoder:
             try:
                 self._native = NativeVlp16Decoder(
                     calibration, model=self._model, min_range_m=cfg.min_range_m,
-                    max_range_m=cfg.max_range_m, num_threads=cfg.num_threads)
+                    max_range_m=cfg.max_range_m, min_angle_deg=cfg.azimuth_min_deg,
+                    max_angle_deg=cfg.azimuth_max_deg, num_threads=cfg.num_threads)
             except CalibrationError as exc:
                 raise DecodeError(str(exc)) from None
         else:
+            if cfg.azimuth_min_deg % 360 > cfg.azimuth_max_deg % 360:  # 360 is 0 to it
+                raise DecodeError("an azimuth range across 0 (or ending at 360) needs decoder: "
+                                  "native (velodyne-decoder keeps [max, min] instead)")
             self._scan_decoder = vd.ScanDecoder(vd.Config(
                 model=self._model, calibration=calibration, min_range=cfg.min_range_m,
-                max_range=cfg.max_range_m, timestamp_first_packet=True))
+                max_range=cfg.max_range_m, min_angle=cfg.azimuth_min_deg,
+                max_angle=cfg.azimuth_max_deg, timestamp_first_packet=True))
         self._period_ns = int(round((period or vl.VLP16_PACKET_PERIOD_US["single"]) * 1000))
 
     def _position(self, payload: bytes) -> None:

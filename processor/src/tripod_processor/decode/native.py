@@ -146,7 +146,9 @@ class NativeVlp16Decoder:
         Drop returns nearer / farther than this [m] (velodyne-decoder's ``min_range``,
         ``max_range``).
     min_angle_deg, max_angle_deg : float
-        Keep azimuths in this range [deg] (velodyne-decoder's ``min_angle``, ``max_angle``).
+        Keep azimuths from min clockwise to max [deg] (0 = +x, 90 = -y), across 0 when min >
+        max (the ROS velodyne driver's rule; velodyne-decoder's ``min_angle``, ``max_angle``
+        keep [max, min] then).
     num_threads : int
         OpenMP threads per call; 0 = all cores.
     """
@@ -161,9 +163,10 @@ class NativeVlp16Decoder:
             table, resolution, rings = calibration_table(calibration)
         self.num_threads = int(num_threads)
         self._return_type = RETURN_TYPE_UNKNOWN  # velodyne-decoder's state across packets
-        self._dec = _ext._Vlp16Decoder(table, resolution, rings, float(min_range_m),
-                                       float(max_range_m), float(min_angle_deg),
-                                       float(max_angle_deg))
+        config = _ext._Vlp16DecoderConfig()
+        config.min_range_m, config.max_range_m = float(min_range_m), float(max_range_m)
+        config.min_angle_deg, config.max_angle_deg = float(min_angle_deg), float(max_angle_deg)
+        self._dec = _ext._Vlp16Decoder(table, resolution, rings, config)
 
     def decode(self, packets: np.ndarray, stamps_ns: np.ndarray,
                seg_first_block: np.ndarray | None = None, seg_ref_ns: np.ndarray | None = None,
@@ -192,11 +195,11 @@ class NativeVlp16Decoder:
         if seg_first_block is not None:
             seg_first_block = np.ascontiguousarray(seg_first_block, dtype=np.int64)
             seg_ref_ns = np.ascontiguousarray(seg_ref_ns, dtype=np.int64)
-        pts, time_s, first, status, clipped, self._return_type = self._dec.decode(
-            packets, stamps_ns, seg_first_block, seg_ref_ns, with_time_s, self.num_threads,
-            self._return_type)
-        return NativeBatch(pts.view(POINT_DTYPE).reshape(-1), time_s, first, status,
-                           bool(clipped))
+        out = self._dec.decode(packets, stamps_ns, seg_first_block, seg_ref_ns, with_time_s,
+                               self.num_threads, self._return_type)
+        self._return_type = out.return_type_after
+        return NativeBatch(out.points.view(POINT_DTYPE).reshape(-1), out.time_s,
+                           out.block_first_point, out.status, bool(out.time_offset_clipped))
 
 
 __all__ = ["CALIBRATION_COLUMNS", "POINT_DTYPE", "RETURN_TYPE_UNKNOWN", "STATUS_BAD_BLOCK_HEADER",

@@ -56,6 +56,8 @@ def make_cloud(points: np.ndarray, **fields: np.ndarray) -> np.ndarray:
 def read_cloud(path: str | os.PathLike) -> np.ndarray:
     """Read a PLY or PCD file into a structured array (format from the extension, else sniffed)."""
     path = Path(path)
+    if path.is_dir():
+        raise CloudFormatError(f"{path}: a folder, not a cloud file")
     if not path.is_file():
         raise FileNotFoundError(f"no such file: {path}")
     with open(path, "rb") as fh:
@@ -136,6 +138,8 @@ def read_ply(path: str | os.PathLike) -> np.ndarray:
                 if is_list:
                     raise CloudFormatError(f"{path}: list properties on vertices are not supported")
                 dt = np.dtype([(p[0], endian + p[1]) for p in props])
+                if count == 0:  # no vertices: nothing to parse (loadtxt would warn)
+                    return np.empty(0, dtype=dt.newbyteorder("<"))
                 if fmt == "ascii":
                     rows = [fh.readline() for _ in range(count)]
                     try:
@@ -305,7 +309,9 @@ def read_pcd(path: str | os.PathLike) -> np.ndarray:
             seen[f[0]] = 1
     dt = np.dtype(fields)
     body = raw[pos:]
-    if data_kind == "ascii":
+    if npts == 0:  # an empty cloud, whatever the DATA kind (loadtxt would warn, then fail)
+        out = np.empty(0, dtype=dt)
+    elif data_kind == "ascii":
         try:
             vals = np.loadtxt(body.decode("ascii").splitlines(), dtype=np.float64, ndmin=2)
         except ValueError as exc:

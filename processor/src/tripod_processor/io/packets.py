@@ -171,7 +171,8 @@ class PcapSource(PacketSource):
             self.report.skip(reason, n)
         if st.truncated:
             self.report.truncated = True
-            self.report.detail = "the file ends inside a pcap record"
+            self.report.detail = ("the file ends inside a pcapng block" if self.kind == "pcapng"
+                                  else "the file ends inside a pcap record")
 
 
 class PayloadFileSource(PacketSource):
@@ -237,6 +238,8 @@ def open_source(path: str | os.PathLike, ports: set[int] | None = None) -> Packe
         Empty, or not a pcap, pcapng, MCAP or raw payload file (one-line message).
     """
     path = os.fspath(path)
+    if os.path.isdir(path):
+        raise SourceError(f"{path}: a folder, not a capture file")
     if not os.path.isfile(path):
         raise FileNotFoundError(f"no such file: {path}")
     size = os.path.getsize(path)

@@ -346,6 +346,9 @@ def _iter_pcap_batches(fh: BinaryIO, head: bytes, stats: PcapStats, data_size: i
         raise PcapFormatError("pcap global header is truncated")
     linktype = struct.unpack_from(e + "I", rest, 16)[0] & 0x0FFFFFFF
     stats.format = "pcap"
+    layout = _ext._PcapLayout()
+    layout.big_endian, layout.nanosecond = e == ">", magic == PCAP_MAGIC_NS
+    layout.linktype = linktype
     buf = b""
     eof = False
     while True:
@@ -353,10 +356,12 @@ def _iter_pcap_batches(fh: BinaryIO, head: bytes, stats: PcapStats, data_size: i
             chunk = fh.read(_BUF_SIZE)
             eof = len(chunk) < _BUF_SIZE
             buf = buf + chunk if buf else chunk
-        (consumed, records, oversize, data, data_t_ns, data_port, data_rec, other,
-         slow) = _ext._scan_pcap_records(np.frombuffer(buf, np.uint8), e == ">",
-                                         magic == PCAP_MAGIC_NS, linktype, data_size,
-                                         _MAX_RECORD_BYTES)
+        scan = _ext._scan_pcap_records(np.frombuffer(buf, np.uint8), layout, data_size,
+                                       _MAX_RECORD_BYTES)
+        consumed, records, oversize = scan.consumed, scan.records, scan.oversize_bytes
+        data, data_t_ns, data_port, data_rec = (scan.data, scan.data_t_ns, scan.data_port,
+                                                scan.data_record)
+        other, slow = scan.other, scan.slow
         stats.udp += len(data_t_ns) + len(other)
         others = [(t, port, buf[off : off + n]) for t, off, n, port in other.tolist()]
         slow_data = []  # data payloads of records off the plain path: put in file order
@@ -412,6 +417,8 @@ class PcapReader:
 
     def __init__(self, path: str | os.PathLike):
         self.path = os.fspath(path)
+        if os.path.isdir(self.path):
+            raise PcapFormatError(f"{self.path}: a folder, not a capture file")
         if not os.path.isfile(self.path):
             raise FileNotFoundError(f"no such file: {self.path}")
         fmt = sniff_format(self.path)

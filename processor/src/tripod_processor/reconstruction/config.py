@@ -108,6 +108,15 @@ class OutputConfig(StrictModel):
     write_mcap: bool = True
     trajectory_hz: float = Field(default=20.0, ge=10.0)
     report: bool = True
+    #: survey deliverables (``reconstruction.survey``; ``tripod reconstruct --survey`` turns
+    #: both on): stations.e57, one scan per station with its pose; the map as LAS 1.4 (``las``),
+    #: LAZ (``laz``) or not at all (``none``). Off by default: the per-voxel intensity, station
+    #: and labels cost about half the CPU time of a reconstruction again (bench/survey.py)
+    write_e57: bool = False
+    write_las: Literal["laz", "las", "none"] = "none"
+    #: segmentation labels (ceiling/floor/wall/other) in the survey files (LAS classification,
+    #: E57 ``tripod:label``); off: every point "never classified"
+    survey_labels: bool = True
 
 
 class ReconstructConfig(StrictModel):

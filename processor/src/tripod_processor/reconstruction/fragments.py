@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..decode.timed import decode_timed_points
-from ..preprocess import voxel_downsample
+from ..preprocess import lookup_keys, voxel_downsample, voxel_keys, voxel_sums
 from .inputs import LidarPackets
 from .placement import Extrinsic, ImuOrientation, place_points, pose_world_lidar
 from .stations import Station
@@ -25,12 +25,15 @@ class Fragment:
     points : (N, 3) float32 [m], lidar frame at ``station.mid_ns``, voxel-filtered
     R_world_lidar : (3, 3) IMU attitude of that frame (yaw from the drifting IMU)
     raw_points : int, points placed before the voxel filter
+    intensity : (N,) float32 or None, mean reflectivity (0–255) of each point's voxel (NaN: a
+        centroid on a voxel face that missed its voxel); built only when asked (survey outputs)
     """
 
     station: Station
     points: np.ndarray
     R_world_lidar: np.ndarray
     raw_points: int
+    intensity: np.ndarray | None = None
 
     @property
     def up_in_lidar(self) -> np.ndarray:
@@ -40,15 +43,18 @@ class Fragment:
 
 def build_fragment(lidar: LidarPackets, station: Station, orient: ImuOrientation, ext: Extrinsic,
                    voxel_m: float, min_range: float, max_range: float,
-                   num_threads: int = 0, chunk: int = 1000, max_points: int = 6_000_000
-                   ) -> Fragment:
+                   num_threads: int = 0, chunk: int = 1000, max_points: int = 6_000_000,
+                   with_intensity: bool = False) -> Fragment:
     """Decode, place and voxel-filter one station's packets.
 
     Decodes and places the station in chunks of ``chunk`` packets, then voxel-filters all its
     placed points at once (a 10 s station is ~3 M points, 36 MB); a long station is bounded by
     filtering what has gathered at half the voxel whenever it passes ``max_points``.
+    ``with_intensity``: also the mean intensity of each output voxel (from every placed point;
+    per-voxel sums are kept per chunk and merged at the end).
     """
     parts, raw = [], 0
+    key_parts = []
     gathered, limit = 0, max_points
     for a in range(station.packet_start, station.packet_stop, chunk):
         b = min(station.packet_stop, a + chunk)
@@ -60,6 +66,8 @@ def build_fragment(lidar: LidarPackets, station: Station, orient: ImuOrientation
         xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=1)
         placed = place_points(xyz, pts["time_ns"], orient, ext, station.mid_ns, num_threads)
         parts.append(placed)
+        if with_intensity:  # per-chunk sums: a chunk revisits its voxels every rotation
+            key_parts.append(voxel_sums(voxel_keys(placed, voxel_m), pts["intensity"]))
         gathered += len(placed)
         if gathered > limit:
             parts = [voxel_downsample(np.concatenate(parts), voxel_m * 0.5, num_threads)]
@@ -70,4 +78,12 @@ def build_fragment(lidar: LidarPackets, station: Station, orient: ImuOrientation
     else:
         down = np.zeros((0, 3), np.float32)
     R = pose_world_lidar(orient, ext, np.array([station.mid_ns]))[0, :3, :3]
-    return Fragment(station, down, R, raw)
+    intensity = None
+    if with_intensity:
+        if key_parts:
+            uk, s, c = voxel_sums(*(np.concatenate(a) for a in zip(*key_parts)))
+            intensity = lookup_keys(uk, (s / c).astype(np.float32), voxel_keys(down, voxel_m),
+                                    np.float32(np.nan))
+        else:
+            intensity = np.zeros(0, np.float32)
+    return Fragment(station, down, R, raw, intensity)

@@ -152,27 +152,27 @@ def oriented_refine(source: np.ndarray, target: np.ndarray, T_init: np.ndarray,
     difference. Normals here face each fragment's sensor (the fragment origin), and a pair
     whose normals disagree (dot < 0.5) is no correspondence. Huber weights at 2 sigma; at most
     ``max_source`` source points (an even stride), the target stays dense. Runs in the native
-    core (``registration.pairwise.oriented_point_to_plane``, OpenMP over points).
+    core (``registration.register(method="plane", oriented=True)``).
 
     Returns (T_target_source, information (6, 6) in the pose graph's convention, fitness,
     inlier RMSE [m]).
     """
-    from ..registration.pairwise import oriented_point_to_plane
+    from .. import registration as reg
 
     cache = cache or CloudCache(cfg.point_sigma_m, num_threads)
     src = cache.oriented(keys[0], source, voxel)
     tgt = cache.oriented(keys[1], target, voxel)
     sigma = cfg.point_sigma_m
-    r = oriented_point_to_plane(src, tgt, T_init, max_dist, iterations, sigma, 0.5, max_source,
-                                num_threads)
-    T = np.asarray(r["T_target_source"], dtype=np.float64)
-    if not r["linearized"]:
+    r = reg.register(src, tgt, method="plane", init=T_init, max_correspondence_distance=max_dist,
+                     max_iterations=iterations, rotation_eps=1e-6, translation_eps=1e-5,
+                     loss="huber", loss_scale=2 * sigma, point_sigma=sigma, oriented=True,
+                     max_source=max_source, min_correspondences=100, num_threads=num_threads)
+    T = r.T_target_source
+    if r.status == "too_few_correspondences":
         return T, np.zeros((6, 6)), 0.0, np.inf
-    H, fit, rmse = np.asarray(r["H"]), float(r["fitness"]), float(r["rmse"])
-    # information of (δt target frame, δω target frame) → (e_t target, e_r source): ω_t = R ω_s
-    M = np.eye(6)
-    M[3:, 3:] = T[:3, :3]
-    info = M.T @ (H / max(rmse, sigma) ** 2) @ M
+    fit, rmse = r.fitness, r.residual_rmse
+    # the core's information assumes residuals of sigma: scale it to the measured ones
+    info = information_target_frame(r.information, T) * (sigma / max(rmse, sigma)) ** 2
     return T, info, fit, rmse
 
 

@@ -142,12 +142,15 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
                                              pc.time_offset_search_s)
         orient = orient.with_offset(off)
 
-    # 5. fragments
+    # 5. fragments (with their voxels' intensity when a survey file wants it)
+    oc = cfg.output
+    survey = oc.write_e57 or oc.write_las != "none"
     frags: list[Fragment] = []
     with _Stage(times, "fragments", len(seg.stations), quiet) as bar:
         for st in seg.stations:
             frags.append(build_fragment(rec.lidar, st, orient, ext, cfg.fragments.voxel_m,
-                                        pc.min_range_m, pc.max_range_m, threads))
+                                        pc.min_range_m, pc.max_range_m, threads,
+                                        with_intensity=survey))
             bar.update(1)
 
     # 6. odometry
@@ -251,10 +254,20 @@ def _write_outputs(res: ReconstructResult, cfg: ReconstructConfig, orient: ImuOr
         parts.append(p)
     allp = np.concatenate(parts) if parts else np.zeros((0, 3), np.float32)
     merged = voxel_downsample(allp, oc.map_voxel_m, cfg.num_threads) if len(allp) else allp
+    centroids = merged
     if oc.smooth_radius_m > 0 and len(merged) > 10:
         merged = mls_smooth(merged, oc.smooth_radius_m, cfg.num_threads, oc.smooth_fit_voxel_m)
     res.map_points = len(merged)
-    cloud = cloud_io.make_cloud(merged)
+    # survey attributes (intensity, station, label) of the map and the main fragments
+    attrs = None
+    if oc.write_e57 or oc.write_las != "none":
+        from . import survey
+
+        attrs = survey.survey_attributes(res.fragments, main, parts, centroids, merged,
+                                         oc.map_voxel_m, oc.survey_labels, cfg.num_threads)
+    # the map's fields: x, y, z, and with survey outputs intensity, station, label
+    cloud = cloud_io.make_cloud(merged) if attrs is None else cloud_io.make_cloud(
+        merged, intensity=attrs.map_intensity, station=attrs.map_station, label=attrs.map_label)
     cloud_io.write_ply(out / "map.ply", cloud)
     res.files["map_ply"] = str(out / "map.ply")
     if oc.write_pcd:
@@ -263,9 +276,13 @@ def _write_outputs(res: ReconstructResult, cfg: ReconstructConfig, orient: ImuOr
     if oc.write_fragments:
         fdir = out / "fragments"
         fdir.mkdir(exist_ok=True)
-        for f in res.fragments:
+        for k, f in enumerate(res.fragments):
             name = f"station_{f.station.index:03d}.ply"
-            cloud_io.write_ply(fdir / name, cloud_io.make_cloud(f.points))
+            fields = {}
+            if attrs is not None and k in main:
+                i = main.index(k)
+                fields = {"intensity": attrs.frag_intensity[i], "label": attrs.frag_label[i]}
+            cloud_io.write_ply(fdir / name, cloud_io.make_cloud(f.points, **fields))
         res.files["fragments"] = str(fdir)
     # poses
     t_st = res.station_t_ns
@@ -284,6 +301,17 @@ def _write_outputs(res: ReconstructResult, cfg: ReconstructConfig, orient: ImuOr
     res.files["pose_graph"] = str(out / "pose_graph.g2o")
     dump_config(cfg, out / "config.yaml")
     res.files["config"] = str(out / "config.yaml")
+    if attrs is not None and oc.write_las != "none":
+        from ..io.las import write_las
+
+        write_las(out / f"map.{oc.write_las}", survey.map_las(merged, attrs))
+        res.files["las"] = str(out / f"map.{oc.write_las}")
+    if attrs is not None and oc.write_e57:
+        from ..io.e57 import write_e57
+
+        write_e57(out / "stations.e57",
+                  survey.station_scans(res.fragments, main, slam.T_optimized[main], attrs))
+        res.files["e57"] = str(out / "stations.e57")
     if oc.write_mcap:
         # fragments at 5 cm in the MCAP: enough to inspect, light to load
         frags_out = [voxel_downsample(res.fragments[k].points, 0.05, cfg.num_threads)

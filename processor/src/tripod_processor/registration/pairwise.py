@@ -1,7 +1,7 @@
 # SPDX-License-Identifier: BSD-3-Clause
 """Pairwise registration of point clouds on the native core (numpy in, numpy out, GIL released).
 
-Local registration (:func:`register`) refines an initial guess with one of five residual models;
+Local registration (:func:`register`) refines an initial guess with one of six methods (one solver);
 global registration (:func:`register_global`) finds the pose from scratch with FPFH + RANSAC,
 optionally constrained by gravity. Both return ``T_target_source``, the 4x4 rigid transform that
 maps source coordinates into the target frame (``p_target = T @ p_source``), in metres.
@@ -21,8 +21,9 @@ from .. import _ext
 from ..preprocess import as_cloud, voxel_downsample
 
 #: Local registration methods: point-to-point (closed-form SVD), point-to-plane, Generalized ICP,
-#: symmetric ICP, and robust non-linear point-to-plane ICP in Ceres' Levenberg-Marquardt.
-METHODS = ("icp", "plane", "gicp", "symmetric", "lm")
+#: voxelised GICP (Gaussian voxels of the target), symmetric ICP, and robust non-linear
+#: point-to-plane ICP solved by Levenberg-Marquardt on each set of correspondences.
+METHODS = ("icp", "plane", "gicp", "vgicp", "symmetric", "lm")
 #: Robust kernels, applied to the residual whitened by ``point_sigma`` (scale ``loss_scale`` [m]).
 LOSSES = ("none", "huber", "cauchy", "tukey")
 
@@ -50,6 +51,9 @@ class RegistrationResult:
         ``num_inliers / len(source)`` (Open3D's definition).
     inlier_rmse : float
         RMS distance of those pairs [m].
+    residual_rmse : float
+        RMS of the method's own unweighted residual over the pairs it used [m]: the point-to-
+        plane distance for plane, symmetric and lm; the point distance otherwise.
     final_error : float
         Robust chi-square cost at the solution.
     information : (6, 6) float64 ndarray
@@ -70,9 +74,17 @@ class RegistrationResult:
     num_inliers: int
     fitness: float
     inlier_rmse: float
+    residual_rmse: float
     final_error: float
     information: np.ndarray
     condition: float
+
+    @classmethod
+    def _from_native(cls, r) -> "RegistrationResult":
+        return cls(np.array(r.T_target_source), bool(r.converged), str(r.status),
+                   int(r.iterations), int(r.num_inliers), float(r.fitness),
+                   float(r.inlier_rmse), float(r.residual_rmse), float(r.final_error),
+                   np.array(r.information), float(r.condition))
 
     @property
     def covariance(self) -> np.ndarray:
@@ -89,6 +101,7 @@ class RegistrationResult:
             "num_inliers": self.num_inliers,
             "fitness": self.fitness,
             "inlier_rmse": self.inlier_rmse,
+            "residual_rmse": self.residual_rmse,
             "final_error": self.final_error,
             "information": self.information.tolist(),
             "condition": self.condition,
@@ -125,6 +138,12 @@ class GlobalResult:
     iterations: int
     fitness: float
     inlier_rmse: float
+
+    @classmethod
+    def _from_native(cls, r) -> "GlobalResult":
+        return cls(np.array(r.T_target_source), bool(r.success), str(r.status),
+                   int(r.num_correspondences), int(r.num_inlier_correspondences),
+                   int(r.iterations), float(r.fitness), float(r.inlier_rmse))
 
     def to_dict(self) -> dict:
         d = dict(self.__dict__)
@@ -231,6 +250,22 @@ def _as_pose(T, name: str) -> np.ndarray:
     return np.ascontiguousarray(a)
 
 
+def default_schedule(target: PreparedCloud, voxel_size: float | None) -> list[float]:
+    """The default coarse-to-fine correspondence distances [m].
+
+    ``(10 v, 3 v)`` with ``v`` the voxel size (the first stage at least 0.3 m, for rooms), or
+    without one ``(10 v, 3 v, v)`` with ``v`` the target's bounding-box diagonal / 100: one distance for a room and a statuette alike would
+    let a small object's every point pair with every other (the far pairs of a partial overlap
+    then hold point-to-point ICP degrees away from the truth, at its own minimum).
+    """
+    if voxel_size is not None:
+        return [max(10 * voxel_size, 0.3), 3 * voxel_size]
+    pts = target.points
+    v = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0))) / 100 if len(pts) else 0.1
+    v = v if v > 0 else 0.1
+    return [10 * v, 3 * v, v]  # dense points (no voxel): a last stage at v is still well fed
+
+
 def register(
     source,
     target,
@@ -248,6 +283,10 @@ def register(
     lock_z: bool = False,
     num_neighbors: int = 20,
     point_sigma: float = 0.02,
+    oriented: bool = False,
+    min_normal_cos: float = 0.5,
+    max_source: int = 0,
+    min_correspondences: int = 0,
     num_threads: int = 0,
 ) -> RegistrationResult:
     """Local registration: refine ``init`` so that ``target ~ T_target_source @ source``.
@@ -256,11 +295,14 @@ def register(
     ----------
     source, target : (N, 3) array_like of float [m] or PreparedCloud
         Arrays are prepared here (``voxel_size``, ``num_neighbors``); a PreparedCloud is used as is.
-    method : {"icp", "plane", "gicp", "symmetric", "lm"}
+    method : {"icp", "plane", "gicp", "vgicp", "symmetric", "lm"}
         Residual model: point-to-point (closed-form SVD per iteration; Gauss-Newton when
-        constrained), point-to-plane, Generalized ICP (plane-to-plane covariances), symmetric ICP
-        (sum of both normals), or point-to-plane solved by Ceres' Levenberg-Marquardt (use it
-        with a robust ``loss``).
+        constrained), point-to-plane, Generalized ICP (plane-to-plane covariances), voxelised
+        GICP (the target as Gaussian voxels whose edge is each stage's correspondence distance;
+        a point's correspondence is the voxel it falls in: the cheapest per iteration, made for
+        coarse stages), symmetric ICP (sum of both normals), or point-to-plane solved to
+        convergence by Levenberg-Marquardt on each set of correspondences (use it with a
+        robust ``loss``).
     init : (4, 4) array_like, optional
         Initial T_target_source; identity if None.
     voxel_size : float, optional
@@ -271,9 +313,11 @@ def register(
     max_iterations : int
         Per stage.
     rotation_eps, translation_eps : float
-        Converged when an update rotates less than this [rad] and moves less than this [m].
+        Converged when an update rotates less than this [rad] and moves less than this [m], and
+        the updates shrink fast enough that the rest of the way (extrapolated from the last two)
+        is below them too: a slowly creeping point-to-point ICP is not "converged".
     loss : {"none", "huber", "cauchy", "tukey"}
-        Robust kernel (iteratively reweighted for the Gauss-Newton methods, Ceres' loss for lm).
+        Robust kernel (iteratively reweighted).
     loss_scale : float
         Kernel scale [m].
     rotation_prior : (3, 3) array_like, optional
@@ -287,6 +331,16 @@ def register(
         k-NN for normals/covariances of array inputs.
     point_sigma : float
         Range noise [m] that whitens residuals (information matrix, robust scale).
+    oriented : bool
+        Plane family: both clouds' normals face their own sensor (``viewpoint`` of
+        :func:`prepare`), and a pair counts only when they agree as they are, so the two faces
+        of a wall seen from both rooms never pair; source points without a normal take no part.
+    min_normal_cos : float
+        Plane family: pairs whose normals agree less (cosine) are dropped.
+    max_source : int
+        Use at most this many source points (an even stride through them); 0 uses all.
+    min_correspondences : int
+        Fewer pairs end with ``"too_few_correspondences"`` (0: the method's minimum, 3 or 6).
     num_threads : int
         OpenMP threads; 0 uses every core.
 
@@ -302,8 +356,9 @@ def register(
 
     Notes
     -----
-    The default correspondence distance is 1 m, or ``(10 v, 3 v)`` as a two-stage schedule when
-    ``voxel_size`` v is given; clouds at an unknown offset need :func:`register_global` first.
+    The default correspondence distances are a two-stage schedule, see :func:`default_schedule`;
+    every method takes a schedule. Clouds at an unknown offset need :func:`register_global`
+    first.
     The point-to-plane family (plane, symmetric, lm) ignores pairs whose normals differ by more
     than 60 deg. Point-to-point converges linearly: give it tight ``rotation_eps`` /
     ``translation_eps`` and more iterations.
@@ -312,25 +367,34 @@ def register(
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     if loss not in LOSSES:
         raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
-    if max_correspondence_distance is None:
-        vs = voxel_size
-        if vs is None and isinstance(source, PreparedCloud):
-            vs = source.voxel_size
-        max_correspondence_distance = [1.0] if vs is None else [max(10 * vs, 0.3), 3 * vs]
-    dists = np.atleast_1d(np.asarray(max_correspondence_distance, dtype=np.float64)).tolist()
     src = _as_prepared(source, voxel_size, num_neighbors, point_sigma, num_threads)
     tgt = _as_prepared(target, voxel_size, num_neighbors, point_sigma, num_threads)
-    R_prior = None
+    if max_correspondence_distance is None:
+        max_correspondence_distance = default_schedule(tgt, voxel_size or src.voxel_size)
+    dists = np.atleast_1d(np.asarray(max_correspondence_distance, dtype=np.float64)).tolist()
+    opt = _ext._RegistrationOptions()
+    opt.method = method
+    opt.max_correspondence_distances = dists
+    opt.max_iterations = int(max_iterations)
+    opt.rotation_eps = float(rotation_eps)
+    opt.translation_eps = float(translation_eps)
+    opt.point_sigma = float(point_sigma)
+    opt.loss = loss
+    opt.loss_scale = float(loss_scale)
     if rotation_prior is not None:
         R_prior = np.ascontiguousarray(np.asarray(rotation_prior, dtype=np.float64))
         if R_prior.shape != (3, 3):
             raise ValueError(f"rotation_prior must be 3x3, got shape {R_prior.shape}")
-    d = _ext.register_local(
-        src._native, tgt._native, _as_pose(init, "init"), method, dists, int(max_iterations),
-        float(rotation_eps), float(translation_eps), float(point_sigma), loss, float(loss_scale),
-        R_prior, float(rotation_prior_sigma), bool(lock_z), int(num_threads),
-    )
-    return RegistrationResult(**d)
+        opt.R_prior = R_prior
+    opt.rotation_prior_sigma = float(rotation_prior_sigma)
+    opt.lock_z = bool(lock_z)
+    opt.oriented = bool(oriented)
+    opt.min_normal_cos = float(min_normal_cos)
+    opt.max_source = int(max_source)
+    opt.min_correspondences = int(min_correspondences)
+    opt.num_threads = int(num_threads)
+    r = _ext.register_local(src._native, tgt._native, _as_pose(init, "init"), opt)
+    return RegistrationResult._from_native(r)
 
 
 def register_global(
@@ -413,40 +477,21 @@ def register_global(
         raise ValueError("up vectors must be non-zero")
     src = voxel_downsample(as_cloud(source), voxel_size, num_threads=num_threads)
     tgt = voxel_downsample(as_cloud(target), voxel_size, num_threads=num_threads)
-    d = _ext.register_global(
-        src, tgt,
-        float(normal_radius or 2 * voxel_size), float(feature_radius or 5 * voxel_size),
-        int(max_neighbors), float(inlier_distance or 1.5 * voxel_size), float(edge_length_ratio),
-        bool(mutual_filter), int(max_iterations), float(confidence), us, ut,
-        np.asarray(viewpoint_source, dtype=np.float64).reshape(3),
-        np.asarray(viewpoint_target, dtype=np.float64).reshape(3),
-        None if rotation_prior is None else np.asarray(rotation_prior, dtype=np.float64).reshape(3, 3),
-        float(rotation_tolerance), int(seed), int(num_threads),
-    )
-    return GlobalResult(**d)
-
-
-def oriented_point_to_plane(source: PreparedCloud, target: PreparedCloud, T_init,
-                            max_distance: float, iterations: int, point_sigma: float,
-                            min_normal_dot: float = 0.5, max_source: int = 0,
-                            num_threads: int = 0) -> dict:
-    """Point-to-plane ICP over oriented normals (pairs whose normals disagree by more than
-    ``min_normal_dot`` are not matched): the one Python owner of
-    ``_ext.oriented_point_to_plane``.
-
-    Parameters
-    ----------
-    source, target : :class:`PreparedCloud` with viewpoint-oriented normals
-    T_init : (4, 4) initial T_target_source
-    max_distance : correspondence distance [m]; point_sigma : point noise [m]
-    max_source : at most this many source points (0: all)
-
-    Returns
-    -------
-    dict: ``T_target_source`` (4, 4), ``H`` (6, 6) Gauss-Newton Hessian, ``fitness``, ``rmse`` [m],
-    ``linearized`` (False when too few pairs were found).
-    """
-    return _ext.oriented_point_to_plane(source._native, target._native,
-                                        np.ascontiguousarray(T_init, dtype=np.float64),
-                                        float(max_distance), int(iterations), float(point_sigma),
-                                        float(min_normal_dot), int(max_source), int(num_threads))
+    opt = _ext._GlobalOptions()
+    opt.normal_radius = float(normal_radius or 2 * voxel_size)
+    opt.feature_radius = float(feature_radius or 5 * voxel_size)
+    opt.max_neighbors = int(max_neighbors)
+    opt.inlier_distance = float(inlier_distance or 1.5 * voxel_size)
+    opt.edge_length_ratio = float(edge_length_ratio)
+    opt.mutual_filter = bool(mutual_filter)
+    opt.max_iterations = int(max_iterations)
+    opt.confidence = float(confidence)
+    opt.up_source, opt.up_target = us, ut
+    opt.viewpoint_source = np.asarray(viewpoint_source, dtype=np.float64).reshape(3)
+    opt.viewpoint_target = np.asarray(viewpoint_target, dtype=np.float64).reshape(3)
+    if rotation_prior is not None:
+        opt.R_prior = np.asarray(rotation_prior, dtype=np.float64).reshape(3, 3)
+    opt.rotation_tolerance = float(rotation_tolerance)
+    opt.seed = int(seed)
+    opt.num_threads = int(num_threads)
+    return GlobalResult._from_native(_ext.register_global(src, tgt, opt))

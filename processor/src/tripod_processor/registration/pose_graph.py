@@ -156,19 +156,20 @@ def optimize(
     g_nodes = np.ascontiguousarray([g[0] for g in gravity], dtype=np.int64).reshape(-1)
     g_up = np.ascontiguousarray([g[1] for g in gravity], dtype=np.float64).reshape(-1, 3)
     g_sigma = np.ascontiguousarray([g[2] for g in gravity], dtype=np.float64).reshape(-1)
-    out = _ext.optimize_pose_graph(
-        poses, pairs, rel, info, loops, g_nodes, g_up, g_sigma, loss, float(loss_scale),
-        bool(robust_odometry), int(max_iterations), int(num_threads), int(fixed_node),
-        float(outlier_chi2), int(max_rejection_rounds), bool(reject_odometry),
-    )
+    opt = _ext._PoseGraphOptions()
+    opt.loss, opt.loss_scale, opt.robust_odometry = loss, float(loss_scale), bool(robust_odometry)
+    opt.max_iterations, opt.num_threads = int(max_iterations), int(num_threads)
+    opt.fixed_node, opt.outlier_chi2 = int(fixed_node), float(outlier_chi2)
+    opt.max_rejection_rounds, opt.reject_odometry = int(max_rejection_rounds), bool(reject_odometry)
+    out = _ext.optimize_pose_graph(poses, pairs, rel, info, loops, g_nodes, g_up, g_sigma, opt)
     return GraphResult(
-        T_world_node=np.array(out["T_world_node"]),
-        edge_chi2=np.array(out["edge_chi2"]),
-        edge_inlier=np.array(out["edge_inlier"]).astype(bool),
-        initial_cost=float(out["initial_cost"]),
-        final_cost=float(out["final_cost"]),
-        iterations=int(out["iterations"]),
-        rejected=int(out["rejected"]),
-        converged=bool(out["converged"]),
-        message=str(out["message"]),
+        T_world_node=out.T_world_node,
+        edge_chi2=out.edge_chi2,
+        edge_inlier=out.edge_inlier.astype(bool),
+        initial_cost=float(out.initial_cost),
+        final_cost=float(out.final_cost),
+        iterations=int(out.iterations),
+        rejected=int(out.rejected),
+        converged=bool(out.converged),
+        message=str(out.message),
     )

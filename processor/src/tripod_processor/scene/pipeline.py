@@ -14,9 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..io.mesh_obj import write_obj
 from ..preprocess import point_normals
 from .config import SceneConfig
-from .heightmaps import CLASS_NAMES, Heightmap, low_poly_mesh, plane_heightmap, write_mesh_ply
+from .heightmaps import (CLASS_COLOURS, CLASS_NAMES, Heightmap, low_poly_mesh, plane_heightmap,
+                         write_mesh_ply)
 from .planes import Plane, extract_planes, plane_inlier_share
 
 #: normals of the heightmap pipeline: voxel moments at this edge [m]
@@ -84,8 +86,8 @@ def heightmap_name(k: int, plane: Plane) -> str:
 
 def write_scene(output: Path, res: SceneResult, points: np.ndarray, labels: np.ndarray,
                 source: str, labels_from: str, cfg: SceneConfig) -> None:
-    """The heightmap PNGs (+ JSON), ``room_lowpoly.ply``, ``planes.json``, ``overview.png`` and
-    ``config.yaml`` of a result in ``output``."""
+    """The heightmap PNGs (+ JSON), ``room_lowpoly.ply`` and ``room_lowpoly.obj`` (+ ``.mtl``),
+    ``planes.json``, ``overview.png`` and ``config.yaml`` of a result in ``output``."""
     from tripod_shared.config_io import dump_config
 
     from .plots import save_overview
@@ -95,6 +97,7 @@ def write_scene(output: Path, res: SceneResult, points: np.ndarray, labels: np.n
     for k, (pl, hm) in enumerate(zip(res.planes, res.heightmaps)):
         hm.save(output / heightmap_name(k, pl))
     write_mesh_ply(output / "room_lowpoly.ply", *res.mesh)
+    write_obj(output / "room_lowpoly.obj", *res.mesh, list(CLASS_NAMES), CLASS_COLOURS)
     (output / "planes.json").write_text(json.dumps(
         {"source": source, "labels": labels_from,
          "planes": [dict(pl.as_dict(), heightmap=heightmap_name(k, pl))

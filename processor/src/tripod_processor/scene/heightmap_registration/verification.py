@@ -154,7 +154,7 @@ class _Verifier:
         seen from both of its sides (a partition between two rooms) is two faces, and plain ICP
         would pull them together. Returns (T, fitness, inlier RMSE [m])."""
         from ...preprocess import voxel_downsample
-        from ...registration.pairwise import oriented_point_to_plane, prepare
+        from ...registration.pairwise import prepare, register
 
         def oriented(P, v):
             return prepare(voxel_downsample(P.astype(np.float32), 0.05), num_neighbors=12,
@@ -164,8 +164,11 @@ class _Verifier:
         T2 = np.ascontiguousarray(T, dtype=np.float64)
         r = None
         for dist in (0.15, 0.08):
-            r = oriented_point_to_plane(src, tgt, T2, dist, 15, 0.03, 0.5, 60_000, self.threads)
-            T2 = np.asarray(r["T_target_source"], np.float64)
-        if not r["linearized"] or not _same_pose(T2, T, 2.0, 0.3):  # ran away: keep verified
-            return np.asarray(T), float("nan"), float("nan")
-        return T2, float(r["fitness"]), float(r["rmse"])
+            r = register(src, tgt, method="plane", init=T2, max_correspondence_distance=dist,
+                         max_iterations=15, rotation_eps=1e-6, translation_eps=1e-5,
+                         loss="huber", loss_scale=0.06, point_sigma=0.03, oriented=True,
+                         max_source=60_000, min_correspondences=100, num_threads=self.threads)
+            T2 = r.T_target_source
+        if r.status == "too_few_correspondences" or not _same_pose(T2, T, 2.0, 0.3):
+            return np.asarray(T), float("nan"), float("nan")  # ran away: keep the verified pose
+        return T2, float(r.fitness), float(r.residual_rmse)

@@ -98,7 +98,10 @@ def point_features(points, num_threads: int = 0, return_segments: bool = False):
     room_h = z_ceil - z_floor
     # rays are "open" when they leave the scanned extent without meeting the band's occupancy
     upright = (nz_s < 0.7).astype(np.uint8)
-    cc = _ext.column_context(p, upright, COLUMN_CELL, z_floor + 0.2, z_ceil - 0.2, 16, 0.25, 100.0, nt)
+    opt = _ext._ColumnContextOptions()
+    opt.cell_size, opt.z_low, opt.z_high = COLUMN_CELL, z_floor + 0.2, z_ceil - 0.2
+    opt.num_directions, opt.skip, opt.max_range, opt.num_threads = 16, 0.25, 100.0, nt
+    cc = _ext.column_context(p, upright, opt)
     f = np.empty((len(p), len(FEATURE_NAMES)), np.float32)
     f[:, 0], f[:, 1], f[:, 2], f[:, 3] = nz_s, lin_s, pla_s, sca_s
     f[:, 4] = np.log1p(ls_s[:, 6])

@@ -1,5 +1,5 @@
 // SPDX-License-Identifier: BSD-3-Clause
-#include "tripod_core/deskew.hpp"
+#include "tripod_core/placement.hpp"
 
 #include <omp.h>
 

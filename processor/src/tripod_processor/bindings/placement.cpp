@@ -1,12 +1,13 @@
 // SPDX-License-Identifier: BSD-3-Clause
-// Bindings: IMU placement (de-skew). Conversions and docstrings only.
+// Bindings: IMU placement of lidar points, "de-skew" (tripod_core/placement.hpp). Conversions
+// and docstrings only. Python owner: tripod_processor.reconstruction.placement.
 #include "common.hpp"
-#include "tripod_core/deskew.hpp"
+#include "tripod_core/placement.hpp"
 
 namespace nb = nanobind;
 using namespace tripod_bind;
 
-TRIPOD_BINDING(deskew) {
+TRIPOD_BINDING(placement) {
     m.def(
         "place_points",
         [](CloudIn points, nb::ndarray<const int64_t, nb::shape<-1>, nb::c_contig> t_ns,

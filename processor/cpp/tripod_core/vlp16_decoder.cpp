@@ -6,7 +6,7 @@
 // -ffp-contract=off for the same reason (a fused multiply-add would round differently). Where
 // 3.1 differs from the 3.x source at hand (the full calibration model), its behaviour was
 // measured term by term and is noted there.
-#include "tripod_core/velodyne_decoder.hpp"
+#include "tripod_core/vlp16_decoder.hpp"
 
 #include <omp.h>
 
@@ -125,7 +125,88 @@ Vlp16Decoder::Vlp16Decoder(const Vlp16Calibration& calibration, const Vlp16Decod
 
 bool Vlp16Decoder::azimuth_in_range(std::uint16_t azimuth) const {
     if (min_azimuth_ <= max_azimuth_) return azimuth >= min_azimuth_ && azimuth <= max_azimuth_;
-    return azimuth <= min_azimuth_ && azimuth >= max_azimuth_;
+    // a range across 0 (e.g. 270 to 90, the front half): the ROS velodyne driver's rule.
+    // velodyne-decoder 3.1 keeps [max, min] here instead (as if the bounds were swapped), so
+    // tripod.decode refuses such a range on its velodyne_decoder path.
+    return azimuth >= min_azimuth_ || azimuth <= max_azimuth_;
+}
+
+/// One return's x, y, z [m] and calibrated intensity (velodyne-decoder's unpackPoint; the
+/// full correction model when the calibration is "advanced"); false when the range filter
+/// drops it.
+bool Vlp16Decoder::point_of(int laser, std::uint16_t azimuth, const std::uint8_t* m, float& x,
+                            float& y, float& z, float& intensity) const {
+    const std::uint16_t raw_distance = read_u16(m);
+    const std::uint8_t raw_intensity = m[2];
+    float distance = raw_distance * calibration_.distance_resolution_m;
+    const float cos_vert_angle = cos_vert_[laser];
+    const float sin_vert_angle = sin_vert_[laser];
+    const float cos_rot_correction = cos_rot_corr_[laser];
+    const float sin_rot_correction = sin_rot_corr_[laser];
+    // cos(a-b) = cos(a)*cos(b) + sin(a)*sin(b); sin(a-b) = sin(a)*cos(b) - cos(a)*sin(b)
+    const float cos_rot_angle = cos_rot_table_[azimuth] * cos_rot_correction +
+                                sin_rot_table_[azimuth] * sin_rot_correction;
+    const float sin_rot_angle = sin_rot_table_[azimuth] * cos_rot_correction -
+                                cos_rot_table_[azimuth] * sin_rot_correction;
+    if (!advanced_) {
+        if (!(distance >= config_.min_range_m && distance <= config_.max_range_m)) return false;
+        const float xy_distance = distance * cos_vert_angle;
+        x = xy_distance * cos_rot_angle;  // ROS frame: x forward, y left, z up
+        y = -xy_distance * sin_rot_angle;
+        z = distance * sin_vert_angle;
+        intensity = (float)raw_intensity;
+    } else {
+        // velodyne-decoder 3.1's full model (its source is not at hand: the terms below were
+        // measured against it one at a time, see tests/processor/test_native_decoder.py)
+        const auto& c = calibration_.lasers[laser];
+        distance += c.dist_correction;
+        if (!(distance >= config_.min_range_m && distance <= config_.max_range_m))
+            return false;
+        const float horiz_offset = c.horiz_offset_correction;
+        const float vert_offset = c.vert_offset_correction;
+        // two-point correction: the distance correction interpolated between the near (x:
+        // 2.4 m, y: 1.93 m) and far (25.04 m) calibration points by the point's |x| and |y|
+        // in the sensor frame; 3.1 adds the whole correction to the raw distance and takes
+        // their mean for z (measured: this matches 3.1 to one float32 ulp on a few points
+        // in a thousand, exactly on the rest; the default VLP-16 tables have no two-point
+        // values)
+        const float raw_m = raw_distance * calibration_.distance_resolution_m;
+        float distance_x = distance, distance_y = distance, distance_z = distance;
+        if (c.two_pt_correction_available) {
+            const float xy_distance = distance * cos_vert_angle;
+            const float xx = std::abs(xy_distance * sin_rot_angle);
+            const float yy = std::abs(xy_distance * cos_rot_angle);
+            const float corr_x = (c.dist_correction - c.dist_correction_x) * (xx - 2.4f) /
+                                     (25.04f - 2.4f) +
+                                 c.dist_correction_x;
+            const float corr_y = (c.dist_correction - c.dist_correction_y) * (yy - 1.93f) /
+                                     (25.04f - 1.93f) +
+                                 c.dist_correction_y;
+            distance_x = raw_m + corr_x;
+            distance_y = raw_m + corr_y;
+            distance_z = raw_m + (corr_x + corr_y) / 2;
+        }
+        float xy_distance = distance_x * cos_vert_angle;
+        const float xs = xy_distance * sin_rot_angle - horiz_offset * cos_rot_angle;
+        xy_distance = distance_y * cos_vert_angle;
+        const float ys = xy_distance * cos_rot_angle + horiz_offset * sin_rot_angle;
+        // the VLP-16 manual's vertical offset: z only
+        z = distance_z * sin_vert_angle + vert_offset;
+        x = ys;  // the Velodyne manual's frame turned to ROS's
+        y = -xs;
+        const float min_intensity = (float)c.min_intensity;
+        const float max_intensity = (float)c.max_intensity;
+        // focal distance in the calibration's unit, the formula's in 1/100 of it
+        const float focal_offset = sqr(1 - c.focal_distance * 100 / 13100.f);
+        const float raw_intensity_f = raw_intensity;
+        const float raw_distance_f = raw_distance;
+        intensity = raw_intensity_f +
+                    256 * c.focal_slope *
+                        std::abs(focal_offset - sqr(1 - raw_distance_f / 65535.f));
+        intensity = (intensity < min_intensity) ? min_intensity : intensity;
+        intensity = (intensity > max_intensity) ? max_intensity : intensity;
+    }
+    return true;
 }
 
 PacketStatus Vlp16Decoder::decode_packet(const std::uint8_t* raw, std::int64_t stamp_ns,
@@ -159,76 +240,8 @@ PacketStatus Vlp16Decoder::decode_packet(const std::uint8_t* raw, std::int64_t s
     auto emit = [&](int laser, std::uint16_t azimuth, float time_s, std::int32_t t_ns_in_packet,
                     std::int64_t ref_ns, const std::uint8_t* m, std::uint8_t rtype,
                     int block) {
-        const std::uint16_t raw_distance = read_u16(m);
-        const std::uint8_t raw_intensity = m[2];
-        float distance = raw_distance * calibration_.distance_resolution_m;
-        const float cos_vert_angle = cos_vert_[laser];
-        const float sin_vert_angle = sin_vert_[laser];
-        const float cos_rot_correction = cos_rot_corr_[laser];
-        const float sin_rot_correction = sin_rot_corr_[laser];
-        // cos(a-b) = cos(a)*cos(b) + sin(a)*sin(b); sin(a-b) = sin(a)*cos(b) - cos(a)*sin(b)
-        const float cos_rot_angle = cos_rot_table_[azimuth] * cos_rot_correction +
-                                    sin_rot_table_[azimuth] * sin_rot_correction;
-        const float sin_rot_angle = sin_rot_table_[azimuth] * cos_rot_correction -
-                                    cos_rot_table_[azimuth] * sin_rot_correction;
         float x, y, z, intensity;
-        if (!advanced_) {
-            if (!(distance >= config_.min_range_m && distance <= config_.max_range_m)) return;
-            const float xy_distance = distance * cos_vert_angle;
-            x = xy_distance * cos_rot_angle;  // ROS frame: x forward, y left, z up
-            y = -xy_distance * sin_rot_angle;
-            z = distance * sin_vert_angle;
-            intensity = (float)raw_intensity;
-        } else {
-            // velodyne-decoder 3.1's full model (its source is not at hand: the terms below were
-            // measured against it one at a time, see tests/processor/test_native_decoder.py)
-            const auto& c = calibration_.lasers[laser];
-            distance += c.dist_correction;
-            if (!(distance >= config_.min_range_m && distance <= config_.max_range_m)) return;
-            const float horiz_offset = c.horiz_offset_correction;
-            const float vert_offset = c.vert_offset_correction;
-            // two-point correction: the distance correction interpolated between the near (x:
-            // 2.4 m, y: 1.93 m) and far (25.04 m) calibration points by the point's |x| and |y|
-            // in the sensor frame; 3.1 adds the whole correction to the raw distance and takes
-            // their mean for z (measured: this matches 3.1 to one float32 ulp on a few points
-            // in a thousand, exactly on the rest; the default VLP-16 tables have no two-point
-            // values)
-            const float raw_m = raw_distance * calibration_.distance_resolution_m;
-            float distance_x = distance, distance_y = distance, distance_z = distance;
-            if (c.two_pt_correction_available) {
-                const float xy_distance = distance * cos_vert_angle;
-                const float xx = std::abs(xy_distance * sin_rot_angle);
-                const float yy = std::abs(xy_distance * cos_rot_angle);
-                const float corr_x = (c.dist_correction - c.dist_correction_x) * (xx - 2.4f) /
-                                         (25.04f - 2.4f) +
-                                     c.dist_correction_x;
-                const float corr_y = (c.dist_correction - c.dist_correction_y) * (yy - 1.93f) /
-                                         (25.04f - 1.93f) +
-                                     c.dist_correction_y;
-                distance_x = raw_m + corr_x;
-                distance_y = raw_m + corr_y;
-                distance_z = raw_m + (corr_x + corr_y) / 2;
-            }
-            float xy_distance = distance_x * cos_vert_angle;
-            const float xs = xy_distance * sin_rot_angle - horiz_offset * cos_rot_angle;
-            xy_distance = distance_y * cos_vert_angle;
-            const float ys = xy_distance * cos_rot_angle + horiz_offset * sin_rot_angle;
-            // the VLP-16 manual's vertical offset: z only
-            z = distance_z * sin_vert_angle + vert_offset;
-            x = ys;  // the Velodyne manual's frame turned to ROS's
-            y = -xs;
-            const float min_intensity = (float)c.min_intensity;
-            const float max_intensity = (float)c.max_intensity;
-            // focal distance in the calibration's unit, the formula's in 1/100 of it
-            const float focal_offset = sqr(1 - c.focal_distance * 100 / 13100.f);
-            const float raw_intensity_f = raw_intensity;
-            const float raw_distance_f = raw_distance;
-            intensity = raw_intensity_f +
-                        256 * c.focal_slope *
-                            std::abs(focal_offset - sqr(1 - raw_distance_f / 65535.f));
-            intensity = (intensity < min_intensity) ? min_intensity : intensity;
-            intensity = (intensity > max_intensity) ? max_intensity : intensity;
-        }
+        if (!point_of(laser, azimuth, m, x, y, z, intensity)) return;  // out of range
         const std::int64_t off = stamp_ns + t_ns_in_packet - ref_ns;
         std::int32_t off32;
         if (off > std::numeric_limits<std::int32_t>::max()) {

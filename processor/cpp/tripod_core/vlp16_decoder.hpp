@@ -48,7 +48,10 @@ struct Vlp16Calibration {
 struct Vlp16DecoderConfig {
     float min_range_m = 0.1f;   ///< returns nearer than this are dropped [m]
     float max_range_m = 200.f;  ///< returns farther than this are dropped [m]
-    double min_angle_deg = 0;   ///< keep azimuths in [min_angle, max_angle] [deg]
+    /// keep azimuths from min_angle clockwise to max_angle [deg] (the sensor's azimuth: 0 along
+    /// +x, 90 along -y); a range across 0 when min > max (the ROS driver's rule;
+    /// velodyne-decoder 3.1 keeps [max, min] then); equal bounds keep everything
+    double min_angle_deg = 0;
     double max_angle_deg = 360;
 };
 
@@ -144,6 +147,9 @@ private:
                                std::size_t n_segments, PacketOut out, int& n_points,
                                bool& clipped) const;
     bool azimuth_in_range(std::uint16_t azimuth) const;
+    /// x, y, z [m] and intensity of one return; false when the range filter drops it.
+    bool point_of(int laser, std::uint16_t azimuth, const std::uint8_t* m, float& x, float& y,
+                  float& z, float& intensity) const;
 
     Vlp16Calibration calibration_;
     Vlp16DecoderConfig config_;

@@ -1,0 +1,225 @@
+// SPDX-License-Identifier: BSD-3-Clause
+// The hot loop of the Gauss-Newton methods: association and linearisation fused in one pass
+// over the source points, one instantiation per residual model (no per-point branching on the
+// method, no per-point allocation), sums per fixed chunk of points added in chunk order (the
+// result is bit-identical whatever the thread count).
+//
+// Jacobians of e = q - (R p + t) under the left update (exp(w) R, t + v), with S = [R p]x:
+//   d e / d(w, v) = J = [S, -I]
+// and the normal-equation blocks written out from that structure rather than as generic
+// 6x3 products (a third of the flops):
+//   GICP, weight M:   J^T M J = [[-S M S, S M], [-M S, M]],   J^T M e = [M e x R p; -M e]
+//   point-to-plane:   n^T J = [n x R p; -n]
+//   point-to-point:   J^T J = [[-S S, S], [-S, I]],            J^T e = [e x R p; -e]
+// Only the lower triangle is summed; the upper one is filled once at the end.
+#include <omp.h>
+
+#include "tripod_core/registration_internal.hpp"
+#include "tripod_core/registration_voxels.hpp"
+
+namespace tripod::detail {
+
+namespace {
+int threads(int n) { return n > 0 ? n : omp_get_max_threads(); }
+
+bool is_plane_family(Method m) {
+    return m == Method::kPointToPlane || m == Method::kSymmetric || m == Method::kLM;
+}
+
+template <Method M>
+Normal linearize_model(const Problem& P, const Eigen::Isometry3d& T, std::vector<int>& corr,
+                       bool with_jacobian, double associate_sq_dist,
+                       std::vector<Eigen::Matrix3d>* mahalanobis) {
+    constexpr bool kVoxels = M == Method::kVGICP;
+    constexpr bool kGicp = M == Method::kGICP || kVoxels;
+    constexpr bool kPlane = M == Method::kPointToPlane || M == Method::kSymmetric ||
+                            M == Method::kLM;
+    const PreparedCloud& src = P.src;
+    const PreparedCloud& tgt = P.tgt;
+    const GaussianVoxels* vox = P.voxels;
+    const int64_t n = src.points.rows();
+    const bool find = associate_sq_dist > 0;
+    // the previous iteration's matches (if any) warm-start the nearest-neighbour searches
+    if (corr.size() != static_cast<size_t>(n)) corr.assign(n, -1);
+    const bool store_M = kGicp && mahalanobis && with_jacobian;
+    const bool reuse_M = kGicp && mahalanobis && !with_jacobian &&
+                         mahalanobis->size() == static_cast<size_t>(n);
+    if (store_M) mahalanobis->resize(n);
+    const Eigen::Matrix3d R = T.linear();
+    const Eigen::Vector3d t = T.translation();
+    const float max_sq = static_cast<float>(associate_sq_dist);
+    const double inv_s2 = 1.0 / (P.opt.point_sigma * P.opt.point_sigma);
+    const Kernel kernel{P.opt.loss, std::pow(P.opt.loss_scale / P.opt.point_sigma, 2)};
+    const bool oriented = P.opt.oriented;
+    const double min_cos = P.opt.min_normal_cos;
+    const int64_t m = static_cast<int64_t>(P.rows.size());
+    // Fixed chunks handed out dynamically (a descheduled thread on a busy machine does not hold
+    // the others up), each with its own partial sum, added in chunk order afterwards.
+    constexpr int64_t kChunk = 512;
+    const int64_t num_chunks = (m + kChunk - 1) / kChunk;
+    std::vector<Normal> parts(num_chunks);
+#pragma omp parallel for num_threads(threads(P.num_threads)) schedule(dynamic, 1)
+    for (int64_t chunk = 0; chunk < num_chunks; ++chunk) {
+        Normal acc;
+        const int64_t end = std::min(m, (chunk + 1) * kChunk);
+        for (int64_t k = chunk * kChunk; k < end; ++k) {
+            const int64_t i = P.rows[k];
+            const Eigen::Vector3d Rp = R * src.points.row(i).transpose().cast<double>();
+            const Eigen::Vector3d Tp = Rp + t;
+            int j = corr[i];
+            if (find) {
+                if constexpr (kVoxels) {
+                    j = vox->find(Tp);
+                    if (j >= 0 && (vox->mean(j) - Tp).squaredNorm() > associate_sq_dist) j = -1;
+                } else {
+                    const Eigen::Vector3f pf = Tp.cast<float>();
+                    float d2;
+                    j = tgt.tree->nearest_from(pf.data(), max_sq, j, &d2);
+                }
+                corr[i] = j;
+            }
+            if (j < 0) continue;
+            Eigen::Vector3d q;
+            if constexpr (kVoxels)
+                q = vox->mean(j);
+            else
+                q = tgt.points.row(j).transpose().cast<double>();
+            const Eigen::Vector3d e = q - Tp;
+            double w = 0, rho = 0;
+            if constexpr (kGicp) {
+                Eigen::Matrix3d W;
+                if (reuse_M) {
+                    W = (*mahalanobis)[i];
+                } else {
+                    const Eigen::Matrix3d& Cq = kVoxels ? vox->covariance(j) : tgt.covariances[j];
+                    const Eigen::Matrix3d C = Cq + R * src.covariances[i] * R.transpose();
+                    W = C.inverse();
+                    if (store_M) (*mahalanobis)[i] = W;
+                }
+                const Eigen::Vector3d We = W * e;
+                kernel(e.dot(We), w, rho);
+                if (with_jacobian) {
+                    const Eigen::Matrix3d S = skew(Rp);
+                    const Eigen::Matrix3d WS = W * S;
+                    acc.H.topLeftCorner<3, 3>().noalias() -= w * (S * WS);
+                    acc.H.bottomLeftCorner<3, 3>().noalias() -= w * WS;
+                    acc.H.bottomRightCorner<3, 3>().noalias() += w * W;
+                    acc.b.head<3>() += w * We.cross(Rp);
+                    acc.b.tail<3>() -= w * We;
+                }
+            } else if constexpr (kPlane) {
+                if (!tgt.normal_valid[j]) continue;
+                Eigen::Vector3d nrm = tgt.normals.row(j).transpose();
+                if (src.normal_valid[i]) {
+                    Eigen::Vector3d ns = R * src.normals.row(i).transpose();
+                    // sign-free: a normal seen from the other side is the same surface
+                    if (!oriented && ns.dot(nrm) < 0) ns = -ns;
+                    // normal compatibility: a pair on different surfaces (a wall point
+                    // matched to the floor near a corner) pulls the wrong way: drop it
+                    if (!(ns.dot(nrm) >= min_cos)) continue;
+                    if constexpr (M == Method::kSymmetric) nrm = (nrm + ns).normalized();
+                } else if (oriented || M == Method::kSymmetric) {
+                    continue;
+                }
+                const double s = nrm.dot(e);
+                acc.sq_res += s * s;
+                kernel(s * s * inv_s2, w, rho);
+                if (with_jacobian) {
+                    Vec6 Jn;
+                    Jn.head<3>() = nrm.cross(Rp);
+                    Jn.tail<3>() = -nrm;
+                    const double c = w * inv_s2;
+                    acc.H.noalias() += (c * Jn) * Jn.transpose();
+                    acc.b.noalias() += (c * s) * Jn;
+                }
+            } else {  // point-to-point
+                kernel(e.squaredNorm() * inv_s2, w, rho);
+                if (with_jacobian) {
+                    const double c = w * inv_s2;
+                    const Eigen::Matrix3d S = skew(Rp);
+                    acc.H.topLeftCorner<3, 3>().noalias() -= c * (S * S);
+                    acc.H.bottomLeftCorner<3, 3>() -= c * S;
+                    acc.H.bottomRightCorner<3, 3>().diagonal().array() += c;
+                    acc.b.head<3>() += c * e.cross(Rp);
+                    acc.b.tail<3>() -= c * e;
+                }
+            }
+            acc.error += rho;
+            acc.count += 1;
+            acc.sq_dist += e.squaredNorm();
+            if constexpr (!kPlane) acc.sq_res += e.squaredNorm();
+        }
+        parts[chunk] = acc;
+    }
+    Normal out;
+    for (const Normal& p : parts) {
+        out.H += p.H;
+        out.b += p.b;
+        out.error += p.error;
+        out.count += p.count;
+        out.sq_dist += p.sq_dist;
+        out.sq_res += p.sq_res;
+    }
+    out.H = out.H.selfadjointView<Eigen::Lower>();
+    return out;
+}
+}  // namespace
+
+Problem::Problem(const PreparedCloud& s, const PreparedCloud& t, const RegistrationOptions& o,
+                 Method m, int nt)
+    : src(s), tgt(t), opt(o), method(m), num_threads(threads(nt)) {
+    const bool need_normal = o.oriented && is_plane_family(m);
+    std::vector<int64_t> all;
+    all.reserve(s.points.rows());
+    for (int64_t i : s.tree->order())
+        if (!need_normal || s.normal_valid[i]) all.push_back(i);
+    const int64_t na = static_cast<int64_t>(all.size());
+    if (o.max_source > 0 && na > o.max_source) {
+        rows.resize(o.max_source);
+        for (int64_t k = 0; k < o.max_source; ++k) rows[k] = all[(k * na) / o.max_source];
+    } else {
+        rows.swap(all);
+    }
+}
+
+void associate(const Problem& P, const Eigen::Isometry3d& T, double max_sq_dist,
+               std::vector<int>& corr) {
+    const int64_t n = P.src.points.rows();
+    if (corr.size() != static_cast<size_t>(n)) corr.assign(n, -1);  // else: warm-start hints
+    const Eigen::Matrix3f R = T.linear().cast<float>();
+    const Eigen::Vector3f t = T.translation().cast<float>();
+    const int64_t m = static_cast<int64_t>(P.rows.size());
+#pragma omp parallel for num_threads(P.num_threads) schedule(dynamic, 512)
+    for (int64_t k = 0; k < m; ++k) {
+        const int64_t i = P.rows[k];
+        const Eigen::Vector3f p = R * P.src.points.row(i).transpose() + t;
+        float d;
+        corr[i] = P.tgt.tree->nearest_from(p.data(), static_cast<float>(max_sq_dist), corr[i], &d);
+    }
+}
+
+Normal linearize(const Problem& P, const Eigen::Isometry3d& T, std::vector<int>& corr,
+                 bool with_jacobian, double associate_sq_dist,
+                 std::vector<Eigen::Matrix3d>* mahalanobis) {
+    switch (P.method) {
+        case Method::kPointToPoint:
+            return linearize_model<Method::kPointToPoint>(P, T, corr, with_jacobian,
+                                                          associate_sq_dist, mahalanobis);
+        case Method::kGICP:
+            return linearize_model<Method::kGICP>(P, T, corr, with_jacobian, associate_sq_dist,
+                                                  mahalanobis);
+        case Method::kVGICP:
+            return linearize_model<Method::kVGICP>(P, T, corr, with_jacobian, associate_sq_dist,
+                                                   mahalanobis);
+        case Method::kSymmetric:
+            return linearize_model<Method::kSymmetric>(P, T, corr, with_jacobian,
+                                                       associate_sq_dist, mahalanobis);
+        case Method::kPointToPlane:
+        case Method::kLM:
+            break;
+    }
+    return linearize_model<Method::kPointToPlane>(P, T, corr, with_jacobian, associate_sq_dist,
+                                                  mahalanobis);
+}
+
+}  // namespace tripod::detail
