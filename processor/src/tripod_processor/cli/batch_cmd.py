@@ -1,0 +1,116 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""``tripod batch``: every recording under the inputs reconstructed as its own Ray task
+(library: :mod:`tripod_processor.batch`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from . import app
+from ._common import fail
+from .reconstruct_cmd import _parse_sets
+
+
+def batch_table(res):
+    """A rich table: one row per recording."""
+    from rich.table import Table
+
+    from ..batch.index import COLUMNS, row
+
+    t = Table(title=f"tripod batch: {res.engine}, {res.wall_s:.1f} s", header_style="bold")
+    for c in COLUMNS[:-1]:
+        t.add_column(c, justify="left" if c in ("recording", "status") else "right")
+    t.add_column("error")
+    colour = {"done": "green", "skipped": "cyan", "failed": "red"}
+    for o in res.outcomes:
+        cells = row(o)
+        cells[1] = f"[{colour[o['status']]}]{cells[1]}[/]"
+        t.add_row(*cells, o.get("error", ""))
+    return t
+
+
+@app.command("batch", rich_help_panel="Run")
+def batch_command(
+    inputs: list[Path] = typer.Argument(
+        None, help="recordings or folders to search: our MCAP files (split parts grouped), "
+                   "pcap + IMU log pairs (X.pcap with X.tripimu), `tripod simulate` folders"),
+    output: Path = typer.Option(Path("batch"), "-o", "--output",
+                                help="output folder: one folder per recording, index.md/html"),
+    workers: int = typer.Option(1, "--workers", min=1,
+                                help="CPUs of the local Ray instance (parallel recordings)"),
+    address: str = typer.Option(None, "--address",
+                                help="use a running Ray cluster: auto or HOST:PORT (paths must "
+                                     "be the same on every node)"),
+    threads: int = typer.Option(1, "--threads-per-task", min=1,
+                                help="CPUs (and reconstruction threads) per recording"),
+    max_retries: int = typer.Option(2, "--max-retries", min=0,
+                                    help="retries of a recording whose worker process died"),
+    force: bool = typer.Option(False, "--force", help="reconstruct even what is up to date"),
+    config: Path = typer.Option(None, "--config", help="reconstruction YAML config"),
+    calibration: Path = typer.Option(None, "--calibration",
+                                     help="lidar-IMU extrinsic, as for tripod reconstruct"),
+    set_: list[str] = typer.Option(None, "--set", help="override a config key: a.b=value"),
+    list_only: bool = typer.Option(False, "--list", help="list the recordings found and exit"),
+    quiet: bool = typer.Option(False, "--quiet", help="no progress bar"),
+) -> None:
+    """Reconstruct many recordings (skipping those up to date) on Ray; index page at the end."""
+    from rich.console import Console
+    from tqdm import tqdm
+
+    from tripod_shared.config_io import ConfigError, load_config
+
+    from ..batch import batch_reconstruct, discover
+    from ..batch.runner import EngineError
+    from ..reconstruction.config import ReconstructConfig
+
+    if not inputs:
+        fail("give recordings or folders to search")
+    recs, notes = discover(list(inputs))
+    con = Console()
+    for n in notes:
+        con.print(f"[yellow]note:[/] {n}")
+    if not recs:
+        fail("no recording found (MCAP, pcap + IMU log, or simulate folder)")
+    if list_only:
+        for r in recs:
+            con.print(f"{r.name}  [dim]{r.kind}[/]  " + ", ".join(str(p) for p in r.inputs)
+                      + (f" + {r.imu}" if r.imu else ""))
+        raise typer.Exit(0)
+    overrides = _parse_sets(set_)
+    if calibration is not None:
+        from ..reconstruction.placement import load_extrinsic_file
+
+        try:
+            q, lever = load_extrinsic_file(calibration)
+        except (OSError, ValueError) as exc:
+            fail(f"calibration: {exc}")
+        overrides.setdefault("placement.extrinsic.q_imu_lidar", q)
+        overrides.setdefault("placement.extrinsic.lever_arm_m", lever)
+    overrides["num_threads"] = threads
+    try:
+        cfg = load_config(ReconstructConfig, config, overrides)
+    except ConfigError as exc:
+        fail(str(exc))
+
+    bar = tqdm(total=len(recs), desc="recordings", unit="rec", disable=quiet,
+               dynamic_ncols=True)
+
+    def on_done(o: dict, done: int, total: int) -> None:
+        bar.n = done
+        bar.refresh()
+        if o["status"] == "failed" and not quiet:
+            bar.write(f"failed: {o['name']}: {o['error']}")
+
+    try:
+        res = batch_reconstruct(recs, output, cfg, workers=workers, address=address,
+                                max_retries=max_retries, force=force, on_done=on_done)
+    except EngineError as exc:
+        fail(str(exc))
+    finally:
+        bar.close()
+    con.print(batch_table(res))
+    con.print(f"index [bold]{output / 'index.html'}[/] and [bold]{output / 'index.md'}[/]")
+    if res.count("failed"):
+        raise typer.Exit(1)
