@@ -178,8 +178,8 @@ def run_decode(input_path: Path, outdir: Path | None, *, summary_only: bool = Fa
         failed(f"{input_path}: {exc}")
     except OSError as exc:
         failed(f"{input_path}: {exc}")
-    except RuntimeError as exc:  # velodyne-decoder's way of refusing a packet
-        failed(f"{input_path}: velodyne-decoder: {exc}")
+    except RuntimeError as exc:  # a batch decoder refusing a packet (none known to)
+        failed(f"{input_path}: {exc}")
     if not prepared:  # no frame at all
         prepare_output()
     summary = run.report.summary()
