@@ -14,5 +14,6 @@ from .decoder import (DecodeConfig, DecodeError, DecodeReport, DecodeRun, Frame,
 from .native import POINT_DTYPE, CalibrationError, NativeVlp16Decoder
 
 __all__ = ["BatchDecoder", "BatchDecoderFactory", "CalibrationError", "DecodeConfig",
-           "DecodeError", "DecodeReport", "DecodeRun", "Frame", "FrameDecoder", "Gap", "NativeVlp16Decoder", "POINT_DTYPE",
+           "DecodeError", "DecodeReport", "DecodeRun", "Frame", "FrameDecoder", "Gap",
+           "NativeVlp16Decoder", "POINT_DTYPE",
            "PositionReport", "decode_file", "identify_sensor", "to_veloview_xyz"]
