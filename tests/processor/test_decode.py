@@ -19,11 +19,13 @@ from tripod_processor.decode import (
     DecodeConfig,
     DecodeError,
     FrameDecoder,
+    NativeVlp16Decoder,
     decode_file,
     identify_sensor,
     to_veloview_xyz,
 )
 from tripod_processor.io.pcap import PcapReader, PcapWriter
+from vd_oracle import VelodyneDecoderOracle
 
 ISSUE_KEYS = ["frames", "points_per_frame", "sensor", "return_mode", "packets", "skipped"]
 
@@ -497,15 +499,16 @@ def test_azimuth_filter_keeps_the_view_width(velodyne_dir, capsys):
     path = velodyne_dir / "mrpt-vlp16-gps.pcap"
     full = np.concatenate([f.points for f in decode_file(path)])
 
-    def points(lo, hi, decoder="native"):
-        cfg = DecodeConfig(azimuth_min_deg=lo, azimuth_max_deg=hi, decoder=decoder)
-        return np.concatenate([f.points for f in decode_file(path, cfg)])
+    def points(lo, hi, batch_decoder=NativeVlp16Decoder):
+        cfg = DecodeConfig(azimuth_min_deg=lo, azimuth_max_deg=hi)
+        return np.concatenate([f.points for f in decode_file(path, cfg,
+                                                             batch_decoder=batch_decoder)])
 
     def azimuth_deg(p):  # the sensor's azimuth: 0 along +x, clockwise seen from above
         return np.degrees(np.arctan2(-p["y"], p["x"])) % 360
 
     # a range within one turn: velodyne-decoder's filter, point for point
-    a, b = points(0, 180), points(0, 180, "velodyne_decoder")
+    a, b = points(0, 180), points(0, 180, VelodyneDecoderOracle)
     np.testing.assert_array_equal(a[["x", "y", "z", "intensity", "ring"]],
                                   b[["x", "y", "z", "intensity", "ring"]])
     # (a laser's own azimuth offset puts a few returns up to ~1.5 deg past the block's)
@@ -517,8 +520,8 @@ def test_azimuth_filter_keeps_the_view_width(velodyne_dir, capsys):
     az = azimuth_deg(front)
     assert ((az <= 92) | (az >= 268)).all() and (front["x"] > -0.1).all()
     assert 0.3 * len(full) < len(front) < 0.7 * len(full)
-    with pytest.raises(DecodeError, match="needs decoder: native"):
-        points(270, 90, "velodyne_decoder")
+    with pytest.raises(DecodeError, match="cannot keep an azimuth range across 0"):
+        points(270, 90, VelodyneDecoderOracle)
     code, out, _err = _cli(capsys, path, "--summary", "--azimuth-min", "270",
                            "--azimuth-max", "90")
     assert code == 0 and json.loads(out)["points"] == len(front)

@@ -21,6 +21,7 @@ from tripod_processor.decode.native import (
     calibration_table,
 )
 from tripod_processor.io.packets import open_source
+from vd_oracle import VelodyneDecoderOracle
 
 _PRODUCT = {vd.Model.VLP16: 0x22, vd.Model.PuckHiRes: 0x24}
 
@@ -282,17 +283,21 @@ def test_threads_and_chunking_do_not_change_the_points(velodyne_dir):
 
 
 # ---------------------------------------------------------------------------------------------
-# the frame decoder on either path
+# the frame decoder with either batch decoder
 # ---------------------------------------------------------------------------------------------
+_BATCH_DECODERS = {"native": NativeVlp16Decoder, "velodyne_decoder": VelodyneDecoderOracle}
+
+
 def _frames(payloads, decoder, chunk=256):
-    dec = FrameDecoder(DecodeConfig(decoder=decoder, chunk_packets=chunk))
+    dec = FrameDecoder(DecodeConfig(chunk_packets=chunk), batch_decoder=_BATCH_DECODERS[decoder])
     return list(dec.decode(payloads)), dec.report
 
 
 @pytest.mark.parametrize("shuffle", [False, True])
 def test_frames_are_the_same_on_both_decoder_paths(velodyne_dir, shuffle):
-    """decode.py's two paths give the same frames; time offsets agree to velodyne-decoder's
-    float32 rounding (the native ones are exact integer ns)."""
+    """The frame decoder gives the same frames with the native decoder and with the
+    velodyne-decoder oracle; time offsets agree to velodyne-decoder's float32 rounding (the
+    native ones are exact integer ns)."""
     payloads = [(t, p) for t, p in open_source(velodyne_dir / "veloview-vlp16-20hz.pcap")
                 if len(p) == 1206]
     if shuffle:
@@ -300,7 +305,7 @@ def test_frames_are_the_same_on_both_decoder_paths(velodyne_dir, shuffle):
     nat, rep_n = _frames(payloads, "native", chunk=100)
     ref, rep_v = _frames(payloads, "velodyne_decoder", chunk=100)
     # (the swap makes one more azimuth wrap: one more frame, on both paths)
-    assert rep_n.points_per_frame == rep_v.points_per_frame and len(nat) == 52 + shuffle
+    assert rep_n.summary() == rep_v.summary() and len(nat) == 52 + shuffle
     for a, b in zip(nat, ref):
         assert (a.stamp_device_ns, a.packets, a.gaps) == (b.stamp_device_ns, b.packets, b.gaps)
         for k in ("x", "y", "z", "intensity", "ring", "laser", "return_type"):
@@ -326,15 +331,33 @@ def test_native_time_offsets_are_exact(velodyne_dir):
         assert (allowed[:, f.points["laser"].astype(np.int64)] == r).any(axis=0).all()
 
 
-def test_cli_decoder_option(velodyne_dir, capsys):
+def test_the_decoder_key_is_deprecated(velodyne_dir, tmp_path, capsys):
+    """The velodyne-decoder path left the product: an old config's ``decoder: native`` still
+    loads (with a note, and is not written back), any other value and ``--decoder`` are one-line
+    errors, and an unknown key stays one."""
     from tripod_processor.cli import main
 
     path = velodyne_dir / "mrpt-vlp16-gps.pcap"
-    summaries = []
-    for decoder in ("native", "velodyne_decoder"):
-        assert main(["decode", str(path), "--summary", "--decoder", decoder]) == 0
-        summaries.append(json.loads(capsys.readouterr().out))
-    assert summaries[0] == summaries[1] and summaries[0]["points"] > 70_000
-    code = main(["decode", str(path), "--summary", "--decoder", "bogus"])
+    assert main(["decode", str(path), "--summary"]) == 0
+    plain = json.loads(capsys.readouterr().out)
+    assert plain["points"] > 70_000
+    old = tmp_path / "old.yaml"
+    old.write_text("decoder: native\nchunk_packets: 512\n")
+    out_dir = tmp_path / "out"
+    assert main(["decode", str(path), "--summary", "--config", str(old), "-o", str(out_dir)]) == 0
+    out, err = capsys.readouterr()
+    summary = json.loads(out)
+    for k in ("input", "input_format"):
+        plain.pop(k), summary.pop(k)
+    assert summary == plain
+    assert "'decoder' is deprecated and ignored" in err
+    written = (out_dir / "decode_config.yaml").read_text()
+    assert "chunk_packets: 512" in written and "decoder" not in written
+    for text, word in (("decoder: velodyne_decoder\n", "decoder"), ("bogus_key: 1\n", "bogus_key")):
+        old.write_text(text)
+        code = main(["decode", str(path), "--summary", "--config", str(old)])
+        _out, err = capsys.readouterr()
+        assert code == 2 and len(err.strip().splitlines()) == 1 and word in err, err
+    code = main(["decode", str(path), "--summary", "--decoder", "native"])
     _out, err = capsys.readouterr()
-    assert code == 2 and len(err.strip().splitlines()) == 1 and "decoder" in err
+    assert code == 2 and "--decoder" in err

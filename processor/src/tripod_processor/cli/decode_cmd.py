@@ -132,6 +132,9 @@ def run_decode(input_path: Path, outdir: Path | None, *, summary_only: bool = Fa
         cfg = load_config(DecodeConfig, config_path, overrides)
     except ConfigError as exc:
         fail(str(exc))
+    if cfg.decoder is not None:
+        print(f"tripod: note: {config_path}: the key 'decoder' is deprecated and ignored (tripod "
+              "always decodes with its native decoder); remove it", file=sys.stderr)
     try:
         run = decode_file(input_path, cfg, set(ports) if ports else None)
     except (FileNotFoundError, SourceError) as exc:  # their messages name the input
@@ -175,8 +178,8 @@ def run_decode(input_path: Path, outdir: Path | None, *, summary_only: bool = Fa
         failed(f"{input_path}: {exc}")
     except OSError as exc:
         failed(f"{input_path}: {exc}")
-    except RuntimeError as exc:  # velodyne-decoder's way of refusing a packet
-        failed(f"{input_path}: velodyne-decoder: {exc}")
+    except RuntimeError as exc:  # a batch decoder refusing a packet (none known to)
+        failed(f"{input_path}: {exc}")
     if not prepared:  # no frame at all
         prepare_output()
     summary = run.report.summary()
@@ -214,8 +217,6 @@ def decode_command(
         "cross 0 (--azimuth-min 270 --azimuth-max 90 keeps the front half)"),
     calibration: str = typer.Option(None, "--calibration",
                                     help="veloview, manual, or a velodyne YAML file"),
-    decoder: str = typer.Option(None, "--decoder",
-                                help="native (default) or velodyne_decoder"),
     port: list[int] = typer.Option(None, "--port", help="keep only these UDP ports (pcap)"),
     quiet: bool = typer.Option(False, "-q", "--quiet", help="no progress bar"),
 ) -> None:
@@ -229,6 +230,6 @@ def decode_command(
         fail("give -o OUTDIR to write the frames, or --summary for the JSON summary")
     overrides = {"sensor": sensor, "min_range_m": min_range, "max_range_m": max_range,
                  "azimuth_min_deg": azimuth_min, "azimuth_max_deg": azimuth_max,
-                 "calibration": calibration, "decoder": decoder}
+                 "calibration": calibration}
     run_decode(input_path, output, summary_only=summary, fmt=fmt, config_path=config,
                overrides=overrides, ports=port or None, progress=not (quiet or summary))

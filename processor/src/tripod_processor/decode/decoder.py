@@ -1,10 +1,10 @@
 # SPDX-License-Identifier: BSD-3-Clause
 """Velodyne VLP-16 packets → frames (one rotation each) of points with per-point fields.
 
-The points come from tripod's batch decoder (:mod:`.native_decoder`, C++, one call per chunk of
-packets, proven equal to velodyne-decoder 3.1 point for point) or, with ``decoder:
-velodyne_decoder``, from velodyne-decoder itself (``velodyne_decoder.ScanDecoder``); this module
-groups packets, tells the sensor apart, splits rotations, stamps points and reports what it met.
+The points come from a batch decoder (:mod:`.batch`): by default tripod's own
+(:mod:`.native`, C++, one call per chunk of packets, proven equal to velodyne-decoder 3.1 point
+for point by the tests, where velodyne-decoder is the oracle); this module groups packets, tells
+the sensor apart, splits rotations, stamps points and reports what it met.
 
 Frames
     A frame is one rotation, split where the azimuth of a *data block* wraps (is smaller than
@@ -26,9 +26,8 @@ Time
     the frame's first firing). Each point has ``time_offset_ns`` (int32, lidar clock) since
     ``stamp_device_ns``, from the firing timing of the VLP-16 manual (55.296 µs per firing
     sequence, 2.304 µs per laser) as velodyne-decoder computes it. The native decoder gives it
-    exactly (integer ns from the packet's device time); velodyne-decoder gives float32 seconds,
-    so on that path offsets are good to about ±30 ns. Point times never depend on the host
-    clock's jitter (velodyne-decoder too is handed the lidar clock as its packet stamps).
+    exactly (integer ns from the packet's device time). Point times never depend on the host
+    clock's jitter (the batch decoder is handed the lidar clock as its packet stamps).
 
 Azimuth
     velodyne-decoder interpolates each laser's azimuth by its firing time; VeloView (the version
@@ -43,7 +42,7 @@ Sensor
 
 Memory stays constant: packets are decoded in chunks of ``chunk_packets`` (one decoder call
 each), and at most one chunk of points plus the open frame is held. A frame wholly inside a
-native chunk is a slice of the decoder's output (no copy); any other point is copied once, from
+chunk is a slice of the batch decoder's output (no copy); any other point is copied once, from
 the decoder's output into its frame.
 """
 
@@ -56,28 +55,19 @@ from typing import Literal
 
 import numpy as np
 import velodyne_decoder as vd
-from pydantic import Field
+from pydantic import Field, field_validator
 from tripod_shared import nmea as nmea_
 from tripod_shared import velodyne as vl
 from tripod_shared.timebase import TohChunkUnwrapper, nearest_hour_ns
 from tripod_shared.config_io import StrictModel
 
-from .native import POINT_DTYPE, CalibrationError, NativeVlp16Decoder
+from .batch import BatchDecoder, BatchDecoderFactory
+from .native import POINT_DTYPE, NativeVlp16Decoder
 from ..io.packets import PacketBatch, PacketSource, SourceError, group_packets, open_source
 
-#: VLP-16 firing order of each ring: lasers alternate -15°, +1°, -13°, +3°, ...
-_LASER_OF_RING = np.array([0, 2, 4, 6, 8, 10, 12, 14, 1, 3, 5, 7, 9, 11, 13, 15], np.uint8)
-
 _FIRST_CAPACITY = 32_768  # points; a VLP-16 rotation holds up to 28,800 (5 Hz, single return)
-_I32_MAX = 2**31 - 1
 _BLOCK_NS = 110_592  # one VLP-16 data block: two firing sequences of 55.296 µs
-_SEQUENCE_NS = 55_296  # one firing sequence: 16 lasers 2.304 µs apart, then recharge
-_LASER_NS = 2_304
-#: time from a packet's first to its last firing [ns]: 24 sequences (12 in dual return, where
-#: two blocks carry the two returns of the same firings), the last one's 16th laser
-_PACKET_SPAN_NS = {False: 23 * 55_296 + 15 * 2_304, True: 11 * 55_296 + 15 * 2_304}
 _MODELS = {"VLP-16": vd.Model.VLP16, "Puck Hi-Res": vd.Model.PuckHiRes}
-_PRODUCT_OF = {"VLP-16": vl.PRODUCT_VLP16, "Puck Hi-Res": vl.PRODUCT_PUCK_HIRES}
 
 
 class DecodeError(ValueError):
@@ -104,10 +94,10 @@ class DecodeConfig(StrictModel):
         0.2, gt=0, description="a silence longer than this [s] starts a new frame")
     gap_factor: float = Field(
         1.5, gt=1, description="a packet interval above this many packet periods is a gap")
-    decoder: Literal["native", "velodyne_decoder"] = Field(
-        "native", description="native: tripod's batch decoder (C++, one call per chunk, "
-        "proven equal to velodyne-decoder 3.1 by the tests); velodyne_decoder: its "
-        "ScanDecoder, fed packet by packet through its Python binding (slower)")
+    decoder: Literal["native"] | None = Field(
+        None, exclude=True, description="deprecated, ignored: tripod always decodes with its "
+        "native decoder (accepted so that the decode_config.yaml of an earlier run still "
+        "loads; never written)")
     num_threads: int = Field(
         1, ge=0, description="threads of the native decoder per chunk (0: all cores); one "
         "is enough: it decodes ~3 µs a packet, the rest of the stream is the bottleneck")
@@ -121,6 +111,16 @@ class DecodeConfig(StrictModel):
         "veloview", description="veloview: nominal laser angles as VeloView/LidarView use "
         "them; manual: velodyne-decoder's built-in table with the VLP-16 manual's per-laser "
         "vertical offsets (up to 11.2 mm); or the path of a velodyne YAML calibration")
+
+    @field_validator("decoder", mode="before")
+    @classmethod
+    def _decoder_gone(cls, value):
+        if value is not None and value != "native":
+            raise ValueError(
+                f"{value!r} is no longer offered: the key is deprecated and tripod always "
+                "decodes with its native decoder (velodyne-decoder is the tests' oracle); "
+                "remove the key")
+        return value
 
 
 @dataclass
@@ -343,11 +343,16 @@ class FrameDecoder:
     >>> for frame in dec.decode(source):      # any iterable of (host_ns, payload)
     ...     frame.points["x"], frame.stamp_device_ns
     >>> dec.report.summary()
+
+    ``batch_decoder`` makes the decoder of the points (:class:`.batch.BatchDecoderFactory`,
+    called once per stream when the sensor is known); default :class:`.native.NativeVlp16Decoder`.
     """
 
-    def __init__(self, config: DecodeConfig | None = None):
+    def __init__(self, config: DecodeConfig | None = None,
+                 batch_decoder: BatchDecoderFactory = NativeVlp16Decoder):
         self.config = config or DecodeConfig()
         self.report = DecodeReport()
+        self._factory = batch_decoder
 
     # ---------------------------------------------------------------------------------------
     def decode(self, packets: Iterable[tuple[int, bytes]]) -> Iterator[Frame]:
@@ -403,10 +408,8 @@ class FrameDecoder:
     def _state_reset(self) -> None:
         self._model = None
         self._sensor_product = None
-        self._scan_decoder = None
-        self._native: NativeVlp16Decoder | None = None
-        self._view: np.ndarray | None = None  # a frame wholly inside one native chunk
-        self._patch_product = False
+        self._batch: BatchDecoder | None = None
+        self._view: np.ndarray | None = None  # a frame wholly inside one decoded chunk
         self._prev_az = -1  # azimuth of the last block seen
         self._prev_dev_ns = None  # lidar clock of the last packet (unwrapped, absolute)
         self._unwrap: TohChunkUnwrapper | None = None  # lidar_toh -> host_realtime's hours
@@ -450,26 +453,14 @@ class FrameDecoder:
         self._return_mode_byte = ret
         self._model = _MODELS[sensor]
         self._sensor_product = product
-        # velodyne-decoder insists on the product byte of the model: an early VLP-16 says 0x21
-        self._patch_product = product != _PRODUCT_OF[sensor]
-        self._expected_product = _PRODUCT_OF[sensor]
         calibration = _calibration(cfg.calibration, sensor)
-        if cfg.decoder == "native":
-            try:
-                self._native = NativeVlp16Decoder(
-                    calibration, model=self._model, min_range_m=cfg.min_range_m,
-                    max_range_m=cfg.max_range_m, min_angle_deg=cfg.azimuth_min_deg,
-                    max_angle_deg=cfg.azimuth_max_deg, num_threads=cfg.num_threads)
-            except CalibrationError as exc:
-                raise DecodeError(str(exc)) from None
-        else:
-            if cfg.azimuth_min_deg % 360 > cfg.azimuth_max_deg % 360:  # 360 is 0 to it
-                raise DecodeError("an azimuth range across 0 (or ending at 360) needs decoder: "
-                                  "native (velodyne-decoder keeps [max, min] instead)")
-            self._scan_decoder = vd.ScanDecoder(vd.Config(
-                model=self._model, calibration=calibration, min_range=cfg.min_range_m,
-                max_range=cfg.max_range_m, min_angle=cfg.azimuth_min_deg,
-                max_angle=cfg.azimuth_max_deg, timestamp_first_packet=True))
+        try:  # (CalibrationError is a ValueError)
+            self._batch = self._factory(
+                calibration, model=self._model, min_range_m=cfg.min_range_m,
+                max_range_m=cfg.max_range_m, min_angle_deg=cfg.azimuth_min_deg,
+                max_angle_deg=cfg.azimuth_max_deg, num_threads=cfg.num_threads)
+        except ValueError as exc:
+            raise DecodeError(str(exc)) from None
         self._period_ns = int(round((period or vl.VLP16_PACKET_PERIOD_US["single"]) * 1000))
 
     def _position(self, payload: bytes) -> None:
@@ -536,15 +527,9 @@ class FrameDecoder:
         starts = np.concatenate(([0], split_blocks))  # segments: [starts[s], ends[s]) blocks
         ends = np.concatenate((split_blocks, [k * 12]))
         continued = self._frame_open  # the first segment goes on with a frame of the last chunk
-        if self._native is not None:
-            raw, pstarts, pends = self._decode_native(arr, dev_ns, starts, ends, dual, continued)
-            ordered = True
-            t_s = None
-        else:
-            raw, t_s, pstarts, pends, ordered = self._decode_velodyne_decoder(
-                arr, dev_ns, split_blocks, dual)
+        raw, pstarts, pends = self._decode_points(arr, dev_ns, starts, ends, dual, continued)
         yield from self._cut_frames(host_ns, dev_ns, az_flat, gap_idx, starts, ends, pstarts,
-                                    pends, raw, t_s, ordered, dual, continued)
+                                    pends, raw, dual, continued)
         self._packet_index += k
         self.report.packets += k
 
@@ -581,7 +566,6 @@ class FrameDecoder:
         toh_us = arr[:, vl.TIMESTAMP_OFFSET : vl.TIMESTAMP_OFFSET + 4].copy().view("<u4").ravel()
         if self._unwrap is None:
             self._unwrap = TohChunkUnwrapper(nearest_hour_ns(int(toh_us[0]), int(host_ns[0])))
-            self._t0_ns = self._unwrap.base_ns
         dev_ns = self._unwrap(toh_us)
         if rep.first_device_ns is None:
             rep.first_device_ns = int(dev_ns[0])
@@ -628,8 +612,8 @@ class FrameDecoder:
         self._prev_az = int(az_flat[-1])
         return az_flat, split
 
-    def _decode_native(self, arr, dev_ns, starts, ends, dual, continued):
-        """The chunk through the native decoder: (points, first point of each segment, end
+    def _decode_points(self, arr, dev_ns, starts, ends, dual, continued):
+        """The chunk through the batch decoder: (points, first point of each segment, end
         point of each segment)."""
         # one call for the chunk; every point is attributed to its block, so the frames
         # are cut at block boundaries exactly, whatever the packet order, and each point's
@@ -638,17 +622,16 @@ class FrameDecoder:
         seg_ref_ns = dev_ns[starts // 12] + ((blk // 2) if dual else blk) * _BLOCK_NS
         if continued:
             seg_ref_ns[0] = self._frame_dev_ns
-        out = self._native.decode(arr, dev_ns, starts, seg_ref_ns)
+        out = self._batch.decode(arr, dev_ns, starts, seg_ref_ns)
         if out.time_offset_clipped:
             self.report.warn("a frame spans more than 2.1 s: its time offsets are clipped")
         return out.points, out.block_first_point[starts], out.block_first_point[ends]
 
     def _cut_frames(self, host_ns, dev_ns, az_flat, gap_idx, starts, ends, pstarts, pends, raw,
-                    t_s, ordered, dual, continued) -> Iterator[Frame]:
+                    dual, continued) -> Iterator[Frame]:
         """Cut the decoded points into frames: emit each frame closed in this chunk, keep the
         open one's points."""
         # ---- cut into frames (points come in packet, block, firing order) --------------------
-        chunk_dev0 = int(dev_ns[0])
         last_seg = len(starts) - 1
         for seg, (b0, b1, q0, q1) in enumerate(zip(starts, ends, pstarts, pends)):
             if seg > 0:
@@ -670,104 +653,27 @@ class FrameDecoder:
             lo = first_pk - 1 if (seg == 0 and continued and b0 == 0) else first_pk
             self._frame_gaps += int(((gap_idx > lo) & (gap_idx <= last_pk)).sum())
             self._frame_az1 = int(az_flat[b1 - 1])
-            if t_s is None and self._n == 0 and seg < last_seg and not (seg == 0 and continued):
+            if self._n == 0 and seg < last_seg and not (seg == 0 and continued):
                 # a whole frame inside this chunk: the decoder's output is the frame, no copy
                 self._view = raw[q0:q1]
                 continue
             if q1 > q0:
-                self._append(raw[q0:q1], None if t_s is None else t_s[q0:q1], ordered,
-                             chunk_dev0)
+                self._append(raw[q0:q1])
 
-    def _append(self, src, t, ordered: bool, chunk_dev0: int) -> None:
-        """Copy decoded points into the open frame's buffer (once per point); ``t`` the float32
-        times [s] of velodyne-decoder's points, None for the native decoder's."""
+    def _append(self, src) -> None:
+        """Copy decoded points into the open frame's buffer (once per point)."""
         n, m = self._n, len(src)
         if n + m > len(self._buf):
             grown = np.empty(max(2 * len(self._buf), n + m), POINT_DTYPE)
             grown[:n] = self._buf[:n]
             self._buf = grown
-        part = self._buf[n : n + m]
-        if t is None:
-            part[...] = src
-            self._n = n + m
-            return
-        part["x"], part["y"], part["z"] = src["x"], src["y"], src["z"]
-        part["intensity"] = src["intensity"]  # 0..255: velodyne-decoder clamps it
-        ring = src["ring"]
-        part["ring"] = ring
-        part["laser"] = _LASER_OF_RING[ring]
-        part["return_type"] = src["return_type"]
-        off = (t - t.dtype.type((self._frame_dev_ns - chunk_dev0) * 1e-9)) * 1e9
-        np.rint(off, out=off)
-        hi, lo = (off[-1], off[0]) if ordered else (off.max(), off.min())
-        if hi > _I32_MAX or lo < -_I32_MAX:
-            self.report.warn("a frame spans more than 2.1 s: its time offsets are clipped")
-            np.clip(off, -_I32_MAX, _I32_MAX, out=off)
-        part["time_offset_ns"] = off
+        self._buf[n : n + m] = src
         self._n = n + m
-
-    def _decode_velodyne_decoder(self, arr, dev_ns, split_blocks, dual):
-        """The chunk through velodyne-decoder: points, their float32 time [s] since packet 0,
-        the first and end point of each segment, and whether the packets were in order."""
-        k = len(arr)
-        if self._patch_product:
-            # velodyne-decoder insists on the product byte of the model
-            arr = arr.copy()
-            arr[:, vl.PRODUCT_ID_OFFSET] = self._expected_product
-        batch = [p.tobytes() for p in arr]
-        rel_ns = dev_ns - dev_ns[0]
-        # velodyne-decoder gets the lidar clock as its packet stamps (seconds past the stream's
-        # first hour: small doubles), so point times do not depend on the host clock.
-        stamps_s = ((dev_ns - self._t0_ns) * 1e-9).tolist()
-        split_pk = split_blocks // 12
-        split_blk = split_blocks % 12
-        split_rel_ns = rel_ns[split_pk] + ((split_blk // 2) if dual else split_blk) * _BLOCK_NS
-        ordered = k == 1 or bool((np.diff(rel_ns) >= _PACKET_SPAN_NS[dual] + 2000).all())
-        if ordered:
-            # packets in time order, their firings never overlap: point times increase, so a
-            # frame boundary is where they pass the first firing of the boundary block
-            raw = self._decode_chunk(batch, stamps_s)
-            t_s = raw["time"]  # float32 [s] since packet 0 of the chunk
-            cuts = np.searchsorted(t_s, ((split_rel_ns - 1000) * 1e-9).astype(np.float32))
-        else:
-            # out of order or overlapping: decode packet by packet and place each point by
-            # its packet and its firing time inside the packet (exact, slower)
-            raw, owner = self._decode_each(batch, stamps_s)
-            within_ns = np.rint(raw["time"].astype(np.float64) * 1e9).astype(np.int64)
-            unit = (within_ns + 1000) // _BLOCK_NS  # block, or block pair in dual return
-            block = owner * 12 + (np.clip(unit, 0, 5) * 2 if dual else np.clip(unit, 0, 11))
-            cuts = np.searchsorted(block, split_blocks, side="left")
-            t_s = (rel_ns[owner] + within_ns) * 1e-9
-        pstarts = np.concatenate(([0], cuts))
-        pends = np.concatenate((cuts, [len(raw)]))
-        return raw, t_s, pstarts, pends, ordered
-
-    @staticmethod
-    def _packet_vector(batch: list[bytes], stamps_s: list[float]):
-        pv = vd.PacketVector()
-        append, packet = pv.append, vd.VelodynePacket
-        for p, st in zip(batch, stamps_s):
-            append(packet(st, p))
-        return pv
-
-    def _decode_chunk(self, batch, stamps_s) -> np.ndarray:
-        """All points of a chunk in one velodyne-decoder call (time [s] since packet 0)."""
-        return self._scan_decoder.decode(self._packet_vector(batch, stamps_s),
-                                         as_pcl_structs=True)[1]
-
-    def _decode_each(self, batch, stamps_s) -> tuple[np.ndarray, np.ndarray]:
-        """Packet by packet: points (time [s] since their own packet) and their packet index."""
-        parts, owners = [], []
-        for i in range(len(batch)):
-            raw = self._decode_chunk(batch[i : i + 1], stamps_s[i : i + 1])
-            parts.append(raw)
-            owners.append(np.full(len(raw), i, np.int64))
-        return np.concatenate(parts), np.concatenate(owners)
 
     def _close_frame(self) -> Iterator[Frame]:
         if not self._frame_open:
             return
-        if self._view is not None:  # a frame the native decoder gave whole
+        if self._view is not None:  # a frame the batch decoder gave whole
             pts, self._view = self._view, None
         else:
             # the frame keeps its buffer; the next one gets a fresh buffer sized after this one
@@ -816,12 +722,15 @@ class DecodeRun:
 
 
 def decode_file(path: str | os.PathLike, config: DecodeConfig | None = None,
-                ports: set[int] | None = None) -> DecodeRun:
+                ports: set[int] | None = None,
+                batch_decoder: BatchDecoderFactory = NativeVlp16Decoder) -> DecodeRun:
     """Open any supported input (pcap, pcapng, raw payloads, tripod MCAP) for decoding.
 
     >>> run = decode_file("capture.pcap")
     >>> for frame in run: ...
     >>> run.report.summary()
+
+    ``batch_decoder`` makes the decoder of the points (see :class:`FrameDecoder`).
 
     Raises
     ------
@@ -830,7 +739,7 @@ def decode_file(path: str | os.PathLike, config: DecodeConfig | None = None,
     DecodeError
         Wrong sensor or no data packets (raised while iterating).
     """
-    return DecodeRun(open_source(path, ports), FrameDecoder(config))
+    return DecodeRun(open_source(path, ports), FrameDecoder(config, batch_decoder))
 
 
 __all__ = [
