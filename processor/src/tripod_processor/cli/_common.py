@@ -60,3 +60,44 @@ def read_points(path: Path):
     if cloud.dtype.names is None or not {"x", "y", "z"} <= set(cloud.dtype.names):
         fail(f"{path}: the cloud has no x, y, z fields")
     return cloud, xyz(cloud, dtype="float32")
+
+
+def parse_sets(items: list[str] | None) -> dict:
+    """``--set KEY=VALUE`` options as a dict of dotted keys to YAML-parsed values."""
+    import yaml
+
+    out = {}
+    for it in items or []:
+        key, sep, val = it.partition("=")
+        if not sep or not key:
+            fail(f"--set expects KEY=VALUE, got {it!r}")
+        out[key.strip()] = yaml.safe_load(val)
+    return out
+
+
+def reconstruct_config(config: Path | None, sets: list[str] | None, calibration: Path | None,
+                       defaults: dict | None = None, forced: dict | None = None):
+    """The effective ``ReconstructConfig`` of ``tripod reconstruct`` and ``tripod batch``: the
+    file, then ``--set``, then the ``--calibration`` file's extrinsic and ``defaults`` where
+    ``--set`` did not give them, then ``forced``; a bad value is one line and exit code 2."""
+    from tripod_shared.config_io import ConfigError, load_config
+
+    from ..reconstruction.config import ReconstructConfig
+
+    overrides = parse_sets(sets)
+    for key, value in (defaults or {}).items():
+        overrides.setdefault(key, value)
+    if calibration is not None:
+        from ..reconstruction.placement import load_extrinsic_file
+
+        try:
+            q, lever = load_extrinsic_file(calibration)
+        except (OSError, ValueError) as exc:
+            fail(f"calibration: {exc}")
+        overrides.setdefault("placement.extrinsic.q_imu_lidar", q)
+        overrides.setdefault("placement.extrinsic.lever_arm_m", lever)
+    overrides.update(forced or {})
+    try:
+        return load_config(ReconstructConfig, config, overrides)
+    except ConfigError as exc:
+        fail(str(exc))

@@ -9,8 +9,7 @@ from pathlib import Path
 import typer
 
 from . import app
-from ._common import fail
-from .reconstruct_cmd import _parse_sets
+from ._common import fail, reconstruct_config
 
 
 def batch_table(res):
@@ -59,11 +58,8 @@ def batch_command(
     from rich.console import Console
     from tqdm import tqdm
 
-    from tripod_shared.config_io import ConfigError, load_config
-
     from ..batch import batch_reconstruct, discover
     from ..batch.runner import EngineError
-    from ..reconstruction.config import ReconstructConfig
 
     if not inputs:
         fail("give recordings or folders to search")
@@ -78,21 +74,7 @@ def batch_command(
             con.print(f"{r.name}  [dim]{r.kind}[/]  " + ", ".join(str(p) for p in r.inputs)
                       + (f" + {r.imu}" if r.imu else ""))
         raise typer.Exit(0)
-    overrides = _parse_sets(set_)
-    if calibration is not None:
-        from ..reconstruction.placement import load_extrinsic_file
-
-        try:
-            q, lever = load_extrinsic_file(calibration)
-        except (OSError, ValueError) as exc:
-            fail(f"calibration: {exc}")
-        overrides.setdefault("placement.extrinsic.q_imu_lidar", q)
-        overrides.setdefault("placement.extrinsic.lever_arm_m", lever)
-    overrides["num_threads"] = threads
-    try:
-        cfg = load_config(ReconstructConfig, config, overrides)
-    except ConfigError as exc:
-        fail(str(exc))
+    cfg = reconstruct_config(config, set_, calibration, forced={"num_threads": threads})
 
     bar = tqdm(total=len(recs), desc="recordings", unit="rec", disable=quiet,
                dynamic_ncols=True)

@@ -8,19 +8,8 @@ from pathlib import Path
 import typer
 
 from . import app
-from ._common import fail
+from ._common import fail, reconstruct_config
 
-
-def _parse_sets(items: list[str]) -> dict:
-    import yaml
-
-    out = {}
-    for it in items or []:
-        key, sep, val = it.partition("=")
-        if not sep or not key:
-            fail(f"--set expects KEY=VALUE, got {it!r}")
-        out[key.strip()] = yaml.safe_load(val)
-    return out
 
 
 def results_table(summary: dict, title: str = "tripod reconstruct"):
@@ -79,7 +68,7 @@ def reconstruct_command(
     """Reconstruct an indoor model: stations, fragments, odometry, pose graph, map, report."""
     from rich.console import Console
 
-    from tripod_shared.config_io import ConfigError, dump_config, load_config
+    from tripod_shared.config_io import dump_config
 
     from ..reconstruction.config import ReconstructConfig
     from ..reconstruction.inputs import RecordingError
@@ -89,23 +78,8 @@ def reconstruct_command(
         raise typer.Exit(0)
     if not recording:
         fail("give a recording (MCAP, pcap + --imu, or a simulate folder)")
-    overrides = _parse_sets(set_)
-    if survey:
-        overrides.setdefault("output.write_e57", True)
-        overrides.setdefault("output.write_las", "laz")
-    if calibration is not None:
-        from ..reconstruction.placement import load_extrinsic_file
-
-        try:
-            q, lever = load_extrinsic_file(calibration)
-        except (OSError, ValueError) as exc:
-            fail(f"calibration: {exc}")
-        overrides.setdefault("placement.extrinsic.q_imu_lidar", q)
-        overrides.setdefault("placement.extrinsic.lever_arm_m", lever)
-    try:
-        cfg = load_config(ReconstructConfig, config, overrides)
-    except ConfigError as exc:
-        fail(str(exc))
+    survey_outputs = {"output.write_e57": True, "output.write_las": "laz"} if survey else {}
+    cfg = reconstruct_config(config, set_, calibration, defaults=survey_outputs)
     from ..reconstruction.pipeline import reconstruct, summary
 
     try:
