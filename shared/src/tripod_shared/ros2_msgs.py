@@ -82,7 +82,7 @@ EVENT_MSGDEF = (
     "# stamp: host time of the event (CLOCK_REALTIME).\n"
     "builtin_interfaces/Time stamp\n"
     "# start | stop | mark\nstring kind\n"
-    "# the operator's station label (marks), or empty\nstring label\n"
+    "# mark: the operator's station label; start/stop: the reason\nstring label\n"
     + _dep("builtin_interfaces/Time", TIME_DEF))
 
 #: name of the one DiagnosticStatus a daemon status becomes
