@@ -14,6 +14,7 @@ from contextlib import contextmanager
 
 from mcap.reader import make_reader
 
+from tripod_shared import ros2_msgs as r2
 from tripod_shared import tfp
 from tripod_shared.recording import RecordingReader
 
@@ -186,10 +187,11 @@ def test_full_disk_stops_cleanly_with_a_readable_file(tmp_path):
             reader = make_reader(fh)
             assert reader.get_summary() is not None  # finished properly: summary and footer
             got = [m.data[12:] for _s, _c, m in reader.iter_messages(topics=["/velodyne/packets"])]
-            events = [m.data for _s, _c, m in reader.iter_messages(topics=["/tripod/events"])]
+            events = [r2.decode_event_cdr(m.data)
+                      for _s, _c, m in reader.iter_messages(topics=["/tripod/events"])]
         assert 1000 < len(got) < len(packets)
         assert got == packets[: len(got)]
-        assert b"disk full" in events[-1]
+        assert events[-1].kind == "stop" and "disk full" in events[-1].label
         # the guard keeps min_free_bytes free: the disk never filled up
         if real_tmpfs:
             st = os.statvfs(disk)

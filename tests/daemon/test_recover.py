@@ -79,3 +79,39 @@ def test_corrupted_chunk_stops_at_the_damage(tmp_path):
     got, _ = _read(tmp_path / "fixed.mcap")
     assert rep.error and not rep.complete
     assert 0 < len(got) < len(original) and got == original[: len(got)]
+
+
+def test_recover_keeps_the_profile_and_both_formats_read(tmp_path):
+    """A format 2 file stays profile ros2 (status/events CDR); a format 1 file stays profile ""
+    with its JSON channels; both read back through RecordingReader."""
+    import sys
+    from pathlib import Path
+
+    from tripod_shared.recording import RecordingReader
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "shared"))
+    from recording_v1 import write_v1
+
+    t0 = time.time_ns()
+    ev = [messages.Event(t0 + 5, "mark", "station 1"), messages.Event(t0 + 9, "stop", "x")]
+    st = messages.Status(t0 + 7, state="recording", counts={"lidar_data": 3})
+    v2, v1 = tmp_path / "v2.mcap", tmp_path / "v1.mcap"
+    with RecordingWriter(v2, chunk_size=1 << 20) as w:
+        w.write_lidar_packet(t0, make_data_packet(0))
+        w.write_event(ev[0])
+        w.write_status(st)
+        w.write_event(ev[1])
+    write_v1(v1, [(t0, (make_data_packet(0), topics.TOPIC_LIDAR_PACKETS)), (ev[0].host_ns, ev[0]),
+                  (st.host_ns, st), (ev[1].host_ns, ev[1])])
+    for src, profile in ((v2, "ros2"), (v1, "")):
+        cut = tmp_path / f"cut_{src.name}"
+        data = src.read_bytes()
+        cut.write_bytes(data[:len(data) - 30])  # the footer and part of the summary gone
+        out = tmp_path / f"rec_{src.name}"
+        rep = recover(str(cut), str(out))
+        assert rep.messages[topics.TOPIC_EVENTS] == 2
+        with open(out, "rb") as fh:
+            assert make_reader(fh).get_header().profile == profile
+        r = RecordingReader(out)
+        assert list(r.events()) == ev and list(r.statuses()) == [st]
+        assert list(r.lidar_packets()) == [(t0, make_data_packet(0))]

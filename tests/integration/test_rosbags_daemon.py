@@ -1,13 +1,11 @@
 # SPDX-License-Identifier: BSD-3-Clause
 """A daemon recording read by ``rosbags`` (an independent ROS 2 bag reader and CDR deserialiser).
 
-Today the daemon writes MCAP profile ``""`` because status and events are JSON channels beside
-the CDR ones, and rosbags refuses the file ("Profile is not ros2"): the first test states the
-goal and is a strict xfail until the daemon switches (issue 14). The second shows the switch is
-small: the same recording with profile ``ros2``, status as ``diagnostic_msgs/msg/DiagnosticArray``
-and events as ``tripod_msgs/msg/Event`` (``tripod_shared.ros2_msgs``), every other message byte
-for byte as the daemon wrote it, reads in rosbags with every packet byte-exact and every IMU
-sample present."""
+Recordings are MCAP profile ``ros2`` (format 2, issue 14): every channel CDR with a ``ros2msg``
+schema, status as ``diagnostic_msgs/msg/DiagnosticArray`` and events as
+``tripod_msgs/msg/Event``. rosbags' MCAP storage reader opens the daemon's file as written and
+gets every packet byte-exact; deserialised from the definitions in the file, every IMU sample,
+the status and the events (start, the station mark, stop) are there."""
 
 from __future__ import annotations
 
@@ -17,7 +15,6 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
-from rosbags.rosbag2.errors import ReaderError
 from rosbags.rosbag2.storage_mcap import McapReader
 from tripod_shared import messages as m
 from tripod_shared import ros2_msgs as r2
@@ -69,56 +66,17 @@ def daemon_recording(tmp_path_factory):
     return Path(files[0])
 
 
-@pytest.mark.xfail(strict=True, raises=ReaderError,
-                   reason="daemon recordings are MCAP profile '' (JSON status/events): rosbags "
-                          "says 'Profile is not ros2' until the daemon writes the ros2 profile")
-def test_rosbags_reads_a_daemon_recording(daemon_recording):
-    reader = McapReader(daemon_recording)
-    reader.open()  # today: ReaderError('Profile is not ros2.')
-    try:
-        got = [raw for conn, _ns, raw in reader.messages(reader.connections)
-               if conn.topic == t.TOPIC_LIDAR_PACKETS]
-        assert [m.decode_velodyne_packet(x)[1] for x in got] == \
-            [make_data_packet(i) for i in range(N_PACKETS)]
-    finally:
-        reader.close()
-
-
-def _as_ros2_profile(src: Path, dst: Path) -> None:
-    """The daemon recording as the daemon would write it with the ros2 profile: status and
-    events re-encoded (ros2_msgs), every CDR message copied byte for byte with its times."""
-    from mcap.writer import Writer
-
-    with open(src, "rb") as fin, open(dst, "wb") as fout:
-        r = make_reader(fin)
-        w = Writer(fout)
-        w.start(profile="ros2", library="test")
-        chans: dict[int, int] = {}
-        new_schema = {t.TOPIC_STATUS: (r2.DIAGNOSTIC_ARRAY_TYPE, r2.DIAGNOSTIC_ARRAY_MSGDEF),
-                      t.TOPIC_EVENTS: (r2.EVENT_TYPE, r2.EVENT_MSGDEF)}
-        for schema, channel, msg in r.iter_messages(log_time_order=False):
-            if channel.id not in chans:
-                name, text = new_schema.get(channel.topic, (schema.name, schema.data.decode()))
-                sid = w.register_schema(name, "ros2msg", text.encode())
-                chans[channel.id] = w.register_channel(channel.topic, "cdr", sid)
-            data = msg.data
-            if channel.topic == t.TOPIC_STATUS:
-                data = r2.encode_status_diagnostics(m.decode_status(data))
-            elif channel.topic == t.TOPIC_EVENTS:
-                data = r2.encode_event_cdr(m.decode_event(data))
-            w.add_message(chans[channel.id], msg.log_time, data, msg.publish_time, msg.sequence)
-        w.finish()
-
-
-def test_ros2_profile_recording_reads_in_rosbags(daemon_recording, tmp_path):
+def test_rosbags_reads_a_daemon_recording(daemon_recording, tmp_path):
     from tripod_processor.io.rosbag2 import Rosbag2Writer
 
-    ros2 = tmp_path / "ros2.mcap"
-    _as_ros2_profile(daemon_recording, ros2)
-    # 1. the bare MCAP through rosbags' MCAP storage reader
+    ros2 = daemon_recording
+    # 1. the bare MCAP through rosbags' MCAP storage reader (it refuses any profile but ros2)
     reader = McapReader(ros2)
     reader.open()
     try:
+        assert {c.topic: c.msgtype for c in reader.connections} == {
+            t.TOPIC_LIDAR_PACKETS: m.VELODYNE_PACKET_TYPE, t.TOPIC_IMU: m.IMU_QUATERNION_TYPE,
+            t.TOPIC_STATUS: r2.DIAGNOSTIC_ARRAY_TYPE, t.TOPIC_EVENTS: r2.EVENT_TYPE}
         by_topic: dict[str, list[bytes]] = {}
         for conn, _ns, raw in reader.messages(reader.connections):
             by_topic.setdefault(conn.topic, []).append(raw)
@@ -126,7 +84,8 @@ def test_ros2_profile_recording_reads_in_rosbags(daemon_recording, tmp_path):
         reader.close()
     pk = [m.decode_velodyne_packet(x)[1] for x in by_topic[t.TOPIC_LIDAR_PACKETS]]
     assert pk == [make_data_packet(i) for i in range(N_PACKETS)]  # every packet, byte-exact
-    # 2. as a rosbag2 folder, deserialised by rosbags from the definitions in the file
+    # 2. as a rosbag2 folder (the same MCAP messages and schemas), deserialised by rosbags from
+    # the definitions in the file
     bag = tmp_path / "bag"
     with open(ros2, "rb") as fh, Rosbag2Writer(bag) as w:
         for schema, channel, msg in make_reader(fh).iter_messages():
@@ -153,5 +112,7 @@ def test_ros2_profile_recording_reads_in_rosbags(daemon_recording, tmp_path):
         assert (g.w, g.x, g.y, g.z) == (s.w, s.x, s.y, s.z) and bytes(g.raw) == s.raw
         assert g.stamp.sec * 10**9 + g.stamp.nanosec == s.host_ns
     assert status and status[-1].status[0].name == r2.DIAGNOSTIC_NAME
+    values = {kv.key: kv.value for kv in status[-1].status[0].values}
+    assert values["state"] in ('"recording"', '"idle"') and "counts.lidar_data" in values
     kinds = [(e.kind, e.label) for e in events]
     assert kinds[0][0] == "start" and ("mark", "station A") in kinds and kinds[-1][0] == "stop"

@@ -74,3 +74,34 @@ def test_folder_events_merge_pcap_and_imu_log_by_time(tmp_path):
     got = list(ev.folder_events(tmp_path))
     assert [e.host_ns - T0 for e in got] == [0, 500, 1000, 2000, 2500, 3000]
     assert [e.kind for e in got] == [ev.LIDAR, ev.IMU, ev.LIDAR, ev.LIDAR, ev.IMU, ev.LIDAR]
+
+
+def test_mcap_events_read_a_format1_recording(tmp_path):
+    """Older recordings (format 1: events as a JSON channel) give the same events."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "shared"))
+    from recording_v1 import write_v1
+
+    items = [(T0, (b"\x01" * 1206, t.TOPIC_LIDAR_PACKETS)),
+             (T0 + 10, (b"\x02" * 512, t.TOPIC_LIDAR_POSITION)),
+             (T0 + 20, m.ImuSample(T0 + 20, 1.0, 0.0, 0.0, 0.0, raw=b"abc")),
+             (T0 + 30, m.Status(T0 + 30, counts={"lidar_data": 1})),
+             (T0 + 40, m.Event(T0 + 40, "mark", "station 1")),
+             (T0 + 45, m.Event(T0 + 45, "stop", "control"))]
+    old, new = tmp_path / "v1.mcap", tmp_path / "v2.mcap"
+    write_v1(old, items)
+    with RecordingWriter(new) as w:
+        w.write_lidar_packet(T0, b"\x01" * 1206)
+        w.write_position_packet(T0 + 10, b"\x02" * 512)
+        w.write_imu(items[2][1])
+        w.write_status(items[3][1])
+        w.write_event(items[4][1])
+        w.write_event(items[5][1])
+    kinds = (ev.LIDAR, ev.POSITION, ev.IMU, ev.IMU_SAMPLE, ev.MARK)
+    got_old = ev.McapEvents(old, kinds)
+    got = [(e.host_ns, e.kind, e.data) for e in got_old]
+    assert got == [(e.host_ns, e.kind, e.data) for e in ev.McapEvents(new, kinds)]
+    assert (T0 + 40, ev.MARK, "station 1") in got and len(got) == 5
+    assert got_old.skipped == {} and not got_old.truncated

@@ -15,7 +15,7 @@ import os
 import sys
 from dataclasses import dataclass, field
 
-from mcap.records import Channel, Chunk, DataEnd, Footer, Message, Metadata, Schema
+from mcap.records import Channel, Chunk, DataEnd, Footer, Header, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
@@ -97,8 +97,8 @@ def _recover_into(source, tmp, comp, rep, size, schema_map, channel_map, topics,
     with open(source, "rb") as src, open(tmp, "wb") as dst:
         reader = _ExactReader(src)
         writer = Writer(dst, chunk_size=4 << 20, compression=comp)
-        writer.start(profile="", library="tripod-daemon recover")
         last_good = 0
+        started = False
         try:
             stream = StreamReader(reader, skip_magic=False, emit_chunks=True, validate_crcs=True)
             last_good = reader.pos
@@ -111,6 +111,11 @@ def _recover_into(source, tmp, comp, rep, size, schema_map, channel_map, topics,
                 else:
                     records = [rec]
                 for r in records:
+                    if not started:
+                        # keep the source's profile: ros2 (format 2) or "" (format 1)
+                        writer.start(profile=r.profile if isinstance(r, Header) else "",
+                                     library="tripod-daemon recover")
+                        started = True
                     if isinstance(r, Schema):
                         if r.id not in schema_map:
                             schema_map[r.id] = writer.register_schema(r.name, r.encoding, r.data)
@@ -144,6 +149,8 @@ def _recover_into(source, tmp, comp, rep, size, schema_map, channel_map, topics,
                     break
         except Exception as exc:  # noqa: BLE001 - any cut or corruption ends the good part
             rep.error = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+        if not started:
+            writer.start(profile="", library="tripod-daemon recover")
         rep.kept_bytes = last_good
         rep.lost_bytes = size - last_good
         writer.add_metadata("tripod_recover", {

@@ -1,7 +1,8 @@
 # SPDX-License-Identifier: BSD-3-Clause
 """MCAP recordings of tripod: the one writer and reader of the layout.
 
-Layout (document of record: ``shared/README.md``):
+Layout, format version 2 (document of record: ``shared/README.md``): MCAP profile ``ros2``,
+every channel CDR with a ``ros2msg`` schema, so ROS 2 tools (``rosbags``, ``ros2 bag``) read it.
 
 ==================  ======================================  ========  ============
 topic               schema                                  encoding  log_time
@@ -9,17 +10,22 @@ topic               schema                                  encoding  log_time
 /velodyne/packets   velodyne_msgs/msg/VelodynePacket        cdr       host receive
 /velodyne/position  tripod_msgs/msg/VelodynePositionPacket  cdr       host receive
 /imu/quaternion     tripod_msgs/msg/ImuQuaternion           cdr       host read
-/tripod/status      tripod.Status (JSON Schema)             json      host
-/tripod/events      tripod.Event (JSON Schema)              json      host
+/tripod/status      diagnostic_msgs/msg/DiagnosticArray     cdr       host
+/tripod/events      tripod_msgs/msg/Event                   cdr       host
 ==================  ======================================  ========  ============
 
 ``log_time`` and ``publish_time`` are host_realtime ns (publish_time = log_time). MCAP metadata
 record ``tripod`` holds the format version and the writer; the daemon adds its config.
+
+Status and events travel over Zenoh as JSON (panel, ctl, watch); :meth:`RecordingWriter.
+write_encoded` takes those JSON bytes and writes their CDR form (the only conversion). Readers
+decode by the channel's message encoding, so format version 1 recordings (profile ``""``, status
+and events as JSON channels) read the same: :meth:`RecordingReader.events` and
+:meth:`RecordingReader.statuses`, or :func:`decode_event_message` / :func:`decode_status_message`.
 """
 
 from __future__ import annotations
 
-import json
 import os
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
@@ -31,17 +37,24 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from . import messages as m
+from . import ros2_msgs as r2
 from . import topics as t
 
-FORMAT_VERSION = "1"
-PROFILE = ""  # mixed ros2msg/cdr and json channels: no single profile applies
+FORMAT_VERSION = "2"  # 1: profile "", status and events as JSON channels (still read)
+PROFILE = "ros2"
 
 _SCHEMAS = {
     t.TOPIC_LIDAR_PACKETS: (m.VELODYNE_PACKET_TYPE, "ros2msg", m.VELODYNE_PACKET_MSGDEF, "cdr"),
     t.TOPIC_LIDAR_POSITION: (m.POSITION_PACKET_TYPE, "ros2msg", m.POSITION_PACKET_MSGDEF, "cdr"),
     t.TOPIC_IMU: (m.IMU_QUATERNION_TYPE, "ros2msg", m.IMU_QUATERNION_MSGDEF, "cdr"),
-    t.TOPIC_STATUS: (m.STATUS_SCHEMA_NAME, "jsonschema", json.dumps(m.STATUS_JSON_SCHEMA), "json"),
-    t.TOPIC_EVENTS: (m.EVENT_SCHEMA_NAME, "jsonschema", json.dumps(m.EVENT_JSON_SCHEMA), "json"),
+    t.TOPIC_STATUS: (r2.DIAGNOSTIC_ARRAY_TYPE, "ros2msg", r2.DIAGNOSTIC_ARRAY_MSGDEF, "cdr"),
+    t.TOPIC_EVENTS: (r2.EVENT_TYPE, "ros2msg", r2.EVENT_MSGDEF, "cdr"),
+}
+
+# topics whose live (Zenoh) payload is JSON: the writer converts them to their CDR form
+_FROM_LIVE = {
+    t.TOPIC_STATUS: lambda data: r2.encode_status_diagnostics(m.decode_status(data)),
+    t.TOPIC_EVENTS: lambda data: r2.encode_event_cdr(m.decode_event(data)),
 }
 
 
@@ -93,7 +106,17 @@ class RecordingWriter:
         return cid
 
     def write_encoded(self, topic: str, log_time_ns: int, data: bytes) -> None:
-        """Write already-encoded message bytes (the same bytes published over Zenoh)."""
+        """Write already-encoded message bytes (the same bytes published over Zenoh).
+
+        Status and events arrive as their Zenoh JSON and are written as CDR
+        (``diagnostic_msgs/msg/DiagnosticArray``, ``tripod_msgs/msg/Event``).
+        """
+        conv = _FROM_LIVE.get(topic)
+        if conv is not None:
+            data = conv(data)
+        self._write(topic, log_time_ns, data)
+
+    def _write(self, topic: str, log_time_ns: int, data: bytes) -> None:
         cid = self._channel(topic)
         seq = self._seq.get(topic, 0)
         self._seq[topic] = seq + 1
@@ -110,10 +133,10 @@ class RecordingWriter:
         self.write_encoded(t.TOPIC_IMU, sample.host_ns, m.encode_imu(sample))
 
     def write_status(self, status: m.Status) -> None:
-        self.write_encoded(t.TOPIC_STATUS, status.host_ns, m.encode_status(status))
+        self._write(t.TOPIC_STATUS, status.host_ns, r2.encode_status_diagnostics(status))
 
     def write_event(self, event: m.Event) -> None:
-        self.write_encoded(t.TOPIC_EVENTS, event.host_ns, m.encode_event(event))
+        self._write(t.TOPIC_EVENTS, event.host_ns, r2.encode_event_cdr(event))
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         self._writer.add_metadata(name, {k: str(v) for k, v in data.items()})
@@ -151,6 +174,7 @@ class RecordedMessage:
     log_time_ns: int  # host_realtime
     data: bytes
     sequence: int = 0
+    encoding: str = "cdr"  # the channel's message encoding: cdr, or json (format version 1)
 
 
 @dataclass
@@ -192,7 +216,8 @@ class RecordingReader:
                             continue
                         report.messages[ch.topic] = report.messages.get(ch.topic, 0) + 1
                         if want is None or ch.topic in want:
-                            yield RecordedMessage(ch.topic, rec.log_time, rec.data, rec.sequence)
+                            yield RecordedMessage(ch.topic, rec.log_time, rec.data, rec.sequence,
+                                                  ch.message_encoding)
                     elif isinstance(rec, Metadata):
                         report.metadata[rec.name] = dict(rec.metadata)
             except (McapError, EOFError, ValueError, OSError, Exception) as exc:  # noqa: BLE001
@@ -215,7 +240,23 @@ class RecordingReader:
 
     def events(self) -> Iterator[m.Event]:
         for msg in self.messages([t.TOPIC_EVENTS]):
-            yield m.decode_event(msg.data)
+            yield decode_event_message(msg)
+
+    def statuses(self) -> Iterator[m.Status]:
+        for msg in self.messages([t.TOPIC_STATUS]):
+            yield decode_status_message(msg)
+
+
+def decode_event_message(msg: RecordedMessage) -> m.Event:
+    """The event of a ``/tripod/events`` message, CDR (format 2) or JSON (format 1)."""
+    return m.decode_event(msg.data) if msg.encoding == "json" else r2.decode_event_cdr(msg.data)
+
+
+def decode_status_message(msg: RecordedMessage) -> m.Status:
+    """The status of a ``/tripod/status`` message, CDR (format 2) or JSON (format 1)."""
+    if msg.encoding == "json":
+        return m.decode_status(msg.data)
+    return r2.decode_status_diagnostics(msg.data)
 
 
 def is_mcap(path: str | os.PathLike) -> bool:

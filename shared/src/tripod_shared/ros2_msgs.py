@@ -1,8 +1,8 @@
 # SPDX-License-Identifier: BSD-3-Clause
 """Standard ROS 2 messages tripod writes (``ros2msg`` definitions + CDR encoders/decoders).
 
-Used by ``tripod export rosbag2`` (VelodyneScan, Imu, TFMessage) and prepared for recordings
-with the MCAP ``ros2`` profile (every channel CDR), where status becomes
+Used by ``tripod export rosbag2`` (VelodyneScan, Imu, TFMessage) and by recordings (MCAP
+``ros2`` profile, every channel CDR, format version 2), where status becomes
 ``diagnostic_msgs/msg/DiagnosticArray`` (the ROS convention for health) and events
 ``tripod_msgs/msg/Event``:
 
@@ -82,7 +82,7 @@ EVENT_MSGDEF = (
     "# stamp: host time of the event (CLOCK_REALTIME).\n"
     "builtin_interfaces/Time stamp\n"
     "# start | stop | mark\nstring kind\n"
-    "# the operator's station label (marks), or empty\nstring label\n"
+    "# mark: the operator's station label; start/stop: the reason\nstring label\n"
     + _dep("builtin_interfaces/Time", TIME_DEF))
 
 #: name of the one DiagnosticStatus a daemon status becomes
@@ -92,6 +92,9 @@ DIAG_OK, DIAG_WARN, DIAG_ERROR, DIAG_STALE = 0, 1, 2, 3
 _LEVELS = {"recording": DIAG_OK, "idle": DIAG_OK, "running": DIAG_OK, "ok": DIAG_OK,
            "stopped": DIAG_WARN, "degraded": DIAG_WARN, "warn": DIAG_WARN,
            "error": DIAG_ERROR}
+
+
+_GROUPS = ("counts", "rates", "clocks", "disk")  # Status dict fields, one key/value each
 
 
 def _time(w: CdrWriter, t_ns: int) -> None:
@@ -182,11 +185,11 @@ def encode_status_diagnostics(s: m.Status, hardware_id: str = "tripod") -> bytes
 
     level from ``state`` (recording/idle: OK; stopped, e.g. disk full: WARN; error: ERROR;
     anything else WARN); values: ``state``, ``recording``, ``file`` and ``counts.<name>``,
-    ``rates.<name>``, ``clocks.<device>`` with JSON-encoded values.
+    ``rates.<name>``, ``clocks.<device>``, ``disk.<name>`` with JSON-encoded values.
     """
     values = [("state", json.dumps(s.state)), ("recording", json.dumps(s.recording)),
               ("file", json.dumps(s.file))]
-    for group in ("counts", "rates", "clocks"):
+    for group in _GROUPS:
         for k, v in sorted(getattr(s, group).items()):
             values.append((f"{group}.{k}", json.dumps(v, sort_keys=True)))
     w = CdrWriter()
@@ -219,7 +222,7 @@ def decode_status_diagnostics(data: bytes) -> m.Status:
         for k, v in kv:
             val = json.loads(v)
             group, _, key = k.partition(".")
-            if group in ("counts", "rates", "clocks") and key:
+            if group in _GROUPS and key:
                 getattr(out, group)[key] = val
             elif k in ("state", "recording", "file"):
                 setattr(out, k, val)

@@ -1,8 +1,11 @@
 # SPDX-License-Identifier: BSD-3-Clause
 """MCAP topic names and Zenoh key expressions: defined here once, used by daemon and processor.
 
-Zenoh payloads are the same CDR bytes as the MCAP message data of the matching topic (see
-``messages``), so a live subscriber and a recording reader decode with the same code.
+Lidar and IMU Zenoh payloads are the same CDR bytes as the MCAP message data of the matching
+topic (see ``messages``), so a live subscriber and a recording reader decode them with the same
+code. Status and events are JSON on Zenoh (``messages.decode_status`` / ``decode_event``) and CDR
+in recordings (``diagnostic_msgs/msg/DiagnosticArray``, ``tripod_msgs/msg/Event``): the recorder
+converts them (``recording.RecordingWriter.write_encoded``).
 """
 
 from __future__ import annotations
@@ -11,8 +14,8 @@ from __future__ import annotations
 TOPIC_LIDAR_PACKETS = "/velodyne/packets"  # velodyne_msgs/msg/VelodynePacket (1206 B data)
 TOPIC_LIDAR_POSITION = "/velodyne/position"  # tripod_msgs/msg/VelodynePositionPacket (512 B)
 TOPIC_IMU = "/imu/quaternion"  # tripod_msgs/msg/ImuQuaternion
-TOPIC_STATUS = "/tripod/status"  # JSON, once a second
-TOPIC_EVENTS = "/tripod/events"  # JSON: recording start/stop, station marks
+TOPIC_STATUS = "/tripod/status"  # once a second; diagnostic_msgs/msg/DiagnosticArray (Zenoh: JSON)
+TOPIC_EVENTS = "/tripod/events"  # start/stop, station marks; tripod_msgs/msg/Event (Zenoh: JSON)
 
 ALL_TOPICS = (TOPIC_LIDAR_PACKETS, TOPIC_LIDAR_POSITION, TOPIC_IMU, TOPIC_STATUS, TOPIC_EVENTS)
 

@@ -107,7 +107,7 @@ class McapEvents:
     def __iter__(self) -> Iterator[Event]:
         from tripod_shared import messages as m
         from tripod_shared import topics as t
-        from tripod_shared.recording import RecordingReader
+        from tripod_shared.recording import RecordingReader, decode_event_message
 
         topics = {LIDAR: t.TOPIC_LIDAR_PACKETS, POSITION: t.TOPIC_LIDAR_POSITION,
                   IMU: t.TOPIC_IMU, IMU_SAMPLE: t.TOPIC_IMU, MARK: t.TOPIC_EVENTS}
@@ -126,7 +126,7 @@ class McapEvents:
                     if IMU_SAMPLE in self.kinds:
                         yield Event(s.host_ns, IMU_SAMPLE, s)
                 else:
-                    e = m.decode_event(msg.data)
+                    e = decode_event_message(msg)  # CDR, or JSON (format version 1)
                     if e.kind == "mark":
                         yield Event(e.host_ns, MARK, e.label)
             except Exception:  # noqa: BLE001 - a corrupt message is counted, never fatal
