@@ -233,3 +233,45 @@ def test_live_view_over_foxglove_websocket(capture, tmp_path):
     assert st and st[-1]["rotations_shown"] > 0
     assert summary["lag_median_s"] < 1.0
     assert not list(Path.cwd().glob("*.mcap"))
+
+
+def test_rotation_cutter_matches_the_decoder(velodyne_dir):
+    """Rotations cut at packet granularity on the azimuth wrap: as many as the decoder's frames
+    (VeloView's capture: 51 wraps), every packet in exactly one rotation, in order."""
+    from tripod_processor.decode import decode_file
+    from tripod_processor.live import RotationCutter
+
+    path = velodyne_dir / "veloview-vlp16-20hz.pcap"
+    pk = [(d.t_ns, d.payload) for d in PcapReader(path) if d.dst_port == 2368]
+    cut = RotationCutter()
+    rots = [r for r in (cut.feed(t, p) for t, p in pk) if r is not None]
+    rots.append(cut.flush())
+    assert [p for r in rots for p in r[0]] == [p for _, p in pk]
+    run = decode_file(path)
+    for _ in run:
+        pass
+    assert len(rots) - 1 == run.report.summary()["rotations"] == 51
+
+
+def test_voxel_set_grows_and_bounds():
+    from tripod_processor.live.view import VoxelSet, voxel_centres, voxel_keys
+
+    rng = np.random.default_rng(0)
+    xyz = rng.uniform(-20, 20, (5000, 3)).astype(np.float32)
+    keys = voxel_keys(xyz, 0.1)
+    back = voxel_centres(keys, 0.1)
+    # every point lies in a voxel whose centre is within half a voxel on each axis
+    assert np.abs(voxel_centres(voxel_keys(xyz[:1], 0.1), 0.1)[0] - xyz[0]).max() <= 0.05 + 1e-6
+    assert len(back) == len(keys) <= 5000
+    vs = VoxelSet(0.1, max_voxels=6000)
+    vs.add(xyz[:2500])
+    n1 = len(vs)
+    vs.add(xyz[:2500])
+    assert len(vs) == n1  # the same points again: nothing new
+    vs.add(xyz)
+    assert len(vs) == len(keys) > n1
+    vs.add(rng.uniform(-20, 20, (5000, 3)))
+    assert vs.full and len(vs) >= 6000
+    n_full = len(vs)
+    vs.add(rng.uniform(-20, 20, (5000, 3)))
+    assert len(vs) == n_full
