@@ -236,7 +236,7 @@ def test_live_view_over_foxglove_websocket(capture, tmp_path):
 
 
 def test_rotation_cutter_matches_the_decoder(velodyne_dir):
-    """Rotations cut at packet granularity on the azimuth wrap: as many as the decoder's frames
+    """Rotations cut at packet granularity on the azimuth wrap: as many as the decoder's
     (VeloView's capture: 51 wraps), every packet in exactly one rotation, in order."""
     from tripod_processor.decode import decode_file
     from tripod_processor.live import RotationCutter
@@ -250,7 +250,11 @@ def test_rotation_cutter_matches_the_decoder(velodyne_dir):
     run = decode_file(path)
     for _ in run:
         pass
-    assert len(rots) - 1 == run.report.summary()["rotations"] == 51
+    # a wrap between the blocks of a packet is seen at the next packet: only one inside the
+    # capture's very last packet is missed
+    assert run.report.summary()["rotations"] == 51
+    assert len(rots) - 1 in (50, 51)
+    assert all(37 <= len(r[0]) <= 38 for r in rots[1:-1])  # 754 packets/s at 20 Hz
 
 
 def test_voxel_set_grows_and_bounds():
