@@ -2,7 +2,7 @@
 """``tripod live`` end to end: a simulated two-station capture (dual return + IMU) replayed at 1x
 into a running daemon; ``tripod live`` (its own process) subscribes to the daemon's Zenoh stream
 and serves Foxglove; a plain WebSocket client speaking the Foxglove protocol
-(``foxglove.websocket.v1``: serverInfo, advertise, subscribe, binary messageData) receives the
+(``foxglove.sdk.v1``, foxglove.websocket.v1's successor: serverInfo, advertise, subscribe, binary messageData) receives the
 rotations, the transforms, the coverage map and the stations, decoded with the schemas the server
 advertised."""
 
@@ -84,8 +84,12 @@ class FoxgloveClient:
 
     async def _main(self) -> None:
         url = f"ws://127.0.0.1:{self.port}"
-        async with websockets.connect(url, subprotocols=["foxglove.websocket.v1"],
+        # foxglove-sdk >= 0.30 speaks the protocol as "foxglove.sdk.v1" (the same operations
+        # as "foxglove.websocket.v1", which older servers name): offer both
+        async with websockets.connect(url, subprotocols=["foxglove.sdk.v1",
+                                                         "foxglove.websocket.v1"],
                                       max_size=None) as ws:
+            self.subprotocol = ws.subprotocol
             subs: dict[int, dict] = {}
             classes: dict[int, object] = {}
             next_id = 1
@@ -163,7 +167,7 @@ def test_live_view_over_foxglove_websocket(capture, tmp_path):
                 env={**os.environ, "PYTHONUNBUFFERED": "1"})
             assert _wait_port(wport, 30), "tripod live did not open its WebSocket port"
             client.thread.start()
-            assert client.subscribed.wait(10) or client.error is None
+            assert client.subscribed.wait(10), client.error
             time.sleep(1.0)  # the live view's zenoh session has reached the daemon
             stats = Replayer(ReplaySource.open(capture), rate=1.0, lidar_addr=d.data_addr,
                              position_addr=d.position_addr, imu_sink=sink).run()
@@ -181,6 +185,7 @@ def test_live_view_over_foxglove_websocket(capture, tmp_path):
     assert client.error is None, client.error
     assert live.returncode == 0, err
     summary = json.loads(out.strip().splitlines()[-1])
+    print("tripod live:", json.dumps(summary))
 
     # the protocol: serverInfo, then the advertised channels with Foxglove's schemas
     assert client.server_info.get("op") == "serverInfo"
