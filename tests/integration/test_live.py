@@ -280,7 +280,7 @@ def test_voxel_set_grows_and_bounds():
     vs.add(xyz)
     assert len(vs) == len(keys) > n1
     vs.add(rng.uniform(-20, 20, (5000, 3)))
-    assert vs.full and len(vs) >= 6000
+    assert len(vs) >= 6000 and vs.full
     n_full = len(vs)
     vs.add(rng.uniform(-20, 20, (5000, 3)))
     assert len(vs) == n_full

@@ -56,7 +56,7 @@ class LiveConfig(StrictModel):
     min_station_s: float = Field(default=1.0, ge=0)
     min_range_m: float = Field(default=0.4, ge=0)
     max_range_m: float = Field(default=100.0, gt=0)
-    queue_rotations: int = Field(default=2, ge=1)
+    queue_rotations: int = Field(default=4, ge=1)  #: 0.4 s at 10 Hz
     q_imu_lidar: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)  #: mount, w x y z
 
 
@@ -79,25 +79,41 @@ def voxel_centres(keys: np.ndarray, voxel_m: float) -> np.ndarray:
 
 
 class VoxelSet:
-    """A growing set of voxels (sorted keys), bounded by ``max_voxels``."""
+    """A growing set of voxels (sorted keys), bounded by ``max_voxels``. Each rotation's keys
+    wait in a list and are merged when read or when ``merge_keys`` are waiting (one sort a
+    second, not one per rotation)."""
 
-    def __init__(self, voxel_m: float, max_voxels: int = 2_000_000):
-        self.voxel_m, self.max_voxels = voxel_m, max_voxels
+    def __init__(self, voxel_m: float, max_voxels: int = 2_000_000, merge_keys: int = 500_000):
+        self.voxel_m, self.max_voxels, self.merge_keys = voxel_m, max_voxels, merge_keys
         self.keys = np.zeros(0, np.int64)
+        self._pending: list[np.ndarray] = []
+        self._n_pending = 0
         self.full = False
 
     def add(self, xyz: np.ndarray) -> None:
         if not len(xyz) or self.full:
             return
-        self.keys = np.union1d(self.keys, voxel_keys(xyz, self.voxel_m))
-        if len(self.keys) >= self.max_voxels:
+        k = voxel_keys(xyz, self.voxel_m)
+        self._pending.append(k)
+        self._n_pending += len(k)
+        if self._n_pending >= self.merge_keys:
+            self._merge()
+
+    def _merge(self) -> None:
+        if not self._pending:
+            return
+        self.keys = np.unique(np.concatenate([self.keys, *self._pending]))
+        self._pending, self._n_pending = [], 0
+        if len(self.keys) >= self.max_voxels and not self.full:
             self.full = True
-            log.warning("coverage map full (%d voxels): it stops growing", len(self.keys))
+            log.warning("voxel map full (%d voxels): it stops growing", len(self.keys))
 
     def __len__(self) -> int:
+        self._merge()
         return len(self.keys)
 
     def centres(self) -> np.ndarray:
+        self._merge()
         return voxel_centres(self.keys, self.voxel_m)
 
 
