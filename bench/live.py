@@ -125,14 +125,14 @@ def main(argv=None) -> int:
     print(f"tripod live, dual return (1507 packets/s at 1x), on {os.cpu_count()} cores shared "
           "with the daemon and the replayer")
     hdr = (f"{'rate':>5} {'replay s':>8} {'rotations':>9} {'shown':>6} {'dropped':>7} "
-           f"{'lag median s':>12} {'lag p95 s':>9} {'stations':>8} {'live CPU s':>10}")
+           f"{'lag median s':>12} {'lag p95 s':>9} {'live CPU s':>10}  stations [s, ended by]")
     print(hdr)
     print("-" * len(hdr))
     for s in rows:
         print(f"{s['rate']:>4.0f}x {s['replay_s']:>8.1f} {s['rotations']:>9} "
               f"{s['rotations_shown']:>6} {s['rotations_dropped']:>7} "
-              f"{s['lag_median_s']:>12.3f} {s['lag_p95_s']:>9.3f} {len(s['stations']):>8} "
-              f"{s['cpu_s']:>10.1f}")
+              f"{s['lag_median_s']:>12.3f} {s['lag_p95_s']:>9.3f} {s['cpu_s']:>10.1f}  "
+              + ", ".join(f"{t['duration_s']:.1f} {t['ended_by']}" for t in s["stations"]))
     return 0
 
 
