@@ -21,7 +21,8 @@ topic                  schema            what
 Placement is by orientation only: live there is no registration, so every station sits at
 the origin of ``world`` (the fragments of different stations overlap; ``tripod reconstruct``
 places them). A station is a still period of the head (its pan axis, seen by the IMU, tilts by
-less than ``still_tilt_deg`` in ``still_gap_s``, for at least ``min_station_s``), cut also at
+less than ``still_tilt_deg`` in ``still_gap_s``, for at least ``min_station_s``; it ends after
+``moving_rotations`` moving rotations in a row), cut also at
 the daemon's ``mark`` events and when the stream stops.
 
 One rotation is decoded in one call of the native decoder (``decode.native``); all work runs
@@ -54,6 +55,9 @@ class LiveConfig(StrictModel):
     still_tilt_deg: float = Field(default=0.25, gt=0)
     still_gap_s: float = Field(default=0.5, gt=0)
     min_station_s: float = Field(default=1.0, ge=0)
+    #: a station ends after this many rotations in a row with the head moving (one alone is
+    #: IMU noise or a bump, not the carry)
+    moving_rotations: int = Field(default=3, ge=1)
     min_range_m: float = Field(default=0.4, ge=0)
     max_range_m: float = Field(default=100.0, gt=0)
     queue_rotations: int = Field(default=4, ge=1)  #: 0.4 s at 10 Hz
@@ -188,6 +192,7 @@ class LiveView:
         self.tracker = StationTracker(cfg)
         self.station: VoxelSet | None = None
         self.station_start_ns = 0
+        self._moving = 0  # rotations in a row with the head moving
         self.stations: list[dict] = []
         self.shown = 0
         self.points_shown = 0
@@ -261,12 +266,15 @@ class LiveView:
         xyz_w = xyz @ R_world_lidar.T
         self.coverage.add(xyz_w)
         if self.tracker.still(t_mid, R_world_imu.as_matrix()):
+            self._moving = 0
             if self.station is None:
                 self.station = VoxelSet(cfg.station_voxel_m, cfg.max_voxels)
                 self.station_start_ns = t_mid
             self.station.add(xyz_w)
         else:
-            self._finish_station("head moved")
+            self._moving += 1
+            if self._moving >= cfg.moving_rotations:
+                self._finish_station("head moved")
         self.shown += 1
         self.points_shown += len(pts)
         self.lags_ns.append(time.time_ns() - int(rot.host_ns[-1]))
