@@ -19,7 +19,7 @@ import logging
 import queue
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -61,7 +61,6 @@ class StreamCounters:
     imu_samples: int = 0
     events: int = 0
     status: int = 0
-    extra: dict = field(default_factory=dict)
 
 
 def first_block_azimuth(payload: bytes) -> int:
