@@ -61,15 +61,14 @@ def is_sim_folder(path: Path) -> bool:
 
 def first_start_reason(path: Path) -> str | None:
     """The reason of the file's first ``start`` event (None: no event, or unreadable)."""
-    from tripod_shared.messages import decode_event
-    from tripod_shared.recording import RecordingReader
-    from tripod_shared.topics import TOPIC_EVENTS
+    import struct
 
-    try:
-        for msg in RecordingReader(path).messages([TOPIC_EVENTS]):
-            ev = decode_event(msg.data)
+    from tripod_shared.recording import RecordingReader
+
+    try:  # the reader decodes by the channel's encoding: format 2 (CDR) and format 1 (JSON)
+        for ev in RecordingReader(path).events():
             return ev.label if ev.kind == "start" else None
-    except (OSError, ValueError, KeyError):
+    except (OSError, ValueError, KeyError, IndexError, struct.error):
         return None
     return None
 
