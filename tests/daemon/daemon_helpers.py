@@ -156,6 +156,24 @@ def free_tcp_port() -> int:
     return port
 
 
+def mutual_tls_setup(tmp_path: Path):
+    """Certificates made by ``gen_certs`` (device for localhost/127.0.0.1, clients ``operator``
+    and ``viewer``) and a loopback daemon config listening on TLS that takes control only from
+    the ``operator`` certificate. Returns (config, endpoint, certs folder, CA path)."""
+    from tripod_daemon.certs import gen_certs
+
+    certs = tmp_path / "certs"
+    gen_certs(str(certs), ["localhost", "127.0.0.1"], ["operator", "viewer"])
+    ep = f"tls/127.0.0.1:{free_tcp_port()}"
+    ca = str(certs / "ca.pem")
+    cfg = loopback_config(tmp_path, zenoh={
+        "enabled": True, "listen": [ep],
+        "tls": {"certificate": str(certs / "device.pem"),
+                "private_key": str(certs / "device.key"), "client_ca": ca},
+        "control": {"allow_loopback": False, "cert_common_names": ["operator"]}})
+    return cfg, ep, certs, ca
+
+
 def loopback_config(tmp_path: Path, **sections) -> DaemonConfig:
     """A config for loopback tests: ephemeral ports, files under tmp_path, zenoh off unless
     asked (then listening on a free loopback port)."""

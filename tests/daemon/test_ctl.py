@@ -8,7 +8,7 @@ import json
 
 import pytest
 
-from daemon_helpers import RunningDaemon, free_tcp_port, loopback_config
+from daemon_helpers import RunningDaemon, free_tcp_port, loopback_config, mutual_tls_setup
 from tripod_daemon.ctl import main as ctl
 from tripod_shared.recording import RecordingReader
 
@@ -141,18 +141,7 @@ def test_ctl_is_a_subcommand(argv, capsys):
 
 
 def test_mutual_tls_with_the_ca_and_client_certificates(tmp_path, capsys):
-    from tripod_daemon.certs import gen_certs
-
-    certs = tmp_path / "certs"
-    gen_certs(str(certs), ["localhost", "127.0.0.1"], ["operator", "viewer"])
-    port = free_tcp_port()
-    ep = f"tls/127.0.0.1:{port}"
-    ca = str(certs / "ca.pem")
-    cfg = loopback_config(tmp_path, zenoh={
-        "enabled": True, "listen": [ep],
-        "tls": {"certificate": str(certs / "device.pem"),
-                "private_key": str(certs / "device.key"), "client_ca": ca},
-        "control": {"allow_loopback": False, "cert_common_names": ["operator"]}})
+    cfg, ep, certs, ca = mutual_tls_setup(tmp_path)
 
     def tls(name):
         return ["--connect", ep, "--ca", ca, "--cert", str(certs / f"{name}.pem"),

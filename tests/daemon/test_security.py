@@ -17,9 +17,9 @@ from daemon_helpers import (
     free_tcp_port,
     loopback_config,
     make_data_packet,
+    mutual_tls_setup,
     udp_sender,
 )
-from tripod_daemon.certs import gen_certs
 from tripod_daemon.config import ZenohConfig
 from tripod_daemon.publisher import build_zenoh_config
 
@@ -113,16 +113,7 @@ def test_user_password_only_operator_may_control_and_recording_goes_on(tmp_path)
 
 
 def test_mutual_tls_only_the_operator_certificate_may_control(tmp_path, caplog):
-    certs = tmp_path / "certs"
-    gen_certs(str(certs), ["localhost", "127.0.0.1"], ["operator", "viewer"])
-    port = free_tcp_port()
-    ep = f"tls/127.0.0.1:{port}"
-    ca = str(certs / "ca.pem")
-    cfg = loopback_config(tmp_path, zenoh={
-        "enabled": True, "listen": [ep],
-        "tls": {"certificate": str(certs / "device.pem"), "private_key": str(certs / "device.key"),
-                "client_ca": ca},
-        "control": {"allow_loopback": False, "cert_common_names": ["operator"]}})
+    cfg, ep, certs, ca = mutual_tls_setup(tmp_path)
 
     def tls(name):
         return {"certificate": str(certs / f"{name}.pem"),
