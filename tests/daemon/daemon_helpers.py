@@ -8,6 +8,7 @@ import os
 import pty
 import socket
 import struct
+import subprocess
 import threading
 import time
 import tty
@@ -257,3 +258,17 @@ def send_paced_in_process(addr, first_seq: int, n: int, rate_hz: float, burst: i
          str(first_seq), str(n), str(rate_hz), str(burst)],
         capture_output=True, text=True, check=True, timeout=600)
     return float(out.stdout.split()[-1])
+
+
+@contextlib.contextmanager
+def small_tmpfs(path: Path, size_kb: int):
+    """A real tmpfs of ``size_kb`` KiB at ``path`` when mounting is allowed (root): yields True;
+    else yields False and the caller emulates a full disk. Unmounted on exit."""
+    path.mkdir(parents=True, exist_ok=True)
+    ok = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size_kb}k", "tmpfs", str(path)],
+                        capture_output=True).returncode == 0
+    try:
+        yield ok
+    finally:
+        if ok:
+            subprocess.run(["umount", "-l", str(path)], capture_output=True)

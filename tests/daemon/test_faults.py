@@ -10,7 +10,6 @@ import signal
 import subprocess
 import sys
 import time
-from contextlib import contextmanager
 
 from mcap.reader import make_reader
 
@@ -24,6 +23,7 @@ from daemon_helpers import (
     loopback_config,
     make_data_packet,
     send_paced,
+    small_tmpfs,
     udp_sender,
 )
 from tripod_daemon.main import main
@@ -142,23 +142,11 @@ def test_imu_unplug_and_replug_resumes_without_restart(tmp_path):
     assert len(d.daemon.recorder.files) == 1  # same recording across the unplug
 
 
-@contextmanager
-def _small_disk(path, size_mb: int):
-    """A real tmpfs when mounting is allowed (root); else None and the caller emulates."""
-    path.mkdir(parents=True, exist_ok=True)
-    ok = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size_mb}m", "tmpfs", str(path)],
-                        capture_output=True).returncode == 0
-    try:
-        yield ok
-    finally:
-        if ok:
-            subprocess.run(["umount", "-l", str(path)], capture_output=True)
-
 
 def test_full_disk_stops_cleanly_with_a_readable_file(tmp_path):
     disk = tmp_path / "disk"
     size = 8 << 20
-    with _small_disk(disk, 8) as real_tmpfs:
+    with small_tmpfs(disk, 8 * 1024) as real_tmpfs:
         if real_tmpfs:
             free_space = None  # the real statvfs of the tmpfs
         else:

@@ -8,9 +8,7 @@ from __future__ import annotations
 import os
 import shutil
 import socket
-import subprocess
 import time
-from contextlib import contextmanager
 
 from mcap.reader import make_reader
 
@@ -22,6 +20,7 @@ from daemon_helpers import (
     loopback_config,
     make_data_packet,
     send_paced,
+    small_tmpfs,
     udp_sender,
 )
 from tripod_daemon.recover import main as recover_main
@@ -128,17 +127,6 @@ def test_watchdog_stops_when_recording_stays_impossible(tmp_path, monkeypatch):
     assert any("unhealthy: not recording" in m for _t, m in msgs)
 
 
-@contextmanager
-def _tmpfs(path, size_kb: int):
-    path.mkdir(parents=True, exist_ok=True)
-    ok = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size_kb}k", "tmpfs", str(path)],
-                        capture_output=True).returncode == 0
-    try:
-        yield ok
-    finally:
-        if ok:
-            subprocess.run(["umount", "-l", str(path)], capture_output=True)
-
 
 def test_recover_on_a_full_disk_writes_elsewhere_and_leaves_no_partial(tmp_path, capsys):
     cfg = loopback_config(tmp_path, recording={"compression": "none", "flush_interval_s": 0.1})
@@ -148,7 +136,7 @@ def test_recover_on_a_full_disk_writes_elsewhere_and_leaves_no_partial(tmp_path,
         d.stop()
     src = d.daemon.recorder.files[0]
     full = tmp_path / "full"
-    with _tmpfs(full, 64) as mounted:
+    with small_tmpfs(full, 64) as mounted:
         if not mounted:  # no permission to mount: a directory nobody can write stands in
             full.mkdir(exist_ok=True)
             os.chmod(full, 0o500)
