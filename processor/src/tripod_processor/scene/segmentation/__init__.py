@@ -46,11 +46,19 @@ class Segmenter:
     def probabilities(self, points) -> np.ndarray:
         """(N, 4) float32 class probabilities of (N, 3) points [m], z up; the network runs once
         per occupied 4 cm voxel. Non-finite points get 1/4 each (and label "other")."""
+        if self.num_threads > 0:
+            import torch
+
+            torch.set_num_threads(self.num_threads)
+        return self.probabilities_of(*voxel_features(points, self.num_threads,
+                                                     return_segments=True))
+
+    def probabilities_of(self, f: np.ndarray, point_voxel: np.ndarray,
+                         segment: np.ndarray) -> np.ndarray:
+        """:meth:`probabilities` from precomputed ``voxel_features(points,
+        return_segments=True)`` (evaluations that score several models on one cloud)."""
         import torch
 
-        if self.num_threads > 0:
-            torch.set_num_threads(self.num_threads)
-        f, point_voxel, segment = voxel_features(points, self.num_threads, return_segments=True)
         vox = np.empty((len(f) + 1, NUM_CLASSES), np.float32)
         vox[-1] = [0.25, 0.25, 0.25, 0.25 + 1e-6]  # index -1: non-finite points
         with torch.inference_mode():

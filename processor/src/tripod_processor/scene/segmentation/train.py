@@ -117,3 +117,47 @@ def train(features: np.ndarray, labels: np.ndarray, *, seed: int = 0, steps: int
     model.eval()
     return model, TrainReport(time.perf_counter() - t0, len(X), steps, float(loss_avg or 0),
                               counts.astype(int).tolist())
+
+
+# ----------------------------------------------------------------- procedural buildings
+#: the recipe of the shipped weights (scripts/train_segmenter.sh): buildings per family of the
+#: generator's train seeds, augmented copies, sampled points per copy, optimiser steps and batch
+RECIPE = {"per_family": 20, "copies": 2, "keep_per_copy": 30_000, "steps": 4000, "batch": 8192,
+          "hidden": (128, 128), "lr": 3e-3}
+
+
+def procedural_clouds(family: str, split: str = "train", n: int = 20):
+    """(points, labels) of ``n`` scans of generated buildings of ``family`` (``sim.procedural``:
+    the split's seeds, one scan of 1-3 stations each)."""
+    from ...sim.procedural import labelled_scan, split_seeds
+
+    for s in split_seeds(split, n):
+        yield labelled_scan(family, s)
+
+
+def procedural_features(families, split: str = "train", per_family: int = RECIPE["per_family"],
+                        copies: int = RECIPE["copies"], seed: int = 0,
+                        keep_per_copy: int = RECIPE["keep_per_copy"],
+                        progress: Callable | None = None) -> dict:
+    """{family: (features, labels)} of :func:`procedural_clouds` with :func:`features_of`
+    (augmentation drawn from ``seed`` and the family's index, so a family's rows do not depend
+    on which other families are trained with it: leave-one-family-out reuses them)."""
+    from ...sim.procedural import FAMILIES
+
+    out = {}
+    for fam in families:
+        out[fam] = features_of(procedural_clouds(fam, split, per_family), copies,
+                               seed=seed * 1000 + FAMILIES.index(fam), progress=progress,
+                               keep_per_copy=keep_per_copy)
+    return out
+
+
+def train_on_families(feats: dict, families, *, seed: int = 0, steps: int = RECIPE["steps"],
+                      batch: int = RECIPE["batch"], hidden=RECIPE["hidden"], lr: float = RECIPE["lr"],
+                      num_threads: int = 0, progress: Callable | None = None):
+    """:func:`train` on the rows of ``families`` from :func:`procedural_features` (in the
+    order given)."""
+    F = np.concatenate([feats[f][0] for f in families])
+    L = np.concatenate([feats[f][1] for f in families])
+    return train(F, L, seed=seed, steps=steps, batch=batch, lr=lr, hidden=hidden,
+                 num_threads=num_threads, progress=progress)
