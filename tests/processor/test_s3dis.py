@@ -107,7 +107,16 @@ def test_class_map():
     assert len(S3DIS_CLASSES) == 13 and len(S3DIS_TO_TRIPOD) == 13
     m = dict(zip(S3DIS_CLASSES, S3DIS_TO_TRIPOD))
     assert (m["ceiling"], m["floor"], m["wall"]) == (0, 1, 2)
-    assert all(m[c] == 3 for c in S3DIS_CLASSES[3:])
+    # the one convention (sim.procedural.CONVENTION): windows and doors lie in the wall
+    assert m["window"] == 2 and m["door"] == 2
+    assert all(m[c] == 3 for c in S3DIS_CLASSES[3:] if c not in ("window", "door"))
+    from tripod_processor.sim.procedural import CONVENTION
+
+    for s3dis_class, part in (("ceiling", "ceiling"), ("floor", "floor"), ("wall", "wall"),
+                              ("window", "window"), ("door", "door_closed"), ("beam", "beam"),
+                              ("column", "column"), ("board", "wall_item"), ("table", "furniture"),
+                              ("clutter", "clutter")):
+        assert m[s3dis_class] == CONVENTION[part][0], s3dis_class
 
 
 def test_missing_layout_is_an_error(tmp_path):

@@ -112,6 +112,12 @@ def train_segmenter_cmd(
     s3dis_areas: str = typer.Option("1,2,3,4,6", "--s3dis-areas", help="S3DIS areas to train on"),
     synthetic: int = typer.Option(0, "--synthetic",
                                   help="also generate this many labelled synthetic rooms"),
+    procedural: int = typer.Option(0, "--procedural",
+                                   help="also scan this many generated buildings of each layout "
+                                        "family (sim.procedural, train seeds)"),
+    families: str = typer.Option("all", "--families",
+                                 help="layout families for --procedural (comma list, or all)"),
+    keep: int = typer.Option(400_000, "--keep", help="sampled training points per cloud copy"),
     copies: int = typer.Option(2, "--copies", help="augmented copies of each cloud (first unperturbed)"),
     steps: int = typer.Option(2000, "--steps", help="optimiser steps"),
     batch: int = typer.Option(4096, "--batch", help="points per step"),
@@ -163,16 +169,40 @@ def train_segmenter_cmd(
                                   head_steps=int(rng.integers(6, 16)),
                                   noise_m=float(rng.uniform(0.005, 0.035)))
             sources.append((p, lab))
-    if not sources:
-        fail("no training data: give --data, --s3dis or --synthetic")
+    fams: list[str] = []
+    if procedural:
+        from ..sim.procedural import FAMILIES
+
+        fams = list(FAMILIES) if families.strip() == "all" else [
+            f.strip() for f in families.split(",") if f.strip()]
+        bad = [f for f in fams if f not in FAMILIES]
+        if bad or not fams:
+            fail(f"--families: unknown {', '.join(bad) or '(none)'} (choose from "
+                 f"{', '.join(FAMILIES)} or all)")
+    if not sources and not fams:
+        fail("no training data: give --data, --s3dis, --synthetic or --procedural")
     try:
         hidden_sizes = tuple(int(h) for h in hidden.split(",") if h.strip())
         if not hidden_sizes or min(hidden_sizes) < 1:
             raise ValueError
     except ValueError:
         fail(f"--hidden: expected widths like 128,128, got {hidden!r}")
-    bar = tqdm(total=len(sources) * copies, desc="features", unit="cloud")
-    F, L = features_of(sources, copies=copies, seed=seed, progress=lambda: bar.update())
+    bar = tqdm(total=(len(sources) + procedural * len(fams)) * copies, desc="features",
+               unit="cloud")
+    Fs, Ls = [], []
+    if fams:  # generated buildings first, family by family (train.procedural_features)
+        from ..scene.segmentation.train import procedural_features
+
+        pf = procedural_features(fams, "train", procedural, copies, seed, keep,
+                                 progress=lambda: bar.update())
+        Fs += [pf[f][0] for f in fams]
+        Ls += [pf[f][1] for f in fams]
+    if sources:
+        F, L = features_of(sources, copies=copies, seed=seed, progress=lambda: bar.update(),
+                           keep_per_copy=keep)
+        Fs.append(F)
+        Ls.append(L)
+    F, L = np.concatenate(Fs), np.concatenate(Ls)
     bar.close()
     bar = tqdm(total=steps, desc="training", unit="step")
 
@@ -187,6 +217,7 @@ def train_segmenter_cmd(
     import sys
 
     meta = {"seed": seed, "steps": steps, "batch": batch, "copies": copies, "synthetic": synthetic,
+            "procedural": procedural, "families": fams, "keep": keep,
             "data": [str(f) for f in files], "s3dis": str(s3dis) if s3dis else None,
             "s3dis_areas": s3dis_areas if s3dis else None, "train_seconds": rep.seconds,
             "points": rep.points, "class_counts": rep.class_counts,
@@ -195,7 +226,7 @@ def train_segmenter_cmd(
     table = Table(title=f"tripod train-segmenter -> {output}")
     table.add_column("item")
     table.add_column("value", justify="right")
-    table.add_row("clouds", str(len(sources)))
+    table.add_row("clouds", str(len(sources) + procedural * len(fams)))
     table.add_row("training points", f"{rep.points:,}")
     table.add_row("steps x batch", f"{steps} x {batch}")
     table.add_row("final loss", f"{rep.final_loss:.4f}")

@@ -26,9 +26,14 @@ from .metrics import confusion
 
 S3DIS_CLASSES = ("ceiling", "floor", "wall", "beam", "column", "window", "door", "chair", "table",
                  "bookcase", "sofa", "board", "clutter")
-#: S3DIS class id -> tripod class (0 ceiling, 1 floor, 2 wall, 3 other). Windows, doors and boards
-#: are their own objects in S3DIS (not wall), so they are "other" here, as are beams and columns.
-S3DIS_TO_TRIPOD = np.array([0, 1, 2, 3, 3, 3, 3, 3, 3, 3, 3, 3, 3], np.int32)
+#: S3DIS class id -> tripod class (0 ceiling, 1 floor, 2 wall, 3 other), by the one label
+#: convention of ``tripod_processor.sim.procedural.CONVENTION`` (README, "Label convention"):
+#: what lies in a wall's plane or thickness is wall, so windows and doors (frames, panes, leaves in
+#: their openings) are wall; beams, columns, boards, furniture, clutter (and unknown classes such
+#: as stairs) stand in the room or on the wall and are other. Until issue 18, windows and doors
+#: mapped to other. An open door leaf is the one S3DIS "door" that the convention calls other;
+#: S3DIS does not tell open leaves from closed ones, so they count as wall here.
+S3DIS_TO_TRIPOD = np.array([0, 1, 2, 3, 3, 2, 2, 3, 3, 3, 3, 3, 3], np.int32)
 UNKNOWN_CLASS = 12  # clutter
 AREAS = (1, 2, 3, 4, 5, 6)
 
