@@ -277,6 +277,7 @@ def _plan(family: str, rng):
         rs.sort(key=lambda r: -(r[2] - r[0]) * (r[3] - r[1]))
         names = ["living", "bedroom", "kitchen", "bath", "bedroom", "generic", "storage"]
         types = names[:1] + [str(t) for t in rng.permutation(names[1:])][: len(rs) - 1]
+        types += ["generic"] * (len(rs) - len(types))  # an L apartment can have more rooms
         # the smallest room is the bathroom
         if "bath" in types:
             types[types.index("bath")] = types[-1]
@@ -378,6 +379,7 @@ def _add_openings(runs, rooms, types, h, t_int, rng, opt):
         parent[find(a)] = find(b)
         wide = rng.random() < 0.12 and r.length > 2.0 + 2 * margin
         width = rng.uniform(1.2, min(3.0, r.length - 2 * margin)) if wide else rng.uniform(0.8, 1.0)
+        width = min(width, r.length - 2 * margin)  # a short wall: a narrower door
         o0 = rng.uniform(r.s0 + margin, r.s1 - margin - width)
         top = h if (wide and rng.random() < 0.4) else min(h - 0.15, rng.uniform(2.0, 2.3) if not wide
                                                           else rng.uniform(2.1, 2.6))

@@ -122,7 +122,7 @@ def train(features: np.ndarray, labels: np.ndarray, *, seed: int = 0, steps: int
 # ----------------------------------------------------------------- procedural buildings
 #: the recipe of the shipped weights (scripts/train_segmenter.sh): buildings per family of the
 #: generator's train seeds, augmented copies, sampled points per copy, optimiser steps and batch
-RECIPE = {"per_family": 20, "copies": 2, "keep_per_copy": 30_000, "steps": 4000, "batch": 8192,
+RECIPE = {"per_family": 20, "copies": 2, "keep_per_copy": 30_000, "steps": 3000, "batch": 4096,
           "hidden": (128, 128), "lr": 3e-3}
 
 
