@@ -29,6 +29,7 @@ from collections.abc import Callable
 from datetime import datetime, timezone
 
 from tripod_shared import messages
+from tripod_shared.mcap_writer import MessageBlock
 from tripod_shared.recording import RecordingWriter
 
 from .config import RecordingConfig
@@ -37,6 +38,19 @@ from .stats import Counters
 log = logging.getLogger(__name__)
 
 Item = tuple[str, int, bytes]
+
+
+def batch_size(batch: list) -> tuple[int, int]:
+    """(messages, message bytes) of a batch of items and MessageBlocks."""
+    n = nbytes = 0
+    for it in batch:
+        if isinstance(it, MessageBlock):
+            n += len(it)
+            nbytes += it.nbytes
+        else:
+            n += 1
+            nbytes += len(it[2])
+    return n, nbytes
 
 _STOP = object()
 _FREE_CHECK_BYTES = 1 << 20  # look at free space at least every MiB written
@@ -128,21 +142,22 @@ class Recorder:
         bytes, when the caller knows them."""
         if not batch:
             return
+        n, nb = batch_size(batch)
         if not self.active:
             if self.wanted:
-                self.counts["record_unrecorded"] += len(batch)
+                self.counts["record_unrecorded"] += n
             return
         if nbytes is None:
-            nbytes = sum([len(it[2]) for it in batch])
+            nbytes = nb
         if self._enqueued_bytes - self._dequeued_bytes + nbytes > self.cfg.queue_bytes:
-            self._over_budget(len(batch))
+            self._over_budget(n)
             return
         backlog = self._enqueued_bytes - self._dequeued_bytes
         if self.overload and backlog < self.cfg.queue_bytes // 2:
             self.overload = ""
             log.warning("recording keeps up again (%d messages dropped in all)",
                         self.counts["record_dropped"])
-        self._enqueued += len(batch)
+        self._enqueued += n
         self._enqueued_bytes += nbytes
         self._q.put(batch)
 
@@ -238,12 +253,13 @@ class Recorder:
                     self._drain_and_finish("shutdown")
                     return
                 if isinstance(item, list):
-                    self._dequeued += len(item)
-                    self._dequeued_bytes += sum([len(it[2]) for it in item])
+                    n, nbytes = batch_size(item)
+                    self._dequeued += n
+                    self._dequeued_bytes += nbytes
                     if self._writer is not None:
-                        self._write_batch(item)
+                        self._write_batch(item, n)
                     else:
-                        self.counts["record_unrecorded"] += len(item)
+                        self.counts["record_unrecorded"] += n
                 elif isinstance(item, _Cmd):
                     self._do(item)
                 if self._writer is not None:
@@ -270,11 +286,12 @@ class Recorder:
             except queue.Empty:
                 break
             if isinstance(item, list):
-                self._dequeued += len(item)
-                self._dequeued_bytes += sum([len(it[2]) for it in item])
+                n, nbytes = batch_size(item)
+                self._dequeued += n
+                self._dequeued_bytes += nbytes
                 if self._writer is not None:
                     try:
-                        self._write_batch(item)
+                        self._write_batch(item, n)
                     except Exception as exc:  # noqa: BLE001
                         self._fail(f"recording error: {type(exc).__name__}: {exc}")
             elif isinstance(item, _Cmd):
@@ -283,11 +300,15 @@ class Recorder:
         if self.state == "recording":
             self.state = "idle"
 
-    def _write_batch(self, batch: list[Item]) -> None:
-        write = self._writer.write_encoded
-        for topic, ns, data in batch:
-            write(topic, ns, data)
-        self.counts["record_written"] += len(batch)
+    def _write_batch(self, batch: list, n: int) -> None:
+        w = self._writer
+        write = w.write_encoded
+        for it in batch:
+            if isinstance(it, MessageBlock):
+                w.write_block(it)
+            else:
+                write(*it)
+        self.counts["record_written"] += n
 
     def _do(self, cmd: _Cmd) -> None:
         try:
