@@ -211,13 +211,14 @@ class RecordingConfig(StrictModel):
     prefix: str = "tripod"
     compression: Literal["zstd", "lz4", "none"] = "zstd"
     chunk_size_bytes: int = Field(4 << 20, ge=1024)
-    flush_interval_s: float = Field(0.5, gt=0)  # a chunk is written at least this often [s]
+    flush_interval_s: float = Field(0.25, gt=0)  # a chunk is written at least this often [s]
     fsync: Literal["chunk", "interval", "never"] = "chunk"
     fsync_interval_s: float = Field(5.0, gt=0)  # for fsync: interval
     max_file_bytes: int = Field(2 << 30, ge=0)  # split above this size; 0: never
     max_file_duration_s: float = Field(600.0, ge=0)  # split after this long; 0: never
     min_free_bytes: int = Field(256 << 20, ge=0)  # stop cleanly below this much free space
     queue_bytes: int = Field(32 << 20, ge=1 << 20)  # writer backlog budget; beyond: dropped [B]
+    queue_max_age_s: float = Field(0.5, gt=0)  # nor older than this; beyond: dropped [s]
     retry_interval_s: float = Field(10.0, gt=0)  # retry a failed directory or full disk [s]
 
     @field_validator("prefix")

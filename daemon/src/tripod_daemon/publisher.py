@@ -37,6 +37,7 @@ from tripod_shared import topics
 from tripod_shared.mcap_writer import MessageBlock
 
 from .config import ZenohConfig
+from .osutil import set_thread_name
 from .stats import Counters
 
 log = logging.getLogger(__name__)
@@ -245,6 +246,7 @@ class LivePublisher:
         self._q.put(batch)
 
     def _run(self) -> None:
+        set_thread_name("tripod-publish")
         pubs = self._pubs
         counts = self.counts
         while True:
