@@ -2,8 +2,7 @@
 // Evenly paced VLP-16 UDP sender for bench/daemon.py (compiled there with cc into a temp dir).
 //
 // Sends real VLP-16 data payloads (a file of 1206-byte payloads back to back, cycled, see vary),
-// packet i
-// at t0 + i / rate on CLOCK_MONOTONIC: it sleeps to the next packet's absolute deadline
+// packet i at t0 + i / rate on CLOCK_MONOTONIC: it sleeps to the next packet's absolute deadline
 // (clock_nanosleep TIMER_ABSTIME, timer slack 1 ns) and then sends every packet that is due
 // with one sendmmsg, so packets leave as evenly as the scheduler wakes it (tens of µs), never
 // in bursts of a fixed size. Each packet carries its number i (+ first) as a u32 in bytes

@@ -431,6 +431,7 @@ class Recorder:
             meta = {"host": socket.gethostname(), **self.metadata}
             self._writer = RecordingWriter(
                 self._fh, chunk_size=cfg.chunk_size_bytes, compression=cfg.compression,
+                compression_level=cfg.compression_level,
                 metadata={"writer": "tripod-daemon"}, library="tripod-daemon")
             self._writer.add_metadata("tripod_daemon", meta)
             self._writer.write_event(messages.Event(time.time_ns(), "start", reason))

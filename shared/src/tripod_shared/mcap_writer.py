@@ -121,13 +121,16 @@ class McapChunkWriter:
     chunk_size : int
         A chunk is finished once its uncompressed records exceed this.
     compression : "zstd" | "lz4" | ""
+    level : int, optional
+        zstd level (default 3, as the ``mcap`` package); ignored for lz4.
     """
 
-    def __init__(self, stream: IO[bytes], chunk_size: int = 1 << 20, compression: str = "zstd"):
+    def __init__(self, stream: IO[bytes], chunk_size: int = 1 << 20, compression: str = "zstd",
+                 level: int | None = None):
         if compression == "zstd":
             import zstandard
 
-            self._compress = zstandard.ZstdCompressor().compress
+            self._compress = zstandard.ZstdCompressor(level=3 if level is None else level).compress
         elif compression == "lz4":
             import lz4.frame
 
