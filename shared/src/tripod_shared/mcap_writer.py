@@ -12,7 +12,7 @@ The file is a plain MCAP (spec: https://mcap.dev/spec) written as the ``mcap`` p
 schemas and channels inside the chunk where they are first used, a message index after every
 chunk, and a summary with repeated schemas and channels, statistics, chunk and metadata indexes
 and summary offsets, and CRCs of chunks and summary. The records other than messages and message
-indexes are the ``mcap`` package's own (``mcap.records``), so their layout is not ours to get
+indexes (and the chunk's few header fields) are the ``mcap`` package's own (``mcap.records``), so their layout is not ours to get
 wrong; any MCAP reader reads the file.
 """
 
@@ -28,7 +28,6 @@ from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
 from mcap.records import (
     Channel,
-    Chunk,
     ChunkIndex,
     DataEnd,
     Footer,
@@ -49,6 +48,7 @@ MESSAGE_HEADER_SIZE = MESSAGE_HEADER.size  # 31
 
 _INDEX_ENTRY = np.dtype([("log_time", "<u8"), ("offset", "<u8")])
 _MSG_INDEX_HEAD = struct.Struct("<BQHI")  # opcode, record length, channel_id, entries' bytes
+_CHUNK_HEAD = struct.Struct("<BQQQQII")  # opcode, length, start, end, size, crc, len(compression)
 
 
 def message_block_dtype(data_size: int) -> np.dtype:
@@ -130,14 +130,12 @@ class McapChunkWriter:
         if compression == "zstd":
             import zstandard
 
-            self._compress = zstandard.ZstdCompressor(level=3 if level is None else level).compress
+            self._zstd = zstandard.ZstdCompressor(level=3 if level is None else level)
         elif compression == "lz4":
             import lz4.frame
 
-            self._compress = lz4.frame.compress
-        elif compression == "":
-            self._compress = None
-        else:
+            self._lz4 = lz4.frame.compress
+        elif compression != "":
             raise ValueError(f"unknown compression {compression!r}")
         self._compression = compression
         self._stream = stream
@@ -268,18 +266,34 @@ class McapChunkWriter:
             return
         for cid in list(self._pending):
             self._flush_pending(cid)
-        data = b"".join(self._parts)
-        compressed = self._compress(data) if self._compress is not None else data
-        chunk = Chunk(compression=self._compression, data=compressed,
-                      message_start_time=self._t0, message_end_time=self._t1,
-                      uncompressed_crc=zlib.crc32(data), uncompressed_size=len(data))
+        # the records are compressed and summed part by part, never joined (no 4 MiB copies)
+        parts, size = self._parts, self._size
+        crc = 0
+        for p in parts:
+            crc = zlib.crc32(p, crc)
+        if self._compression == "zstd":
+            cobj = self._zstd.compressobj(size=size)
+            out = [cobj.compress(p) for p in parts]
+            out.append(cobj.flush())
+        elif self._compression == "lz4":
+            out = [self._lz4(b"".join(parts))]
+        else:
+            out = parts
+        csize = sum(len(o) for o in out)
+        comp = self._compression.encode()
+        # Chunk record: message_start_time, message_end_time, uncompressed_size,
+        # uncompressed_crc, compression (string), records (u64 length + bytes)
+        head = _CHUNK_HEAD.pack(Opcode.CHUNK, 8 + 8 + 8 + 4 + 4 + len(comp) + 8 + csize,
+                                self._t0, self._t1, size, crc, len(comp)) + comp \
+            + struct.pack("<Q", csize)
         start = self._pos
-        self._write(self._record(chunk))
+        self._write(head)
+        for o in out:
+            self._write(o)
         index = ChunkIndex(
             message_start_time=self._t0, message_end_time=self._t1, chunk_start_offset=start,
             chunk_length=self._pos - start, message_index_offsets={}, message_index_length=0,
-            compression=self._compression, compressed_size=len(compressed),
-            uncompressed_size=len(data))
+            compression=self._compression, compressed_size=csize, uncompressed_size=size)
         index_start = self._pos
         for cid, parts in self._index.items():
             entries = np.empty(sum(len(p[0]) for p in parts), dtype=_INDEX_ENTRY)
