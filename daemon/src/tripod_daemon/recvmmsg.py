@@ -73,7 +73,8 @@ def available() -> bool:
 
 class BatchReceiver:
     """Receive up to ``capacity`` datagrams of ``sock`` per :meth:`receive` into
-    ``rows[i, data_offset:data_offset + max_size]``.
+    ``rows[i, data_offset:data_offset + max_size]`` (the other columns are left as they were:
+    uninitialised until the caller fills them).
 
     After ``n = receive()``, for i < n: ``lengths[i]`` (bytes received; a datagram longer than
     ``max_size`` has ``truncated[i]`` set), ``stamps_ns[i]`` (kernel receive time,
@@ -89,14 +90,13 @@ class BatchReceiver:
         self.sock = sock
         self.fd = sock.fileno()
         self.capacity = capacity
-        self.rows = np.zeros((capacity, row_size), dtype=np.uint8)
+        self._row_size, self._data_offset = row_size, data_offset
         self._names = np.zeros((capacity, _NAME_SIZE), dtype=np.uint8)
         self._ctrl = np.zeros((capacity, _CTRL_SIZE), dtype=np.uint8)
         self._iov = np.zeros(capacity, dtype=_IOVEC)
         self._hdr = np.zeros(capacity, dtype=_MMSGHDR)
-        base = self.rows.ctypes.data
-        self._iov["base"] = base + data_offset + np.arange(capacity, dtype=np.uint64) * row_size
         self._iov["len"] = max_size
+        self._new_rows()
         self._hdr["name"] = self._names.ctypes.data + np.arange(capacity, dtype=np.uint64) \
             * _NAME_SIZE
         self._hdr["iov"] = self._iov.ctypes.data + np.arange(capacity, dtype=np.uint64) \
@@ -111,6 +111,18 @@ class BatchReceiver:
         self.stamps_ns = np.zeros(0, dtype=np.int64)
         self.addresses = np.zeros(0, dtype=np.uint32)
         self.kernel_drops = -1
+
+    def _new_rows(self) -> None:
+        self.rows = np.empty((self.capacity, self._row_size), dtype=np.uint8)
+        self._iov["base"] = self.rows.ctypes.data + self._data_offset \
+            + np.arange(self.capacity, dtype=np.uint64) * self._row_size
+
+    def take(self, n: int) -> np.ndarray:
+        """The first ``n`` rows, handed over without a copy: the next :meth:`receive` reads
+        into a new array."""
+        rows = self.rows[:n]
+        self._new_rows()
+        return rows
 
     def receive(self, limit: int | None = None) -> int:
         """Read what the socket holds, at most ``limit`` (default ``capacity``) datagrams;
