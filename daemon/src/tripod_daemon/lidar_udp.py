@@ -143,8 +143,11 @@ class LidarInput:
                 self.data_sock, cfg.max_batch, _ROW_SIZE, _PAYLOAD, DATA_PACKET_SIZE)
             self._source_keys = np.array(
                 [recvmmsg.ipv4_key(a) for a in cfg.source_addresses], dtype=np.uint32)
-            self._product_arr = np.array(sorted(self._products), dtype=np.uint8)
-            self._mode_arr = np.array(sorted(RETURN_MODES), dtype=np.uint8)
+            # byte value -> accepted? (a table lookup per row: far cheaper than np.isin)
+            self._product_ok = np.zeros(256, dtype=bool)
+            self._product_ok[[p for p in self._products if 0 <= p < 256]] = True
+            self._mode_ok = np.zeros(256, dtype=bool)
+            self._mode_ok[list(RETURN_MODES)] = True
 
     @property
     def data_port(self) -> int:
@@ -183,8 +186,8 @@ class LidarInput:
         well_formed = ((br.lengths == DATA_PACKET_SIZE) & ~br.truncated
                        & (rows[:, _FLAG_COLS] == 0xFF).all(axis=1)
                        & (rows[:, _FLAG_COLS + 1] == 0xEE).all(axis=1)
-                       & np.isin(rows[:, _PAYLOAD + RETURN_MODE_OFFSET], self._mode_arr))
-        ours = np.isin(rows[:, _PAYLOAD + PRODUCT_ID_OFFSET], self._product_arr)
+                       & self._mode_ok[rows[:, _PAYLOAD + RETURN_MODE_OFFSET]])
+        ours = self._product_ok[rows[:, _PAYLOAD + PRODUCT_ID_OFFSET]]
         good = ~filtered & well_formed & ours
         n_good = int(np.count_nonzero(good))
         n_filtered = int(np.count_nonzero(filtered))
@@ -195,7 +198,9 @@ class LidarInput:
         if n_good == 0:
             return n
         if n_good == n:
-            block = br.take(n)  # no copy: the next receive reads into a new array
+            # a full read is handed over without a copy (the next receive reads into a new
+            # array); a small one is copied, so a queued block never holds a mostly empty array
+            block = br.take(n) if 2 * n >= br.capacity else rows.copy()
         else:
             block = rows[good]
             stamps = stamps[good]
