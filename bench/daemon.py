@@ -256,11 +256,22 @@ def kill_case(sender: str, rate: float, seconds: float, kill_s: float, workdir: 
                 for _s, _c, m in reader.iter_messages(topics=[topics.TOPIC_LIDAR_PACKETS])]
     sent = int(rep["killed_after"])
     kept = len(seqs)
-    # the recovered packets are the first ones sent, none twice: what is missing is the tail
-    prefix = kept == len(set(seqs)) and (not seqs or max(seqs) < sent)
-    lost = sent - kept
+    # none twice, in order; what is missing after the last recovered packet went with the kill
+    # (the open chunk, the writer's queue, the kernel's socket buffer); gaps before it were
+    # dropped (and counted) while the daemon was alive, e.g. by an overloaded writer
+    ordered = all(b > a for a, b in zip(seqs, seqs[1:])) and (not seqs or seqs[-1] < sent)
+    end = seqs[-1] + 1 if seqs else 0
+    lost = sent - end
     return {"rate": rate, "sent_before_kill": sent, "recovered": kept, "lost": lost,
-            "lost_s": lost / rate, "prefix": prefix}
+            "lost_s": lost / rate, "dropped_before": end - kept, "ordered": ordered}
+
+
+def kill_line(k: dict) -> str:
+    return (f"kill -9 at {k['rate']:,.0f}/s: {k['sent_before_kill']:,} sent before the kill, "
+            f"{k['recovered']:,} in the recovered file (plain mcap reader; in order, none twice: "
+            f"{k['ordered']}): lost with the kill {k['lost']:,} = {k['lost_s']:.2f} s"
+            + (f" (and {k['dropped_before']:,} dropped earlier by the overloaded daemon, "
+               "counted)" if k["dropped_before"] else ""))
 
 
 def main() -> int:
@@ -271,7 +282,18 @@ def main() -> int:
     ap.add_argument("--max-rate", type=float, default=400_000)
     ap.add_argument("--no-search", action="store_true", help="skip the zero-loss search")
     ap.add_argument("--kill-runs", type=int, default=3, help="kill -9 runs per rate (0: none)")
+    ap.add_argument("--kill-only", type=float, metavar="RATE",
+                    help="only the kill -9 runs, at this rate")
     a = ap.parse_args()
+    if a.kill_only:
+        with tempfile.TemporaryDirectory() as tmp:
+            sender = build_sender(Path(tmp))
+            for k in range(a.kill_runs):
+                w = Path(tmp) / f"kill{k}"
+                w.mkdir()
+                r = kill_case(sender, a.kill_only, 7, 5, w)
+                print(kill_line(r) + f"; load {os.getloadavg()[0]:.1f}", flush=True)
+        return 0
     low_s = 4 if a.quick else 10
     long_s = 6 if a.quick else 30
     step_s = 3 if a.quick else 5
@@ -359,9 +381,7 @@ def main() -> int:
     print(f"recording: {len(seqs):,} packets of {counts['lidar_data']:,} received; "
           f"in order, no duplicates: {in_order and len(seqs) == counts['lidar_data']}")
     for k in kills:
-        print(f"kill -9 at {k['rate']:,.0f}/s: {k['sent_before_kill']:,} sent before the kill, "
-              f"{k['recovered']:,} in the recovered file (plain mcap reader; the first ones "
-              f"sent, none twice: {k['prefix']}): {k['lost']:,} lost = {k['lost_s']:.2f} s")
+        print(kill_line(k))
     if kills:
         worst = {}
         for k in kills:
