@@ -163,8 +163,10 @@ def test_batched_receive_records_what_the_per_packet_receive_records(tmp_path):
             assert all(messages.decode_velodyne_packet(d)[0] == ns for _t, ns, d in items[b])
             assert all(d[:12] == messages.encode_velodyne_packet(ns, good[0])[:12]
                        for _t, ns, d in items[b])
+            # kernel stamps (not sorted: until Linux has turned stamping on for a new socket,
+            # through deferred work, it stamps at the read; see test_lidar_udp)
             stamps = [ns for _t, ns, _d in items[b]]
-            assert stamps == sorted(stamps) and abs(stamps[0] - time.time_ns()) < 60e9
+            assert all(abs(ns - time.time_ns()) < 60e9 for ns in stamps)
         # and the recorded files hold the same packets, read by the plain mcap reader
         files = {}
         for b in out:
