@@ -220,6 +220,7 @@ def run_case(d: DaemonProcess, sender: str, seq: int, rate: float, seconds: floa
         time.sleep(0.2)
     time.sleep(0.3)  # the writer's last batch
     after = d.status()["counts"]
+    got = after["lidar_data"] - before["lidar_data"]
     if wall is None:
         wall, cpu = time.monotonic() - t0, d.cpu_s() - cpu0
     row = {
