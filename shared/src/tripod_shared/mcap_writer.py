@@ -322,7 +322,6 @@ class McapChunkWriter:
         """Write the last chunk, the data end and the summary; does not close the stream."""
         if self._n == 0 and self._parts:
             # schemas/channels registered after the last message: keep them in the data section
-            self._n = 0
             for p in self._parts:
                 self._write(p)
             self._new_chunk()
