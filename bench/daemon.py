@@ -408,8 +408,9 @@ def main() -> int:
         worst = {}
         for k in kills:
             worst[k["rate"]] = max(worst.get(k["rate"], 0.0), k["lost_s"])
-        print("kill -9 worst loss: " + ", ".join(f"{w:.2f} s at {r:,.0f}/s"
-                                                 for r, w in worst.items()))
+        print("kill -9 worst loss with the kill: " + ", ".join(
+            f"{w:.2f} s at {r:,.0f}/s" for r, w in worst.items())
+            + f"; goal <= 1 s: {'met' if max(worst.values()) <= 1.0 else 'NOT met'}")
     return 0
 
 
