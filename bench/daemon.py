@@ -371,15 +371,15 @@ def main() -> int:
           f"buffer {rcvbuf or 0:,} B; load average at start "
           f"{load0[0]:.1f} / {load0[1]:.1f} / {load0[2]:.1f} (1/5/15 min)")
     hdr = (f"{'case':<26}{'rate/s':>8}{'sent/s':>8}{'late ms':>8}{'s':>4}{'sent':>10}"
-           f"{'lost':>7}{'kernel':>7}{'writer':>7}{'zenoh':>7}{'sub.lost':>9}{'CPU %':>7}"
+           f"{'lost':>8}{'kernel':>8}{'writer':>9}{'zenoh':>7}{'sub.lost':>9}{'CPU %':>7}"
            f"{'RSS MiB':>8}{'load':>6}")
     print(hdr)
     print("-" * len(hdr))
     for name, r in rows:
         sub_lost = "" if r["subscriber"] is None else format(r["received"] - r["subscriber"], ",")
         print(f"{name:<26}{r['rate']:>8,.0f}{r['achieved']:>8,.0f}{r['late_ms']:>8.1f}"
-              f"{r['seconds']:>4.0f}{r['sent']:>10,}{r['lost']:>7,}{r['kernel_drops']:>7,}"
-              f"{r['rec_dropped']:>7,}{r['zenoh_dropped']:>7,}{sub_lost:>9}"
+              f"{r['seconds']:>4.0f}{r['sent']:>10,}{r['lost']:>8,}{r['kernel_drops']:>8,}"
+              f"{r['rec_dropped']:>9,}{r['zenoh_dropped']:>7,}{sub_lost:>9}"
               f"{r['cpu_pct']:>7.1f}{r['rss_mib']:>8.0f}{r['load']:>6.1f}")
     print("-" * len(hdr))
     print("CPU %: the daemon process (all its threads, Zenoh's included) in % of one core over "
@@ -398,9 +398,8 @@ def main() -> int:
         print("zero-loss ceiling with a live subscriber: not found (no rate held 30 s without "
               "loss); goal >= 50,000: NOT met")
     print(f"peak RSS of the daemon over all rows: {peak_rss:.0f} MiB")
-    print(f"recording: {len(seqs):,} packets of {counts['lidar_data']:,} received "
-          f"({counts['record_dropped']:,} dropped by the writer, counted; "
-          f"{counts['lidar_data'] - counts['record_dropped'] - len(seqs):,} missing otherwise); "
+    print(f"recording: {len(seqs):,} lidar packets of {counts['lidar_data']:,} received "
+          f"(the writer dropped {counts['record_dropped']:,} messages of all kinds, counted); "
           f"in order, none twice: {in_order}")
     for k in kills:
         print(kill_line(k))
