@@ -132,7 +132,10 @@ def draw_rig(seed: int, *, max_recording_s: float = MAX_RECORDING_S) -> SimConfi
     from .capture import build_rig
 
     while out.stations > 2 and build_rig(out, sc)[1].duration_s > max_recording_s:
-        out = out.model_copy(update={"stations": out.stations - 1})
+        n = out.stations - 1
+        span = float(min(1.0, n * walk_max / max(L, 1e-9)))
+        motion = out.motion.model_copy(update={"route_span": round(span, 4)})
+        out = out.model_copy(update={"stations": n, "motion": motion})
     return out
 
 
