@@ -185,3 +185,35 @@ def test_truth_in_meta_matches_the_trajectory(rig_capture):
     assert np.hypot(along, across) == pytest.approx(np.linalg.norm([0.08, 0.06, 0.03]))
     assert truth["imu_time_offset_ms"] == -4.0 and truth["imu_latency_ms"] == 4.0
     assert truth["tilt_deg"] == 60.0 and truth["pan_profile"] == "hand"
+
+
+def test_station_matching_counts_splits_merges_and_short_finds_as_errors():
+    from tripod_processor.sim.truth import match_stations
+
+    s = 1_000_000_000
+    true = np.array([[0, 10], [20, 30], [40, 50]]) * s
+    r = match_stations(true, np.array([[1, 9], [21, 30], [39, 51]]) * s)
+    assert (r["recall"], r["precision"], r["splits"], r["merges"]) == (1.0, 1.0, 0, 0)
+    r = match_stations(true, np.array([[0, 4], [5, 10], [20, 30], [40, 50]]) * s)  # cut in two
+    assert r["tp"] == 2 and r["splits"] == 1 and r["precision"] == 0.5
+    r = match_stations(true, np.array([[0, 30], [40, 50]]) * s)  # two merged
+    assert r["tp"] == 1 and r["merges"] == 1 and r["recall"] == pytest.approx(1 / 3)
+    r = match_stations(true, np.array([[0, 4], [20, 30], [40, 50]]) * s)  # too short a piece
+    assert r["tp"] == 2 and r["recall"] == pytest.approx(2 / 3)
+    r = match_stations(true, np.zeros((0, 2), np.int64))
+    assert r["recall"] == 0.0 and r["found"] == 0
+
+
+def test_calibration_errors_ignore_the_lever_arm_along_the_pan_axis():
+    from tripod_processor.sim.truth import calibration_errors
+
+    truth = {"pan_axis_imu": [0.0, 0.0, 1.0], "lever_arm_imu_m": [0.1, 0.0, 0.05],
+             "imu_time_offset_ms": -4.0, "q_imu_lidar_wxyz": [1.0, 0.0, 0.0, 0.0]}
+    e = calibration_errors({"calibration": {"lever_arm_m": [0.103, 0.004, 0.3],
+                                            "imu_time_offset_ms": -3.5},
+                            "extrinsic": {"q_imu_lidar": [np.cos(0.005), np.sin(0.005), 0, 0]}},
+                           truth)
+    assert e["lever_mm"] == pytest.approx(5.0) and e["time_ms"] == pytest.approx(0.5)
+    assert e["mount_deg"] == pytest.approx(np.degrees(0.01))
+    e = calibration_errors({"imu_time_offset_ms": 0.0}, truth)  # no estimate: n/a
+    assert e["lever_mm"] is None and e["mount_deg"] is None and e["time_ms"] == 4.0
