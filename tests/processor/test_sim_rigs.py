@@ -217,3 +217,24 @@ def test_calibration_errors_ignore_the_lever_arm_along_the_pan_axis():
     assert e["mount_deg"] == pytest.approx(np.degrees(0.01))
     e = calibration_errors({"imu_time_offset_ms": 0.0}, truth)  # no estimate: n/a
     assert e["lever_mm"] is None and e["mount_deg"] is None and e["time_ms"] == 4.0
+
+
+def test_cli_simulate_a_random_rig(tmp_path):
+    import subprocess
+    import sys
+
+    env = {"COLUMNS": "120", "PATH": "/usr/bin:/bin"}
+    run = [sys.executable, "-m", "tripod_processor", "simulate"]
+    r = subprocess.run(run + ["-o", str(tmp_path / "out"), "--rig", "5", "--stations", "2",
+                              "--threads", "2"], capture_output=True, text=True, timeout=300,
+                       env=env)
+    assert r.returncode == 0, r.stderr
+    meta = json.loads((tmp_path / "out/meta.json").read_text())
+    want = draw_rig(5).model_dump(mode="json")
+    want["stations"] = 2
+    assert meta["config"] == want  # the rig, with the command line's override on top
+    assert len(meta["truth"]["stations"]) == 2
+    r = subprocess.run(run + ["-o", str(tmp_path / "bad"), "--rig", "5", "--config",
+                              str(tmp_path / "c.yaml")], capture_output=True, text=True,
+                       timeout=120, env=env)
+    assert r.returncode == 2 and r.stderr.startswith("tripod: error: --rig and --config")
