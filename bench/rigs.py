@@ -74,7 +74,8 @@ def simulate_cached(work: Path, seed: int, threads: int) -> tuple[Path, object, 
 def run_one(work: str, seed: int, threads: int) -> dict:
     """Simulate (cached) and reconstruct one rig; every number of its row."""
     from tripod_processor.sim.rigs import describe
-    from tripod_processor.sim.truth import calibration_errors, match_stations
+    from tripod_processor.sim.truth import (calibration_errors, match_stations, score_stations,
+                                            true_station_spans)
 
     work_p = Path(work)
     row: dict = {"seed": seed}
@@ -88,29 +89,23 @@ def run_one(work: str, seed: int, threads: int) -> dict:
         from tripod_shared.config_io import load_config
 
         from tripod_processor.reconstruction.config import ReconstructConfig
-        from tripod_processor.reconstruction.evaluation import (evaluate_run, load_sim_truth,
-                                                                same_hour)
+        from tripod_processor.reconstruction.evaluation import evaluate_run, load_sim_truth
         from tripod_processor.reconstruction.inputs import RecordingError
         from tripod_processor.reconstruction.pipeline import reconstruct, summary
 
         rcfg = load_config(ReconstructConfig, overrides={"num_threads": threads})
         out = work_p / "out" / f"seed{seed}"
         shutil.rmtree(out, ignore_errors=True)
-        true_iv = np.array([s["still"]["lidar_ns"] for s in truth["stations"]], dtype=np.int64)
+        true_iv = true_station_spans(truth)
         try:
             res = reconstruct(cap, out, rcfg, quiet=True)
         except RecordingError as exc:
             row.update(error=str(exc).splitlines()[0][-160:],
                        **match_stations(true_iv, np.zeros((0, 2), np.int64)))
             return row
-        found = np.array([[s.start_ns, s.end_ns] for s in res.segmentation.stations],
-                         dtype=np.int64).reshape(-1, 2)
+        row.update(score_stations(truth, [[s.start_ns, s.end_ns]
+                                          for s in res.segmentation.stations]))
         truth_t, truth_T = load_sim_truth(cap)
-        shift = int(same_hour(truth_t, found[:, 0])[0] - truth_t[0]) if len(found) else 0
-        row.update(match_stations(true_iv + shift, found))
-        t0 = int(true_iv[0, 0] + shift)  # spans in s from the first true station (for reading)
-        row["true_spans_s"] = np.round((true_iv + shift - t0) * 1e-9, 2).tolist()
-        row["found_spans_s"] = np.round((found - t0) * 1e-9, 2).tolist()
         acc = evaluate_run(out, truth_t, truth_T, cap / "mesh.ply")
         result = summary(res)
         row.update(ate_cm=acc["ate_cm"], ate_deg=acc["ate_deg"],

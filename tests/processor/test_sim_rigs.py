@@ -238,3 +238,15 @@ def test_cli_simulate_a_random_rig(tmp_path):
                               str(tmp_path / "c.yaml")], capture_output=True, text=True,
                        timeout=120, env=env)
     assert r.returncode == 2 and r.stderr.startswith("tripod: error: --rig and --config")
+
+
+def test_score_stations_moves_the_truth_by_whole_hours():
+    from tripod_processor.sim.truth import score_stations
+
+    s, hour = 1_000_000_000, 3_600_000_000_000
+    truth = {"stations": [{"still": {"lidar_ns": [100 * s, 110 * s]}},
+                          {"still": {"lidar_ns": [130 * s, 140 * s]}}]}
+    found = np.array([[101, 109], [131, 139]]) * s + 2 * hour  # a replay two hours later
+    r = score_stations(truth, found)
+    assert r["recall"] == 1.0 and r["precision"] == 1.0
+    assert r["found_spans_s"] == [[1.0, 9.0], [31.0, 39.0]]

@@ -18,6 +18,24 @@ def true_station_spans(truth: dict, which: str = "still") -> np.ndarray:
                     dtype=np.int64).reshape(-1, 2)
 
 
+def score_stations(truth: dict, found_spans_ns) -> dict:
+    """:func:`match_stations` of a run's station spans (F, 2) [lidar ns] against the truth,
+    the truth first moved by whole hours onto the run's time line (a replayed capture keeps
+    the µs past the hour, not the hour). Adds ``true_spans_s`` / ``found_spans_s``: the spans
+    in seconds from the first true station, for reading."""
+    from tripod_shared.timebase import same_hour_shift_ns
+
+    true_iv = true_station_spans(truth)
+    found = np.asarray(found_spans_ns, dtype=np.int64).reshape(-1, 2)
+    if len(found) and not true_iv[0, 0] <= found[0, 0] <= true_iv[-1, 1]:
+        true_iv = true_iv + same_hour_shift_ns(int(true_iv[0, 0]), int(found[0, 0]))
+    r = match_stations(true_iv, found)
+    t0 = int(true_iv[0, 0]) if len(true_iv) else 0
+    r["true_spans_s"] = np.round((true_iv - t0) * 1e-9, 2).tolist()
+    r["found_spans_s"] = np.round((found - t0) * 1e-9, 2).tolist()
+    return r
+
+
 def match_stations(true_iv: np.ndarray, found_iv: np.ndarray) -> dict:
     """Match found station spans (F, 2) to true ones (T, 2) [ns, one time line].
 
