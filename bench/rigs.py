@@ -21,6 +21,7 @@ Seeds: test seeds (``sim.rigs.TEST_SEEDS``, from 10000) by default, development 
     .venv/bin/python bench/rigs.py                  # 50 captures on test seeds 10000..10049
     .venv/bin/python bench/rigs.py --quick          # 4 captures on development seeds 0..3
     .venv/bin/python bench/rigs.py --dev -n 20 --jobs 2 --json rigs.json
+    .venv/bin/python bench/rigs.py --dev --seeds 3 17 --set stations.min_station_s=2
 Simulated captures are cached under --work (default /tmp/tripod-bench-rigs/sim) by seed and a
 hash of their config; reconstructions are redone every run.
 """
@@ -71,7 +72,7 @@ def simulate_cached(work: Path, seed: int, threads: int) -> tuple[Path, object, 
     return d, cfg, cpu
 
 
-def run_one(work: str, seed: int, threads: int) -> dict:
+def run_one(work: str, seed: int, threads: int, sets: dict | None = None) -> dict:
     """Simulate (cached) and reconstruct one rig; every number of its row."""
     from tripod_processor.sim.rigs import describe
     from tripod_processor.sim.truth import (calibration_errors, match_stations, score_stations,
@@ -93,7 +94,8 @@ def run_one(work: str, seed: int, threads: int) -> dict:
         from tripod_processor.reconstruction.inputs import RecordingError
         from tripod_processor.reconstruction.pipeline import reconstruct, summary
 
-        rcfg = load_config(ReconstructConfig, overrides={"num_threads": threads})
+        rcfg = load_config(ReconstructConfig, overrides={"num_threads": threads,
+                                                         **(sets or {})})
         out = work_p / "out" / f"seed{seed}"
         shutil.rmtree(out, ignore_errors=True)
         true_iv = true_station_spans(truth)
@@ -210,6 +212,10 @@ def main(argv: list[str] | None = None) -> int:
                     help=f"development seeds (from {DEV_SEEDS.start}) instead of test seeds "
                          f"(from {TEST_SEEDS.start})")
     ap.add_argument("--first", type=int, help="first seed (default: the first of the range)")
+    ap.add_argument("--seeds", type=int, nargs="+", help="these seeds (instead of -n/--first)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="reconstruct config override, e.g. stations.min_station_s=2 "
+                         "(YAML value; repeatable)")
     ap.add_argument("--quick", action="store_true",
                     help="4 captures, development seeds (a smoke run never looks at test seeds)")
     ap.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
@@ -221,7 +227,27 @@ def main(argv: list[str] | None = None) -> int:
     rng = DEV_SEEDS if args.dev else TEST_SEEDS
     n = 4 if args.quick else args.n
     first = rng.start if args.first is None else args.first
-    seeds = list(range(first, first + n))
+    seeds = args.seeds or list(range(first, first + n))
+    n = len(seeds)
+    import yaml
+
+    sets = {}
+    for kv in args.set:
+        if "=" not in kv:
+            print(f"--set {kv}: expected KEY=VALUE", file=sys.stderr)
+            return 2
+        k, v = kv.split("=", 1)
+        sets[k.strip()] = yaml.safe_load(v)
+    if sets:
+        from tripod_shared.config_io import ConfigError, load_config
+
+        from tripod_processor.reconstruction.config import ReconstructConfig
+
+        try:
+            load_config(ReconstructConfig, overrides=sets)
+        except ConfigError as exc:
+            print(f"--set: {exc}", file=sys.stderr)
+            return 2
     if not all(s in rng for s in seeds):
         print(f"seeds {seeds[0]}..{seeds[-1]} leave the {'development' if args.dev else 'test'} "
               f"range {rng.start}..{rng.stop - 1}", file=sys.stderr)
@@ -233,20 +259,21 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     if jobs == 1:
         for s in seeds:
-            rows.append(run_one(str(args.work), s, threads))
+            rows.append(run_one(str(args.work), s, threads, sets))
             _progress(rows[-1], len(rows), n, w0)
     else:
         import multiprocessing as mp
 
         with ProcessPoolExecutor(jobs, mp_context=mp.get_context("spawn")) as ex:
-            futs = [ex.submit(run_one, str(args.work), s, threads) for s in seeds]
+            futs = [ex.submit(run_one, str(args.work), s, threads, sets) for s in seeds]
             for f in as_completed(futs):
                 rows.append(f.result())
                 _progress(rows[-1], len(rows), n, w0)
     wall = time.perf_counter() - w0
     kind = "development" if args.dev else "test"
+    extra = f", --set {' '.join(args.set)}" if args.set else ""
     print_report(rows, f"tripod reconstruct on {n} random rigs, {kind} seeds {seeds[0]}.."
-                       f"{seeds[-1]}, no calibration given", wall, jobs)
+                       f"{seeds[-1]}, no calibration given{extra}", wall, jobs)
     if args.json:
         args.json.write_text(json.dumps(sorted(rows, key=lambda r: r["seed"]), indent=2,
                                         default=float) + "\n")

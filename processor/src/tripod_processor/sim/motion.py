@@ -20,6 +20,10 @@ pans one full turn plus ``pan_overlap_deg`` in ``pan_s`` (raised-cosine speed ra
 walks: peak speed ``max_carry_speed_m_s``) along the scene's route (minimum-jerk progress,
 sway in roll/pitch/height/sideways, heading change up to ``max_yaw_change_deg``).
 The lidar and IMU stream the whole time.
+
+Other pans (issue 12, :func:`plan_pan`): a hand-turned head (``pan_profile="hand"``: uneven
+speed), a pause and a reversal inside the pan, a net turn of ``pan_turns`` (per-station
+jitter). The default config never takes that path: its pan is ``_ramp_angle`` bit for bit.
 """
 
 from __future__ import annotations
@@ -251,9 +255,9 @@ class Trajectory:
     cfg : MotionConfig
     rng : numpy Generator (stations, headings, sway phases)
     floor_z : height of the floor [m]; tripod heights are above it
-    pan_rng : numpy Generator for the pan profiles (only drawn from when ``cfg`` asks for more
-        than the original motor pan; default: one seeded from ``rng``'s state is not taken, so
-        the stations of a default config never change)
+    pan_rng : numpy Generator for the pan profiles, drawn from only when ``cfg`` asks for more
+        than the original motor pan (a separate stream, so ``rng``'s draws, and with them the
+        stations of every existing config, never change); default a fixed seed
     """
 
     def __init__(self, route_xy: np.ndarray, closed: bool, n_stations: int, cfg: MotionConfig,
