@@ -82,10 +82,17 @@ def test_pan_too_short_for_pause_and_reversal_is_one_clear_error():
 
 
 def test_trajectory_follows_the_per_station_pans():
-    cfg = MotionConfig(**HAND, pan_turns_jitter=0.05)
+    cfg = MotionConfig(**HAND, pan_turns_jitter=0.05, pan_s_jitter=0.3)
     scene = make_scene("room", 1)
     traj = Trajectory(scene.route, True, 4, cfg, np.random.default_rng(2),
                       pan_rng=np.random.default_rng(3))
+    # each station pans for its own time, within pan_s x (1 +/- 0.3)
+    durations = [st.t_pan_end_s - st.t_pan_start_s for st in traj.stations]
+    assert len(set(np.round(durations, 9))) == 4
+    assert all(14.0 * 0.7 <= d <= 14.0 * 1.3 for d in durations)
+    still = traj.still_intervals_s()
+    assert np.allclose(still[:, 1] - still[:, 0], np.array(durations) + 2 * cfg.settle_s)
+    assert traj.duration_s == pytest.approx(still[-1, 1])
     nets = [traj.pan_net_rad(k) for k in range(4)]
     assert len(set(np.round(nets, 9))) == 4  # each station turns its own amount
     assert all(2 * np.pi * 1.05 - 1e-9 <= x <= 2 * np.pi * 1.15 + 1e-9 for x in nets)
@@ -93,7 +100,8 @@ def test_trajectory_follows_the_per_station_pans():
         phi = traj.base_state(np.array([st.t_pan_start_s - 0.1, st.t_pan_start_s,
                                         st.t_pan_end_s, st.t_pan_end_s + 0.1]))[4]
         assert phi[2] - phi[1] == pytest.approx(nets[st.index], abs=1e-9)
-        assert phi[0] == phi[1] and phi[2] == phi[3]  # it rests in the settle time
+        assert phi[0] == phi[1]  # it rests in the settle time
+        assert phi[2] == pytest.approx(phi[3], abs=1e-12)
 
 
 def test_scene_sizes_big_hall_long_corridor_small_room():
@@ -133,8 +141,9 @@ def test_rig_sampler_is_deterministic_and_in_range():
         assert np.all(traj.transit_s <= 30.0 + 1e-6)  # carries 2-30 s, long walks included
         lo, hi = scene.bounds
         assert max(hi[:2] - lo[:2]) <= 40.0 + 1e-9
-        for k in range(c.stations):
+        for k, st in enumerate(traj.stations):
             assert 2 * np.pi * 0.87 <= traj.pan_net_rad(k) <= 2 * np.pi * 1.23
+            assert 4.0 - 1e-9 <= st.t_pan_end_s - st.t_pan_start_s <= 60.0 + 1e-9
         seen["profile"].add(m.pan_profile)
         seen["mode"].add(c.lidar.return_mode == "dual")
         seen["scene"].add(c.scene)

@@ -51,6 +51,9 @@ class MotionConfig(StrictModel):
                                           "pan_overlap_deg / 360")
     pan_turns_jitter: float = Field(0.0, ge=0.0, le=0.3,
                                     description="per-station uniform +/- on pan_turns [turns]")
+    pan_s_jitter: float = Field(0.0, ge=0.0, lt=1.0,
+                                description="per-station pan duration uniform in "
+                                            "pan_s x (1 +/- this)")
     pan_speed_variation: float = Field(0.5, ge=0.0, lt=1.0,
                                        description="hand: speed levels uniform in "
                                                    "(1 +/- this) x the mean")
@@ -71,11 +74,13 @@ class MotionConfig(StrictModel):
     def _pan_fits(self) -> "MotionConfig":
         gaps = [w for w, on in ((self.pan_pause_s, self.pan_pause_s > 0),
                                 (self.pan_reversal_s, self.pan_reversal_deg > 0)) if on]
-        need = 2 * min(self.pan_ramp_s, self.pan_s / 4) + sum(
+        shortest = self.pan_s * (1.0 - self.pan_s_jitter)
+        need = 2 * min(self.pan_ramp_s, shortest / 4) + sum(
             w + 2 * min(self.pan_ramp_s, 0.5) for w in gaps)
-        if gaps and need > 0.8 * self.pan_s:
-            raise ValueError(f"pan_s {self.pan_s:g} s is too short for the pause and reversal "
-                             f"asked for (they and the ramps need {need:.1f} s, at most 80 %)")
+        if gaps and need > 0.8 * shortest:
+            raise ValueError(f"pan_s {shortest:g} s (the shortest, with pan_s_jitter) is too "
+                             f"short for the pause and reversal asked for (they and the ramps "
+                             f"need {need:.1f} s, at most 80 %)")
         return self
 
     @property
@@ -83,6 +88,7 @@ class MotionConfig(StrictModel):
         """The original motor pan (no profile options used): ``motion._ramp_angle`` exactly."""
         return (self.pan_profile == "constant" and self.pan_turns is None
                 and self.pan_turns_jitter == 0.0 and self.pan_pause_s == 0.0
+                and self.pan_s_jitter == 0.0
                 and self.pan_reversal_deg == 0.0)
 
 

@@ -175,8 +175,9 @@ class PanPlan:
 
 
 def plan_pan(cfg: MotionConfig, net_rad: float, rng: np.random.Generator,
-             dt_s: float = 5e-4) -> PanPlan:
-    """A pan of ``net_rad`` in ``cfg.pan_s`` with the profile options of ``cfg``.
+             dt_s: float = 5e-4, duration_s: float | None = None) -> PanPlan:
+    """A pan of ``net_rad`` in ``duration_s`` (default ``cfg.pan_s``) with the profile options
+    of ``cfg``.
 
     Forward speed = raised-cosine ramps at both ends (``pan_ramp_s``), gaps for the pause and
     the reversal (ramps of min(pan_ramp_s, 0.5 s) into and out of them), times a speed factor
@@ -185,10 +186,10 @@ def plan_pan(cfg: MotionConfig, net_rad: float, rng: np.random.Generator,
     speed is -A sin^2 (back by ``pan_reversal_deg``). The forward part is scaled so the net turn
     is exactly ``net_rad``. Speed and its slope are continuous.
     """
-    D = cfg.pan_s
+    D = cfg.pan_s if duration_s is None else float(duration_s)
     n = int(np.ceil(D / dt_s)) + 1
+    dt_s = D / (n - 1)  # the grid ends exactly at D
     tau = np.arange(n) * dt_s
-    tau[-1] = min(tau[-1], D)
     r = min(cfg.pan_ramp_s, D / 4)
     rg = min(cfg.pan_ramp_s, 0.5)
     gaps: list[tuple[float, float, str]] = []
@@ -285,14 +286,22 @@ class Trajectory:
         level = np.radians(cfg.level_error_deg)
         roll, pitch = rng.normal(0, level, n), rng.normal(0, level, n)
         self.floor_z = floor_z
+        # per-station pan durations (a separate random stream: see pan_rng)
+        prng = None
+        self.pan_s = np.full(n, cfg.pan_s)
+        if not cfg.is_motor_default:
+            prng = pan_rng if pan_rng is not None else np.random.default_rng(0x9A4)
+            if cfg.pan_s_jitter > 0:
+                self.pan_s = cfg.pan_s * (1.0 + cfg.pan_s_jitter * prng.uniform(-1, 1, n))
+        self.dwell_s = 2 * cfg.settle_s + self.pan_s  # the tripod stands this long [s]
         height = floor_z + rng.uniform(cfg.tripod_height_m[0], cfg.tripod_height_m[1], n)
         # carrying time: at least transit_s, longer when the walk would exceed the peak speed
         # (minimum-jerk progress peaks at 1.875 x the mean speed)
         walk = np.abs(np.diff(s)) if n > 1 else np.zeros(0)
         self.transit_s = np.maximum(cfg.transit_s, 1.875 * walk / cfg.max_carry_speed_m_s)
-        dwell = 2 * cfg.settle_s + cfg.pan_s
-        self.period_start_s = np.concatenate([[0.0], np.cumsum(dwell + self.transit_s)])[:n]
-        self.duration_s = float(self.period_start_s[-1] + dwell)
+        self.period_start_s = np.concatenate([[0.0], np.cumsum(self.dwell_s[:-1]
+                                                                + self.transit_s)])[:n]
+        self.duration_s = float(self.period_start_s[-1] + self.dwell_s[-1])
         self.pan_total_rad = np.radians(360.0 + cfg.pan_overlap_deg)
         self.stations: list[Station] = []
         for k in range(n):
@@ -300,7 +309,8 @@ class Trajectory:
             normal = np.array([-tan[0, 1], tan[0, 0]])
             xy = p2[0] + lateral[k] * normal
             t0 = self.period_start_s[k] + cfg.settle_s
-            self.stations.append(Station(k, t0, t0 + cfg.pan_s, np.array([xy[0], xy[1], height[k]]),
+            self.stations.append(Station(k, t0, t0 + self.pan_s[k],
+                                         np.array([xy[0], xy[1], height[k]]),
                                          float(yaw[k]), float(roll[k]), float(pitch[k]),
                                          float(s[k]), float(lateral[k])))
         # sway: per-transit random phases and amplitude factors
@@ -308,12 +318,12 @@ class Trajectory:
         self._sway_gain = rng.uniform(0.6, 1.0, (max(n - 1, 1), 5))
         # pan profiles: None = the original motor pan (``_ramp_angle``, bit for bit)
         self.pans: list[PanPlan] | None = None
-        if not cfg.is_motor_default:
-            prng = pan_rng if pan_rng is not None else np.random.default_rng(0x9A4)
+        if prng is not None:
             turns = (cfg.pan_turns if cfg.pan_turns is not None
                      else 1.0 + cfg.pan_overlap_deg / 360.0)
             nets = 2 * np.pi * (turns + cfg.pan_turns_jitter * prng.uniform(-1, 1, n))
-            self.pans = [plan_pan(cfg, float(x), prng) for x in nets]
+            self.pans = [plan_pan(cfg, float(x), prng, duration_s=float(d))
+                         for x, d in zip(nets, self.pan_s)]
             self._pan_before = np.concatenate([[0.0], np.cumsum(nets)])[:n]
         self.R_pan_lidar = rot_y(np.radians(cfg.tilt_deg))[0]
         self.t_pan_lidar = np.asarray(cfg.lever_arm_m, dtype=np.float64)
@@ -345,7 +355,7 @@ class Trajectory:
                 m = k == kk
                 phi[m] += self.pans[kk].at(local[m] - cfg.settle_s)
 
-        t_transit = local - (2 * cfg.settle_s + cfg.pan_s)
+        t_transit = local - self.dwell_s[k]
         moving = (t_transit > 0) & (k < self.n - 1)
         if np.any(moving):
             i = np.nonzero(moving)[0]
@@ -383,9 +393,8 @@ class Trajectory:
     def still_intervals_s(self) -> np.ndarray:
         """(n, 2) capture-relative [s] spans when the tripod stands at each station (its head
         may turn): from the end of the carry before to the start of the carry after."""
-        dwell = 2 * self.cfg.settle_s + self.cfg.pan_s
         a = self.period_start_s.copy()
-        return np.stack([a, a + dwell], axis=1)
+        return np.stack([a, a + self.dwell_s], axis=1)
 
     def T_world_base(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(R (N, 3, 3), p (N, 3)) of the base in the world."""
@@ -425,5 +434,5 @@ class Trajectory:
         t = np.asarray(t, dtype=np.float64)
         k = np.clip(np.searchsorted(self.period_start_s, t, side="right") - 1, 0, self.n - 1)
         local = t - self.period_start_s[k]
-        inside = (local >= self.cfg.settle_s) & (local <= self.cfg.settle_s + self.cfg.pan_s)
+        inside = (local >= self.cfg.settle_s) & (local <= self.cfg.settle_s + self.pan_s[k])
         return np.where(inside, k, -1)

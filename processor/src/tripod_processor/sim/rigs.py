@@ -4,8 +4,9 @@
 ``draw_rig(seed)`` gives a :class:`SimConfig`: the mount (spin axis tilted 0-90 deg from the pan
 axis), the lever arm (0-20 cm from the pan axis, any direction), the IMU latency (0-10 ms) and
 jitter, the pan (a motor or a hand-turned head, a pause or a reversal inside it, 0.9-1.2 turns),
-stations of 4-60 s (the pan), carries of 2-30 s (slow and careful or quick), the scene (a small
-room, a room, a hall up to 40 m, a straight or L corridor up to 30 m) and single or dual returns.
+stations of 4-60 s (the pan; up to +/- 40 % from station to station), carries of 2-30 s (slow
+and careful or quick), the scene (a small room, a room, a hall up to 40 m, a straight or L
+corridor up to 30 m) and single or dual returns.
 The same seed always gives the same config.
 
 Seeds are split: **development seeds 0-9999** (``DEV_SEEDS``: look at them, tune on them) and
@@ -86,22 +87,25 @@ def draw_rig(seed: int, *, max_recording_s: float = MAX_RECORDING_S) -> SimConfi
     settle = rng.uniform(0.3, 2.0)
     variation = rng.uniform(0.2, 0.6)
     change_s = rng.uniform(0.8, 3.0)
-    # a short pan keeps what fits: first the reversal, then the pause go
-    while True:
-        gaps = [w for w, on in ((pause, pause > 0), (rev_s, rev_deg > 0)) if on]
-        need = 2 * min(ramp, pan_s / 4) + sum(w + 2 * min(ramp, 0.5) for w in gaps)
-        if not gaps or need <= 0.8 * pan_s:
-            break
-        if rev_deg > 0:
-            rev_deg = 0.0
-        else:
-            pause = 0.0
     # carries: 2-30 s, slow and careful or quick
     slow = rng.random() < 0.5
     speed = rng.uniform(0.3, 0.7) if slow else rng.uniform(0.9, 1.5)
     carry_s = _log_uniform(rng, 2.0, 30.0)
     dual = rng.random() < 0.5
     single_mode = "strongest" if rng.random() < 0.5 else "last"
+    # stations of one capture last differently (up to +/- 40 %, within 4-60 s)
+    pan_jit = float(max(0.0, min(rng.uniform(0.0, 0.4), 1.0 - 4.0 / pan_s, 60.0 / pan_s - 1.0)))
+    shortest = pan_s * (1.0 - pan_jit)
+    # a short pan keeps what fits: first the reversal, then the pause go
+    while True:
+        gaps = [w for w, on in ((pause, pause > 0), (rev_s, rev_deg > 0)) if on]
+        need = 2 * min(ramp, shortest / 4) + sum(w + 2 * min(ramp, 0.5) for w in gaps)
+        if not gaps or need <= 0.8 * shortest:
+            break
+        if rev_deg > 0:
+            rev_deg = 0.0
+        else:
+            pause = 0.0
     # stations: as many as fit in the recording budget (2..8)
     dwell = pan_s + 2 * settle
     n = int(np.clip((max_recording_s + carry_s) // (dwell + carry_s), 2, 8))
@@ -115,6 +119,7 @@ def draw_rig(seed: int, *, max_recording_s: float = MAX_RECORDING_S) -> SimConfi
         "motion": {"tilt_deg": round(tilt, 4), "lever_arm_m": [round(float(x), 5) for x in lever],
                    "pan_profile": profile, "pan_s": round(pan_s, 4), "pan_turns": round(turns, 4),
                    "pan_turns_jitter": 0.03 if profile == "hand" else 0.0,
+                   "pan_s_jitter": np.floor(pan_jit * 1e4) / 1e4,
                    "pan_speed_variation": round(variation, 4),
                    "pan_speed_change_s": round(change_s, 4), "pan_pause_s": round(pause, 4),
                    "pan_reversal_deg": round(rev_deg, 4), "pan_reversal_s": round(rev_s, 4),
