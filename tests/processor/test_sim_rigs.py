@@ -192,7 +192,10 @@ def test_truth_in_meta_matches_the_trajectory(rig_capture):
     assert np.allclose(np.abs(np.dot(truth["q_imu_lidar_wxyz"], q)), 1.0, atol=1e-9)
     along, across = truth["lever_arm_along_axis_m"], truth["lever_arm_across_axis_m"]
     assert np.hypot(along, across) == pytest.approx(np.linalg.norm([0.08, 0.06, 0.03]))
-    assert truth["imu_time_offset_ms"] == -4.0 and truth["imu_latency_ms"] == 4.0
+    # the IMU is 4 ms late; the clock map from packet receive times is a packet period (single
+    # return: 1.3272 ms) plus the 60 us network latency late too
+    assert truth["imu_latency_ms"] == 4.0
+    assert truth["imu_time_offset_ms"] == pytest.approx(-4.0 + 1.3272 + 0.06, abs=1e-3)
     assert truth["tilt_deg"] == 60.0 and truth["pan_profile"] == "hand"
 
 

@@ -301,9 +301,14 @@ def truth_of(cfg: SimConfig, traj: Trajectory) -> dict:
     ``q_imu_lidar`` and the lever arm pivot -> lidar in the IMU frame (as
     ``placement.load_extrinsic_file`` reads gt/calibration.json), split into its component
     along the pan axis (unobservable: it moves every point of a station alike) and across it.
-    ``imu_time_offset_ms``: what to add to the IMU's de-jittered host stamps = minus the
-    latency floor ``latency_ms`` (the exponential jitter's 1st percentile is 1 % of
-    ``latency_jitter_ms``).
+    ``imu_time_offset_ms``: what to add to the IMU's stamps, de-jittered (to the latency floor
+    ``latency_ms``; the exponential jitter's 1st percentile is 1 % of ``latency_jitter_ms``) and
+    mapped host -> lidar time through the packets' receive times, to put each sample at the
+    lidar time of the instant it describes: ``-latency_ms + lidar_receive_delay_ms``, since a
+    packet is stamped at its first firing and received one packet period plus the network
+    latency later (a map anchored on the earliest arrivals absorbs that delay). A processor
+    whose clock map differs has its own value (``evaluation.true_time_offset_ns`` computes it
+    from the data).
     """
     start, off = cfg.start_unix_ns, int(cfg.lidar.clock_offset_ns)
 
@@ -332,6 +337,7 @@ def truth_of(cfg: SimConfig, traj: Trajectory) -> dict:
     along = float(ell @ axis)
     q = wxyz(R_il[None])[0]
     ic = cfg.imu
+    rx_ms = (packet_period_ns(cfg.lidar.return_mode) + cfg.lidar.network_latency_us * 1e3) * 1e-6
     return {
         "stations": stations,
         "carries_s": [round(float(x), 6) for x in traj.transit_s],
@@ -345,7 +351,8 @@ def truth_of(cfg: SimConfig, traj: Trajectory) -> dict:
         "q_imu_lidar_wxyz": [round(float(x), 12) for x in q],
         "imu_latency_ms": ic.latency_ms,
         "imu_latency_jitter_ms": ic.latency_jitter_ms,
-        "imu_time_offset_ms": -ic.latency_ms,
+        "lidar_receive_delay_ms": round(rx_ms, 6),
+        "imu_time_offset_ms": round(-ic.latency_ms + rx_ms, 6),
         "lidar_clock_offset_ns": off,
         "return_mode": cfg.lidar.return_mode,
     }

@@ -65,13 +65,15 @@ def _quat_angle_deg(q1, q2) -> float:
     return float(np.degrees(2 * np.arccos(min(1.0, d))))
 
 
-def calibration_errors(result: dict, truth: dict) -> dict:
+def calibration_errors(result: dict, truth: dict,
+                       true_time_offset_ms: float | None = None) -> dict:
     """Errors of the calibration a run used against the truth (None: no estimate to judge).
 
     The lever arm is judged across the pan axis only (along it is unobservable) and only when
     the run estimated it (a ``calibration`` section with ``lever_arm_m`` in result.json); the
     time offset from ``calibration.imu_time_offset_ms`` or the run's ``imu_time_offset_ms``;
-    the mount from the extrinsic's ``q_imu_lidar``.
+    the mount from the extrinsic's ``q_imu_lidar``. ``true_time_offset_ms``: the processor's
+    own true value when it has one (its clock map), else ``truth["imu_time_offset_ms"]``.
     """
     cal = result.get("calibration") or {}
     out = {"lever_mm": None, "time_ms": None, "mount_deg": None}
@@ -82,7 +84,8 @@ def calibration_errors(result: dict, truth: dict) -> dict:
         out["lever_mm"] = 1000 * float(np.linalg.norm(d - axis * (axis @ d)))
     off = cal.get("imu_time_offset_ms", result.get("imu_time_offset_ms"))
     if off is not None:
-        out["time_ms"] = abs(float(off) - truth["imu_time_offset_ms"])
+        want = truth["imu_time_offset_ms"] if true_time_offset_ms is None else true_time_offset_ms
+        out["time_ms"] = abs(float(off) - want)
     q = (result.get("extrinsic") or {}).get("q_imu_lidar")
     if q is not None:
         out["mount_deg"] = _quat_angle_deg(q, truth["q_imu_lidar_wxyz"])
