@@ -58,8 +58,8 @@ test: setup
 demo: setup
 	$(VENV)/bin/tripod demo -o $(DEMO_DIR)
 
-# Every bench, each to the end with its defaults (a long run: about an hour on 2 cores, most of
-# it bench/scene.py and bench/reconstruct.py); bench-quick runs each with --quick (a smoke run
+# Every bench, each to the end with its defaults (a long run: about an hour and a half on 2 cores,
+# most of it bench/scene.py, bench/reconstruct.py and bench/rigs.py); bench-quick runs each with --quick (a smoke run
 # of a few minutes: fewer scenes, repeats and pairs; its numbers are not the README's).
 BENCH_ARGS ?=
 bench: setup

@@ -8,6 +8,7 @@ import socket
 import time
 
 from tripod_shared import messages, topics
+from tripod_shared.mcap_writer import iter_items
 
 from daemon_helpers import make_data_packet, udp_sender
 from tripod_daemon.config import LidarConfig
@@ -32,7 +33,7 @@ def _drain_all(inp: LidarInput, sock, want: int, timeout: float = 5.0) -> list:
         if c["lidar_data"] + c["lidar_position"] + c["lidar_filtered"] + c["lidar_malformed"] >= want:
             break
     sel.close()
-    return out
+    return list(iter_items(out))
 
 
 def test_packet_is_stamped_by_the_kernel_and_encoded_like_shared():

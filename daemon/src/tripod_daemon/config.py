@@ -108,6 +108,7 @@ class LidarConfig(StrictModel):
     receive_buffer_bytes: int = Field(64 << 20, ge=65536)  # SO_RCVBUF(FORCE) per socket [B]
     accept_products: list[int] = [PRODUCT_VLP16, PRODUCT_HDL32E]  # payload[1205]
     max_batch: int = Field(512, ge=1)  # datagrams read per wake-up and socket, at most
+    batch_receive: Bool = True  # recvmmsg into MCAP-record rows (Linux); false: recvmsg each
     wake_interval_ms: float = Field(20.0, ge=0)  # sockets are drained at most this often [ms]
     switch_interval_ms: float = Field(0.5, gt=0)  # Python's GIL switch interval [ms]
 
@@ -209,14 +210,16 @@ class RecordingConfig(StrictModel):
     directory: str = "/var/lib/tripod/recordings"
     prefix: str = "tripod"
     compression: Literal["zstd", "lz4", "none"] = "zstd"
+    compression_level: int = Field(1, ge=-7, le=22)  # zstd level (1: fast; 3: 2.6x the CPU)
     chunk_size_bytes: int = Field(4 << 20, ge=1024)
-    flush_interval_s: float = Field(0.5, gt=0)  # a chunk is written at least this often [s]
+    flush_interval_s: float = Field(0.25, gt=0)  # a chunk is written at least this often [s]
     fsync: Literal["chunk", "interval", "never"] = "chunk"
     fsync_interval_s: float = Field(5.0, gt=0)  # for fsync: interval
     max_file_bytes: int = Field(2 << 30, ge=0)  # split above this size; 0: never
     max_file_duration_s: float = Field(600.0, ge=0)  # split after this long; 0: never
     min_free_bytes: int = Field(256 << 20, ge=0)  # stop cleanly below this much free space
     queue_bytes: int = Field(32 << 20, ge=1 << 20)  # writer backlog budget; beyond: dropped [B]
+    queue_max_age_s: float = Field(0.5, gt=0)  # nor older than this; beyond: dropped [s]
     retry_interval_s: float = Field(10.0, gt=0)  # retry a failed directory or full disk [s]
 
     @field_validator("prefix")

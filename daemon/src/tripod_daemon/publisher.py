@@ -34,8 +34,10 @@ from collections.abc import Callable
 import zenoh
 
 from tripod_shared import topics
+from tripod_shared.mcap_writer import MessageBlock
 
 from .config import ZenohConfig
+from .osutil import set_thread_name
 from .stats import Counters
 
 log = logging.getLogger(__name__)
@@ -236,7 +238,7 @@ class LivePublisher:
         """Queue a batch for publishing; never blocks, drops (counted) when full."""
         if not batch:
             return
-        n = len(batch)
+        n = sum([len(it) if isinstance(it, MessageBlock) else 1 for it in batch])
         if self._enqueued - self._dequeued + n > self.cfg.queue_messages:
             self.counts["zenoh_dropped"] += n
             return
@@ -244,24 +246,30 @@ class LivePublisher:
         self._q.put(batch)
 
     def _run(self) -> None:
+        set_thread_name("tripod-publish")
         pubs = self._pubs
         counts = self.counts
         while True:
             batch = self._q.get()
             if batch is _STOP:
                 return
-            self._dequeued += len(batch)
             n = 0
-            for topic, _ns, data in batch:
-                pub = pubs.get(topic)
-                if pub is None:
-                    continue
-                try:
-                    pub.put(data)
-                    n += 1
-                except Exception as exc:  # noqa: BLE001 - zenoh raises ZError; never fatal
-                    counts["zenoh_errors"] += 1
-                    log.debug("zenoh put failed: %s", exc)
+            for it in batch:
+                if isinstance(it, MessageBlock):
+                    self._dequeued += len(it)
+                    pub = pubs.get(it.topic)
+                    datas = it.datas() if pub is not None else ()
+                else:
+                    self._dequeued += 1
+                    pub = pubs.get(it[0])
+                    datas = (it[2],) if pub is not None else ()
+                for data in datas:
+                    try:
+                        pub.put(data)
+                        n += 1
+                    except Exception as exc:  # noqa: BLE001 - zenoh raises ZError; never fatal
+                        counts["zenoh_errors"] += 1
+                        log.debug("zenoh put failed: %s", exc)
             counts["zenoh_published"] += n
 
     # ---- queryables (run on zenoh's threads) ------------------------------------------------

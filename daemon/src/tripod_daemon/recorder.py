@@ -2,14 +2,16 @@
 """MCAP recording in a writer thread behind a bounded queue (Klipper ``queuelogger`` style).
 
 The receive loop hands over *batches* of already-encoded messages (one ``put`` per wake-up,
-not per packet) and never waits. The backlog has a fixed memory budget, ``queue_bytes``: when
-the disk cannot keep up and the budget is used, batches are dropped and counted
-(``record_dropped``), the recorder says so (``overload``: status message, an ``overload``
-event, a log line every 10 s) and memory stays bounded; at the default 32 MiB that is about
-0.6 s of data at 45k packets/s, so with ``flush_interval_s`` 0.5 a ``kill -9`` loses about a
-second at most. The thread owns the :class:`tripod_shared.recording.RecordingWriter`, closes a
-chunk at least every ``flush_interval_s`` (see ``recover``), fsyncs by policy, splits files by
-size and duration, and names them by UTC start time.
+not per packet; lidar packets as one :class:`tripod_shared.mcap_writer.MessageBlock` written
+without per-packet Python work) and never waits. The backlog is bounded in memory
+(``queue_bytes``) and in time (``queue_max_age_s``): when the disk cannot keep up, batches are
+dropped and counted (``record_dropped``), the recorder says so (``overload``: status message, an
+``overload`` event, a log line every 10 s) and memory stays bounded. The thread owns the
+:class:`tripod_shared.recording.RecordingWriter`, closes a chunk at least every
+``flush_interval_s`` (see ``recover``), so a ``kill -9`` loses at most about
+``queue_max_age_s`` + ``flush_interval_s`` (0.75 s by default) of what the kernel had handed
+over; fsync (by policy) runs in a thread of its own so a slow disk never holds up the writer.
+It splits files by size and duration and names them by UTC start time.
 
 Self-healing: when the directory cannot be used, a write fails or free space falls below
 ``min_free_bytes``, the file is finished and, as long as recording is wanted (started and not
@@ -19,6 +21,7 @@ itself (``record_resumes``); what arrives meanwhile is counted in ``record_unrec
 
 from __future__ import annotations
 
+import collections
 import logging
 import os
 import queue
@@ -29,17 +32,74 @@ from collections.abc import Callable
 from datetime import datetime, timezone
 
 from tripod_shared import messages
+from tripod_shared.mcap_writer import MessageBlock
 from tripod_shared.recording import RecordingWriter
 
 from .config import RecordingConfig
+from .osutil import set_thread_name
 from .stats import Counters
 
 log = logging.getLogger(__name__)
 
 Item = tuple[str, int, bytes]
 
+
+def batch_size(batch: list) -> tuple[int, int]:
+    """(messages, message bytes) of a batch of items and MessageBlocks."""
+    n = nbytes = 0
+    for it in batch:
+        if isinstance(it, MessageBlock):
+            n += len(it)
+            nbytes += it.nbytes
+        else:
+            n += 1
+            nbytes += len(it[2])
+    return n, nbytes
+
 _STOP = object()
 _FREE_CHECK_BYTES = 1 << 20  # look at free space at least every MiB written
+
+
+class _Syncer:
+    """fsync in a thread of its own, so a slow disk never holds up the writer: it asks, and
+    goes on writing into the page cache (a ``kill -9`` loses nothing written there; fsync is
+    for power loss). Requests that pile up while one runs are merged into the newest (an older
+    one is the same file, or one fsynced when it was closed)."""
+
+    def __init__(self, counts: Counters):
+        self.counts = counts
+        counts.setdefault("record_fsync_errors", 0)
+        self._q: queue.SimpleQueue = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._run, name="recorder-fsync", daemon=True)
+        self._thread.start()
+
+    def request(self, fd: int) -> None:
+        self._q.put(os.dup(fd))
+
+    def close(self, timeout: float = 30.0) -> None:
+        self._q.put(None)
+        self._thread.join(timeout)
+
+    def _run(self) -> None:
+        set_thread_name("tripod-fsync")
+        while True:
+            fd = self._q.get()
+            while fd is not None:
+                try:
+                    nxt = self._q.get_nowait()
+                except queue.Empty:
+                    break
+                os.close(fd)
+                fd = nxt
+            if fd is None:
+                return
+            try:
+                os.fsync(fd)
+            except OSError as exc:
+                self.counts["record_fsync_errors"] += 1
+                log.warning("fsync failed: %s", exc)
+            finally:
+                os.close(fd)
 
 
 class _Cmd:
@@ -93,6 +153,9 @@ class Recorder:
         self._dequeued = 0  # written by the writer thread only
         self._enqueued_bytes = 0  # likewise, in message bytes
         self._dequeued_bytes = 0
+        # host_monotonic when each queued batch was queued (producer appends, writer pops)
+        self._queued_at: collections.deque[float] = collections.deque()
+        self._syncer = _Syncer(counts)
         self.active = False  # accepting data (set by the loop's start/stop, read by submit)
         self.wanted = False  # recording asked for (start .. stop): failures are retried
         self.overload = ""  # set while the backlog is over budget (the disk cannot keep up)
@@ -128,30 +191,41 @@ class Recorder:
         bytes, when the caller knows them."""
         if not batch:
             return
+        n, nb = batch_size(batch)
         if not self.active:
             if self.wanted:
-                self.counts["record_unrecorded"] += len(batch)
+                self.counts["record_unrecorded"] += n
             return
         if nbytes is None:
-            nbytes = sum([len(it[2]) for it in batch])
+            nbytes = nb
+        now = time.monotonic()
         if self._enqueued_bytes - self._dequeued_bytes + nbytes > self.cfg.queue_bytes:
-            self._over_budget(len(batch))
+            self._over_budget(n, f"backlog over {self.cfg.queue_bytes >> 20} MiB")
+            return
+        try:
+            age = now - self._queued_at[0]  # the oldest batch still waiting (or being written)
+        except IndexError:
+            age = 0.0
+        if age > self.cfg.queue_max_age_s:
+            self._over_budget(n, f"backlog older than {self.cfg.queue_max_age_s:g} s")
             return
         backlog = self._enqueued_bytes - self._dequeued_bytes
-        if self.overload and backlog < self.cfg.queue_bytes // 2:
+        if self.overload and backlog < self.cfg.queue_bytes // 2 \
+                and age < self.cfg.queue_max_age_s / 2:
             self.overload = ""
             log.warning("recording keeps up again (%d messages dropped in all)",
                         self.counts["record_dropped"])
-        self._enqueued += len(batch)
+        self._enqueued += n
         self._enqueued_bytes += nbytes
+        self._queued_at.append(now)
         self._q.put(batch)
 
-    def _over_budget(self, n: int) -> None:
+    def _over_budget(self, n: int, why: str) -> None:
         c = self.counts
         c["record_dropped"] += n
         now = time.monotonic()
         if not self.overload or now - self._overload_log_mono >= 10.0:
-            self.overload = (f"disk cannot keep up: backlog over {self.cfg.queue_bytes >> 20} MiB, "
+            self.overload = (f"disk cannot keep up: {why}, "
                              f"{c['record_dropped']} messages dropped")
             log.warning("%s (%d since the last report)", self.overload,
                         c["record_dropped"] - self._dropped_logged)
@@ -217,9 +291,11 @@ class Recorder:
         self._thread.join(timeout)
         if self._thread.is_alive():
             log.error("recorder did not finish within %.0f s", timeout)
+        self._syncer.close()
 
     # ---- writer thread ----------------------------------------------------------------------
     def _run(self) -> None:
+        set_thread_name("tripod-recorder")
         while True:
             cfg = self.cfg
             now = time.monotonic()
@@ -238,12 +314,16 @@ class Recorder:
                     self._drain_and_finish("shutdown")
                     return
                 if isinstance(item, list):
-                    self._dequeued += len(item)
-                    self._dequeued_bytes += sum([len(it[2]) for it in item])
-                    if self._writer is not None:
-                        self._write_batch(item)
-                    else:
-                        self.counts["record_unrecorded"] += len(item)
+                    n, nbytes = batch_size(item)
+                    try:
+                        if self._writer is not None:
+                            self._write_batch(item, n)
+                        else:
+                            self.counts["record_unrecorded"] += n
+                    finally:
+                        self._dequeued += n
+                        self._dequeued_bytes += nbytes
+                        self._queued_at.popleft()
                 elif isinstance(item, _Cmd):
                     self._do(item)
                 if self._writer is not None:
@@ -270,11 +350,13 @@ class Recorder:
             except queue.Empty:
                 break
             if isinstance(item, list):
-                self._dequeued += len(item)
-                self._dequeued_bytes += sum([len(it[2]) for it in item])
+                n, nbytes = batch_size(item)
+                self._dequeued += n
+                self._dequeued_bytes += nbytes
+                self._queued_at.popleft()
                 if self._writer is not None:
                     try:
-                        self._write_batch(item)
+                        self._write_batch(item, n)
                     except Exception as exc:  # noqa: BLE001
                         self._fail(f"recording error: {type(exc).__name__}: {exc}")
             elif isinstance(item, _Cmd):
@@ -283,11 +365,15 @@ class Recorder:
         if self.state == "recording":
             self.state = "idle"
 
-    def _write_batch(self, batch: list[Item]) -> None:
-        write = self._writer.write_encoded
-        for topic, ns, data in batch:
-            write(topic, ns, data)
-        self.counts["record_written"] += len(batch)
+    def _write_batch(self, batch: list, n: int) -> None:
+        w = self._writer
+        write = w.write_encoded
+        for it in batch:
+            if isinstance(it, MessageBlock):
+                w.write_block(it)
+            else:
+                write(*it)
+        self.counts["record_written"] += n
 
     def _do(self, cmd: _Cmd) -> None:
         try:
@@ -345,6 +431,7 @@ class Recorder:
             meta = {"host": socket.gethostname(), **self.metadata}
             self._writer = RecordingWriter(
                 self._fh, chunk_size=cfg.chunk_size_bytes, compression=cfg.compression,
+                compression_level=cfg.compression_level,
                 metadata={"writer": "tripod-daemon"}, library="tripod-daemon")
             self._writer.add_metadata("tripod_daemon", meta)
             self._writer.write_event(messages.Event(time.time_ns(), "start", reason))
@@ -400,7 +487,7 @@ class Recorder:
             if cfg.fsync == "chunk" or (
                 cfg.fsync == "interval" and now - self._last_fsync >= cfg.fsync_interval_s
             ):
-                os.fsync(self._fh.fileno())
+                self._syncer.request(self._fh.fileno())
                 self._last_fsync = now
         if flushed and os.fstat(self._fh.fileno()).st_nlink == 0:
             # the file (or its directory) was deleted under us: writing on would fill an

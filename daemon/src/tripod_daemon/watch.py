@@ -2,7 +2,9 @@
 """``tripod-daemon watch``: subscribe to a tripod's live stream and print rates once a second.
 
 A minimal example of a live consumer: the payloads are the CDR/JSON bytes of the MCAP recording,
-so ``tripod_shared.messages`` decodes them.
+so ``tripod_shared.messages`` decodes them. It also counts the lidar packets this subscriber
+missed, from the gaps in their device timestamps (``lidar lost N``): Zenoh drops a slow
+subscriber's samples without telling the daemon, so only the subscriber can count them.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import threading
 import time
 
 from tripod_shared import messages, topics
+from tripod_shared.velodyne import PacketGapCounter
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -34,6 +37,7 @@ def main(argv: list[str] | None = None) -> int:
     counts: dict[str, int] = {}
     last_imu: list = [None]
     last_status: list = [None]
+    gaps = PacketGapCounter()
     lock = threading.Lock()
 
     def on_sample(sample) -> None:
@@ -42,7 +46,10 @@ def main(argv: list[str] | None = None) -> int:
         with lock:
             counts[leaf] = counts.get(leaf, 0) + 1
         try:
-            if leaf == "imu/quaternion":
+            if leaf == "lidar/packets":
+                with lock:
+                    gaps.add(messages.decode_velodyne_packet(sample.payload.to_bytes())[1])
+            elif leaf == "imu/quaternion":
                 last_imu[0] = messages.decode_imu(sample.payload.to_bytes())
             elif leaf == "status":
                 last_status[0] = messages.decode_status(sample.payload.to_bytes())
@@ -61,6 +68,8 @@ def main(argv: list[str] | None = None) -> int:
                     snap = dict(counts)
                     counts.clear()
                 parts = [f"{k} {v}/s" for k, v in sorted(snap.items())] or ["nothing received"]
+                if gaps.packets:
+                    parts.append(f"lidar lost {gaps.missing}")
                 q = last_imu[0]
                 if q is not None:
                     parts.append(f"q_world_imu=({q.w:+.3f},{q.x:+.3f},{q.y:+.3f},{q.z:+.3f})")

@@ -32,13 +32,13 @@ from dataclasses import dataclass, field
 from typing import IO, BinaryIO
 
 from mcap.exceptions import McapError
-from mcap.records import Channel, Message, Metadata, Schema
+from mcap.records import Channel, Message, Metadata
 from mcap.stream_reader import StreamReader
-from mcap.writer import CompressionType, Writer
 
 from . import messages as m
 from . import ros2_msgs as r2
 from . import topics as t
+from .mcap_writer import McapChunkWriter, MessageBlock
 
 FORMAT_VERSION = "2"  # 1: profile "", status and events as JSON channels (still read)
 PROFILE = "ros2"
@@ -68,6 +68,8 @@ class RecordingWriter:
         Uncompressed bytes per chunk before it is compressed and written. The daemon also
         calls :meth:`flush_chunk` on a timer so at most that much time is ever unwritten.
     compression : "zstd" | "lz4" | "none"
+    compression_level : int, optional
+        zstd level (default 3; the daemon uses 1: 2.6x less CPU, files ~15 % larger).
     metadata : dict[str, str], optional
         Extra entries of the ``tripod`` metadata record.
     """
@@ -80,13 +82,15 @@ class RecordingWriter:
         compression: str = "zstd",
         metadata: dict[str, str] | None = None,
         library: str = "tripod",
+        compression_level: int | None = None,
     ):
-        comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
+        comp = {"zstd": "zstd", "lz4": "lz4", "none": ""}
         if compression not in comp:
             raise ValueError(f"unknown compression {compression!r} (zstd, lz4, none)")
         self._own = not hasattr(output, "write")
         self._fh: IO[bytes] = open(output, "wb") if self._own else output  # type: ignore[arg-type]
-        self._writer = Writer(self._fh, chunk_size=chunk_size, compression=comp[compression])
+        self._writer = McapChunkWriter(self._fh, chunk_size=chunk_size,
+                                       compression=comp[compression], level=compression_level)
         self._writer.start(profile=PROFILE, library=library)
         self._channels: dict[str, int] = {}
         meta = {"format_version": FORMAT_VERSION, "library": library}
@@ -123,6 +127,20 @@ class RecordingWriter:
         self._writer.add_message(cid, log_time_ns, data, log_time_ns, seq)
         self.messages_written += 1
 
+    def write_block(self, block: MessageBlock) -> None:
+        """Write a block of equal-size messages of one topic (the daemon's lidar batches):
+        the same records as :meth:`write_encoded` of each, without per-message Python work."""
+        n = len(block)
+        if n == 0:
+            return
+        if block.topic in _FROM_LIVE:
+            raise ValueError(f"{block.topic}: JSON live messages cannot be written as a block")
+        cid = self._channel(block.topic)
+        seq = self._seq.get(block.topic, 0)
+        self._seq[block.topic] = seq + n
+        self._writer.add_block(cid, block.rows, block.log_times, seq)
+        self.messages_written += n
+
     def write_lidar_packet(self, host_ns: int, payload: bytes) -> None:
         self.write_encoded(t.TOPIC_LIDAR_PACKETS, host_ns, m.encode_velodyne_packet(host_ns, payload))
 
@@ -143,10 +161,7 @@ class RecordingWriter:
 
     def flush_chunk(self) -> None:
         """Close the open chunk and write it out now (bounded loss if the process is killed)."""
-        # mcap's Writer has no public chunk flush; its private finaliser does exactly this.
-        fin = getattr(self._writer, "_Writer__finalize_chunk", None)
-        if fin is not None:
-            fin()
+        self._writer.flush_chunk()
         self._fh.flush()
 
     def fileno(self) -> int:

@@ -149,3 +149,34 @@ def position_nmea(payload: bytes) -> str:
 
 def position_pps_state(payload: bytes) -> str:
     return PPS_STATES.get(payload[POS_PPS_OFFSET], f"unknown({payload[POS_PPS_OFFSET]})")
+
+
+class PacketGapCounter:
+    """VLP-16 data packets missing from a stream, counted from the gaps in their device
+    timestamps: what a live subscriber can count itself (Zenoh drops a slow subscriber's
+    samples without telling the publisher). A gap of k packet periods (663.552 µs dual return,
+    1327.104 µs single) is k - 1 missing packets; gaps over a second (a sensor restart, a
+    pause) are not counted; the hour wrap of the µs-past-the-hour clock is handled."""
+
+    _HOUR_US = 3600 * 1_000_000
+
+    def __init__(self) -> None:
+        self.packets = 0
+        self.missing = 0
+        self._last_us: int | None = None
+
+    def add(self, payload: bytes) -> int:
+        """Take the next packet's 1206-byte payload; returns the packets missing before it."""
+        t_us = _u32.unpack_from(payload, TIMESTAMP_OFFSET)[0]
+        period = VLP16_PACKET_PERIOD_US[
+            "dual" if payload[RETURN_MODE_OFFSET] == RETURN_DUAL else "single"]
+        last, self._last_us = self._last_us, t_us
+        self.packets += 1
+        if last is None:
+            return 0
+        dt = (t_us - last) % self._HOUR_US
+        k = round(dt / period) - 1 if dt < 1_000_000 else 0
+        if k > 0:
+            self.missing += k
+            return k
+        return 0

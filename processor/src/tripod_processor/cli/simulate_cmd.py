@@ -40,6 +40,10 @@ def simulate_cmd(
     config: Optional[Path] = typer.Option(None, "--config", help="YAML config (see config.yaml "
                                           "of any capture); options given here override it."),
     threads: int = typer.Option(0, "--threads", help="Ray-casting threads (0: all cores)."),
+    rig: Optional[int] = typer.Option(
+        None, "--rig", help="A random rig and capture drawn from this seed (sim.rigs: mount, "
+                            "lever arm, IMU latency, hand or motor pan, scene size; development "
+                            "seeds 0-9999, test seeds 10000+); the options above override it."),
 ) -> None:
     """Simulate a tripod capture: capture.pcap, IMU log, ground truth, mesh, labels, meta.json."""
     from tripod_shared.config_io import ConfigError, load_config
@@ -58,10 +62,27 @@ def simulate_cmd(
         overrides["lidar.gps"] = True
     if mcap:
         overrides["mcap"] = True
+    tmp_cfg = None
+    if rig is not None:
+        if config is not None:
+            fail("--rig and --config: give one of them")
+        import tempfile
+
+        import yaml
+
+        from ..sim.rigs import draw_rig
+
+        fd, tmp_cfg = tempfile.mkstemp(suffix=".yaml", prefix="tripod-rig-")
+        with open(fd, "w") as fh:
+            yaml.safe_dump(draw_rig(rig).model_dump(mode="json", exclude_none=True), fh)
+        config = Path(tmp_cfg)
     try:
         cfg = load_config(SimConfig, config, overrides)
     except ConfigError as exc:
         fail(str(exc))
+    finally:
+        if tmp_cfg is not None:
+            Path(tmp_cfg).unlink(missing_ok=True)
     if cfg.scene_file is None:
         from ..sim.scenes import SCENE_NAMES
 
