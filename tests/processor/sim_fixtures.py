@@ -24,3 +24,15 @@ def make_capture(root: Path, name: str, **over) -> Path:
     out = root / name
     simulate(small_config(**over), out, nthreads=2)
     return out
+
+
+def make_rig_capture(root: Path, name: str = "rig", **over) -> Path:
+    """A small capture of an uncalibrated rig for the processor's tests (~30 s of recording,
+    a few CPU seconds): a short hall (12 x 10 m), a 10 cm lever arm, a hand-turned pan with a
+    pause and a reversal, 4 ms IMU latency, 3 stations (``sim.rigs.small_rig``; ``over`` as
+    there). The truth is in ``meta.json["truth"]``."""
+    from tripod_processor.sim.rigs import small_rig
+
+    out = root / name
+    simulate(small_rig(**over), out, nthreads=2)
+    return out

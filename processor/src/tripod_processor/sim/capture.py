@@ -64,6 +64,8 @@ class SimSummary:
 def build_scene(cfg: SimConfig) -> Scene:
     if cfg.scene_file:
         return load_scene_file(cfg.scene_file, cfg.seed)
+    if cfg.scene_size is not None:
+        return make_scene(cfg.scene, cfg.seed, cfg.scene_size.model_dump())
     return make_scene(cfg.scene, cfg.seed)
 
 
@@ -72,7 +74,8 @@ def build_rig(cfg: SimConfig, scene: Scene | None = None) -> tuple[Scene, Trajec
     scene = scene or build_scene(cfg)
     route, closed = route_of(cfg, scene)
     traj = Trajectory(route, closed, cfg.stations, cfg.motion,
-                      np.random.default_rng([cfg.seed, 0x7A3]), floor_z=scene.floor_z)
+                      np.random.default_rng([cfg.seed, 0x7A3]), floor_z=scene.floor_z,
+                      pan_rng=np.random.default_rng([cfg.seed, 0x9A4]))
     return scene, traj
 
 
@@ -289,6 +292,65 @@ def _write_ground_truth(out: Path, cfg: SimConfig, scene: Scene, traj: Trajector
     (gt / "clocks.json").write_text(json.dumps(clocks, indent=2) + "\n")
 
 
+def truth_of(cfg: SimConfig, traj: Trajectory) -> dict:
+    """What a processor should recover from the capture (meta.json ``truth``).
+
+    Stations: ``still`` = the tripod stands (carry to carry; the head may turn), ``pan`` = the
+    head turns; both in host_realtime ns and on the lidar time line (host + lidar clock offset,
+    the time line of ``evaluation.load_sim_truth``). Calibration in the processor's terms:
+    ``q_imu_lidar`` and the lever arm pivot -> lidar in the IMU frame (as
+    ``placement.load_extrinsic_file`` reads gt/calibration.json), split into its component
+    along the pan axis (unobservable: it moves every point of a station alike) and across it.
+    ``imu_time_offset_ms``: what to add to the IMU's de-jittered host stamps = minus the
+    latency floor ``latency_ms`` (the exponential jitter's 1st percentile is 1 % of
+    ``latency_jitter_ms``).
+    """
+    start, off = cfg.start_unix_ns, int(cfg.lidar.clock_offset_ns)
+
+    def host(t_s: float) -> int:
+        return start + int(round(t_s * 1e9))
+
+    def span(a: float, b: float) -> dict:
+        return {"host_ns": [host(a), host(b)], "lidar_ns": [host(a) + off, host(b) + off]}
+
+    still = traj.still_intervals_s()
+    stations = []
+    for st, (a, b) in zip(traj.stations, still):
+        t0 = st.t_pan_start_s
+        plan = traj.pans[st.index] if traj.pans is not None else None
+        stations.append({
+            "index": st.index, "still": span(a, b), "still_s": [round(a, 6), round(b, 6)],
+            "pan": span(st.t_pan_start_s, st.t_pan_end_s),
+            "net_turn_deg": round(float(np.degrees(traj.pan_net_rad(st.index))), 6),
+            "pauses": [span(t0 + x, t0 + y) for x, y in (plan.pauses_s if plan else [])],
+            "reversals": [span(t0 + x, t0 + y) for x, y in (plan.reversals_s if plan else [])],
+        })
+    R_il = R_lidar_imu(cfg.imu).T
+    R_pl, t_pl = traj.R_pan_lidar, traj.t_pan_lidar
+    ell = R_il @ R_pl.T @ t_pl
+    axis = R_il @ R_pl.T @ np.array([0.0, 0.0, 1.0])
+    along = float(ell @ axis)
+    q = wxyz(R_il[None])[0]
+    ic = cfg.imu
+    return {
+        "stations": stations,
+        "carries_s": [round(float(x), 6) for x in traj.transit_s],
+        "pan_profile": cfg.motion.pan_profile,
+        "tilt_deg": cfg.motion.tilt_deg,
+        "lever_arm_pan_m": [round(float(x), 9) for x in t_pl],
+        "lever_arm_imu_m": [round(float(x), 9) for x in ell],
+        "pan_axis_imu": [round(float(x), 9) for x in axis],
+        "lever_arm_along_axis_m": round(along, 9),
+        "lever_arm_across_axis_m": round(float(np.linalg.norm(ell - along * axis)), 9),
+        "q_imu_lidar_wxyz": [round(float(x), 12) for x in q],
+        "imu_latency_ms": ic.latency_ms,
+        "imu_latency_jitter_ms": ic.latency_jitter_ms,
+        "imu_time_offset_ms": -ic.latency_ms,
+        "lidar_clock_offset_ns": off,
+        "return_mode": cfg.lidar.return_mode,
+    }
+
+
 def _write_meta(out: Path, cfg: SimConfig, scene: Scene, traj: Trajectory, lidar: Vlp16,
                 s: SimSummary, duration_ns: int) -> None:
     import open3d
@@ -315,6 +377,7 @@ def _write_meta(out: Path, cfg: SimConfig, scene: Scene, traj: Trajectory, lidar
             "stations": [{"index": st.index, "pan_start_s": st.t_pan_start_s,
                           "pan_end_s": st.t_pan_end_s} for st in traj.stations],
         },
+        "truth": truth_of(cfg, traj),
         "files": {
             CAPTURE_FILE: "VLP-16 data (2368) and position (8308) packets, Ethernet/IPv4/UDP, "
                           "ns pcap, host receive times",

@@ -41,6 +41,49 @@ class MotionConfig(StrictModel):
                                                  "(the lidar sees them when looking down)")
     leg_radius_m: float = Field(0.015, gt=0.0, description="leg tube radius [m]")
     leg_spread_m: float = Field(0.5, gt=0.0, description="foot distance from the pan axis [m]")
+    # --- pan profile (issue 12); the defaults keep the motor pan above, byte for byte
+    pan_profile: Literal["constant", "hand"] = Field(
+        "constant", description="constant: a motor pan at one cruise speed (raised-cosine ramps "
+                                "of pan_ramp_s); hand: a hand-turned head whose speed changes "
+                                "every ~pan_speed_change_s by up to +/- pan_speed_variation")
+    pan_turns: float | None = Field(
+        None, ge=0.5, le=2.0, description="net turn of one pan [turns]; default 1 + "
+                                          "pan_overlap_deg / 360")
+    pan_turns_jitter: float = Field(0.0, ge=0.0, le=0.3,
+                                    description="per-station uniform +/- on pan_turns [turns]")
+    pan_speed_variation: float = Field(0.5, ge=0.0, lt=1.0,
+                                       description="hand: speed levels uniform in "
+                                                   "(1 +/- this) x the mean")
+    pan_speed_change_s: float = Field(1.5, gt=0.1,
+                                      description="hand: mean time between speed changes [s]")
+    pan_pause_s: float = Field(0.0, ge=0.0,
+                               description="a pause of this length inside every pan, at a "
+                                           "random place (0: none) [s]")
+    pan_reversal_deg: float = Field(0.0, ge=0.0, le=120.0,
+                                    description="inside every pan the head turns back by this "
+                                                "much, then on (0: none) [deg]")
+    pan_reversal_s: float = Field(1.0, gt=0.0, description="duration of the turn back [s]")
+    route_span: float = Field(1.0, gt=0.0, le=1.0,
+                              description="share of the scene's route the stations spread "
+                                          "over (< 1: part of a big hall; carries shorter)")
+
+    @model_validator(mode="after")
+    def _pan_fits(self) -> "MotionConfig":
+        gaps = [w for w, on in ((self.pan_pause_s, self.pan_pause_s > 0),
+                                (self.pan_reversal_s, self.pan_reversal_deg > 0)) if on]
+        need = 2 * min(self.pan_ramp_s, self.pan_s / 4) + sum(
+            w + 2 * min(self.pan_ramp_s, 0.5) for w in gaps)
+        if gaps and need > 0.8 * self.pan_s:
+            raise ValueError(f"pan_s {self.pan_s:g} s is too short for the pause and reversal "
+                             f"asked for (they and the ramps need {need:.1f} s, at most 80 %)")
+        return self
+
+    @property
+    def is_motor_default(self) -> bool:
+        """The original motor pan (no profile options used): ``motion._ramp_angle`` exactly."""
+        return (self.pan_profile == "constant" and self.pan_turns is None
+                and self.pan_turns_jitter == 0.0 and self.pan_pause_s == 0.0
+                and self.pan_reversal_deg == 0.0)
 
 
 class LidarConfig(StrictModel):
@@ -103,11 +146,28 @@ class ImuConfig(StrictModel):
                                     description="R_lidar_imu = Rz(yaw) Ry(pitch) Rx(roll)")
 
 
+class SceneSizeConfig(StrictModel):
+    """Fixed dimensions of a parametric scene instead of the seed's draw (None: drawn). Only the
+    fields the scene has may be set: room/office/hall width, depth, height; corridor length
+    (first leg), leg2 (0: a straight corridor), width, height."""
+
+    width_m: float | None = Field(None, gt=1.0, le=200.0,
+                                  description="room/office/hall: x extent; corridor: its width [m]")
+    depth_m: float | None = Field(None, gt=1.0, le=200.0, description="y extent [m]")
+    height_m: float | None = Field(None, gt=1.8, le=30.0, description="floor to ceiling [m]")
+    length_m: float | None = Field(None, gt=3.0, le=300.0,
+                                   description="corridor: length of the first leg [m]")
+    leg2_m: float | None = Field(None, ge=0.0, le=300.0,
+                                 description="corridor: length of the second leg, 0 = none [m]")
+
+
 class SimConfig(StrictModel):
     """Everything that defines one simulated capture (deterministic per seed)."""
 
     scene: str = "room"
     scene_file: str | None = None
+    scene_size: SceneSizeConfig | None = Field(
+        None, description="fixed scene dimensions (default: drawn from the seed)")
     route_xy: list[tuple[float, float]] | None = Field(
         None, description="route of the tripod through free space (x, y) [m]; default: the "
                           "scene's own (parametric scenes) or a loop inset from the bounds")

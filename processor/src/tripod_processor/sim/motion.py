@@ -142,6 +142,104 @@ def _ramp_angle(t: np.ndarray, total: float, duration: float, ramp: float) -> np
     return a
 
 
+def _raised_cos(x: np.ndarray) -> np.ndarray:
+    """0 -> 1 over x in [0, 1] with zero slope at both ends (clipped outside)."""
+    return 0.5 - 0.5 * np.cos(np.pi * np.clip(x, 0.0, 1.0))
+
+
+@dataclass
+class PanPlan:
+    """One station's pan, sampled: angle [rad] on a regular grid of ``dt_s`` from the pan start.
+
+    ``pauses_s`` and ``reversals_s`` are (start, end) seconds from the pan start of the
+    stretches where the head stands or turns back; ``net_rad`` the net turn.
+    """
+
+    dt_s: float
+    angle: np.ndarray
+    net_rad: float
+    pauses_s: list[tuple[float, float]]
+    reversals_s: list[tuple[float, float]]
+    reversal_rad: float
+
+    def at(self, tau: np.ndarray) -> np.ndarray:
+        """Angle [rad] at ``tau`` seconds from the pan start (held outside the pan)."""
+        x = np.clip(np.asarray(tau, dtype=np.float64) / self.dt_s, 0.0, len(self.angle) - 1)
+        i = np.minimum(x.astype(np.int64), len(self.angle) - 2)
+        f = x - i
+        return self.angle[i] * (1.0 - f) + self.angle[i + 1] * f
+
+
+def plan_pan(cfg: MotionConfig, net_rad: float, rng: np.random.Generator,
+             dt_s: float = 5e-4) -> PanPlan:
+    """A pan of ``net_rad`` in ``cfg.pan_s`` with the profile options of ``cfg``.
+
+    Forward speed = raised-cosine ramps at both ends (``pan_ramp_s``), gaps for the pause and
+    the reversal (ramps of min(pan_ramp_s, 0.5 s) into and out of them), times a speed factor
+    (hand: levels uniform in 1 +/- ``pan_speed_variation``, changing every 0.5..1.5 x
+    ``pan_speed_change_s`` through a min-jerk blend of up to 0.4 s). In the reversal gap the
+    speed is -A sin^2 (back by ``pan_reversal_deg``). The forward part is scaled so the net turn
+    is exactly ``net_rad``. Speed and its slope are continuous.
+    """
+    D = cfg.pan_s
+    n = int(np.ceil(D / dt_s)) + 1
+    tau = np.arange(n) * dt_s
+    tau[-1] = min(tau[-1], D)
+    r = min(cfg.pan_ramp_s, D / 4)
+    rg = min(cfg.pan_ramp_s, 0.5)
+    gaps: list[tuple[float, float, str]] = []
+    want = []
+    if cfg.pan_pause_s > 0:
+        want.append(("pause", cfg.pan_pause_s))
+    if cfg.pan_reversal_deg > 0:
+        want.append(("reversal", cfg.pan_reversal_s))
+    order = rng.permutation(len(want)) if want else []
+    want = [want[i] for i in order]
+    # place the gaps in order, each with its ramps, inside [r, D - r], uniformly spread
+    slack = D - 2 * r - sum(w + 2 * rg for _, w in want)
+    cuts = np.sort(rng.uniform(0.0, max(slack, 0.0), len(want)))
+    t = r
+    prev = 0.0
+    for (kind, w), c in zip(want, cuts):
+        t += c - prev
+        prev = c
+        gaps.append((t + rg, t + rg + w, kind))
+        t += w + 2 * rg
+    fwd = _raised_cos(tau / max(r, 1e-9)) * _raised_cos((D - tau) / max(r, 1e-9))
+    for a, b, _ in gaps:
+        closed = _raised_cos((a - tau) / rg) * (tau <= a) + _raised_cos((tau - b) / rg) * (tau >= b)
+        fwd = fwd * closed
+    if cfg.pan_profile == "hand":
+        v = cfg.pan_speed_variation
+        knots = [0.0]
+        while knots[-1] < D:
+            knots.append(knots[-1] + cfg.pan_speed_change_s * rng.uniform(0.5, 1.5))
+        knots = np.asarray(knots)
+        level = rng.uniform(1.0 - v, 1.0 + v, len(knots))
+        j = np.clip(np.searchsorted(knots, tau, side="right") - 1, 0, len(knots) - 2)
+        blend = np.minimum(0.4, 0.5 * (knots[j + 1] - knots[j]))
+        u = np.clip((tau - (knots[j + 1] - blend)) / blend, 0.0, 1.0)
+        fwd = fwd * (level[j] + (level[j + 1] - level[j]) * _min_jerk(u))
+    rev_rad = np.radians(cfg.pan_reversal_deg)
+    back = np.zeros(n)
+    for a, b, kind in gaps:
+        if kind == "reversal":
+            inside = (tau >= a) & (tau <= b)
+            back[inside] = np.sin(np.pi * (tau[inside] - a) / (b - a)) ** 2
+    dtau = np.diff(tau)
+
+    def integral(y: np.ndarray) -> np.ndarray:
+        return np.concatenate([[0.0], np.cumsum(0.5 * (y[1:] + y[:-1]) * dtau)])
+
+    F, B = integral(fwd), integral(back)
+    A = rev_rad / B[-1] if B[-1] > 0 else 0.0
+    c = (net_rad + rev_rad) / F[-1]
+    angle = c * F - A * B
+    return PanPlan(dt_s, angle, float(net_rad),
+                   [(a, b) for a, b, k in gaps if k == "pause"],
+                   [(a, b) for a, b, k in gaps if k == "reversal"], float(rev_rad))
+
+
 class Trajectory:
     """Continuous pose of every frame of the rig; evaluate at arrays of times.
 
@@ -153,20 +251,24 @@ class Trajectory:
     cfg : MotionConfig
     rng : numpy Generator (stations, headings, sway phases)
     floor_z : height of the floor [m]; tripod heights are above it
+    pan_rng : numpy Generator for the pan profiles (only drawn from when ``cfg`` asks for more
+        than the original motor pan; default: one seeded from ``rng``'s state is not taken, so
+        the stations of a default config never change)
     """
 
     def __init__(self, route_xy: np.ndarray, closed: bool, n_stations: int, cfg: MotionConfig,
-                 rng: np.random.Generator, floor_z: float = 0.0):
+                 rng: np.random.Generator, floor_z: float = 0.0,
+                 pan_rng: np.random.Generator | None = None):
         self.cfg = cfg
         self.route = Route(route_xy, closed)
         self.n = n_stations
         L = self.route.length
         n = n_stations
         if closed:
-            spacing = L / n
+            spacing = L / n if cfg.route_span == 1.0 else cfg.route_span * L / n
             s = rng.uniform(0, L) + spacing * np.arange(n)
         else:
-            spacing = L / n
+            spacing = L / n if cfg.route_span == 1.0 else cfg.route_span * L / n
             s = spacing * (np.arange(n) + 0.5)
         s = s + rng.uniform(-0.2, 0.2, n) * spacing
         if not closed:
@@ -200,6 +302,15 @@ class Trajectory:
         # sway: per-transit random phases and amplitude factors
         self._sway_phase = rng.uniform(0, 2 * np.pi, (max(n - 1, 1), 5))
         self._sway_gain = rng.uniform(0.6, 1.0, (max(n - 1, 1), 5))
+        # pan profiles: None = the original motor pan (``_ramp_angle``, bit for bit)
+        self.pans: list[PanPlan] | None = None
+        if not cfg.is_motor_default:
+            prng = pan_rng if pan_rng is not None else np.random.default_rng(0x9A4)
+            turns = (cfg.pan_turns if cfg.pan_turns is not None
+                     else 1.0 + cfg.pan_overlap_deg / 360.0)
+            nets = 2 * np.pi * (turns + cfg.pan_turns_jitter * prng.uniform(-1, 1, n))
+            self.pans = [plan_pan(cfg, float(x), prng) for x in nets]
+            self._pan_before = np.concatenate([[0.0], np.cumsum(nets)])[:n]
         self.R_pan_lidar = rot_y(np.radians(cfg.tilt_deg))[0]
         self.t_pan_lidar = np.asarray(cfg.lever_arm_m, dtype=np.float64)
 
@@ -221,8 +332,14 @@ class Trajectory:
         out_p = pos[k].copy()
         out_yaw, out_roll, out_pitch = yaw[k].copy(), roll[k].copy(), pitch[k].copy()
         # pan angle: completed turns of earlier stations plus the current one
-        phi = k * self.pan_total_rad + _ramp_angle(local - cfg.settle_s, self.pan_total_rad,
-                                                    cfg.pan_s, cfg.pan_ramp_s)
+        if self.pans is None:
+            phi = k * self.pan_total_rad + _ramp_angle(local - cfg.settle_s, self.pan_total_rad,
+                                                        cfg.pan_s, cfg.pan_ramp_s)
+        else:
+            phi = self._pan_before[k].copy()
+            for kk in np.unique(k):
+                m = k == kk
+                phi[m] += self.pans[kk].at(local[m] - cfg.settle_s)
 
         t_transit = local - (2 * cfg.settle_s + cfg.pan_s)
         moving = (t_transit > 0) & (k < self.n - 1)
@@ -254,6 +371,17 @@ class Trajectory:
             out_pitch[i] = pitch[kk] + (pitch[kk + 1] - pitch[kk]) * g + amp * gain[:, 3] * np.sin(
                 2 * np.pi * 1.3 * tt + ph[:, 3]) * win
         return out_p, out_yaw, out_roll, out_pitch, phi
+
+    def pan_net_rad(self, k: int) -> float:
+        """Net turn of station k's pan [rad]."""
+        return self.pan_total_rad if self.pans is None else self.pans[k].net_rad
+
+    def still_intervals_s(self) -> np.ndarray:
+        """(n, 2) capture-relative [s] spans when the tripod stands at each station (its head
+        may turn): from the end of the carry before to the start of the carry after."""
+        dwell = 2 * self.cfg.settle_s + self.cfg.pan_s
+        a = self.period_start_s.copy()
+        return np.stack([a, a + dwell], axis=1)
 
     def T_world_base(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(R (N, 3, 3), p (N, 3)) of the base in the world."""

@@ -181,8 +181,22 @@ def surface_reflectivity(classes: np.ndarray, rng: np.random.Generator) -> np.nd
 # --------------------------------------------------------------------------- parametric scenes
 
 
-def _room(rng: np.random.Generator) -> tuple[MeshBuilder, list, bool, dict]:
+def _sized(size: dict, name: str, drawn: float, lo: float | None = None) -> float:
+    """A drawn dimension, or the configured one (``scene_size``) when given; ``lo``: the
+    smallest the scene's furniture and route allow [m]."""
+    v = size.get(name)
+    if v is None:
+        return drawn
+    if lo is not None and v < lo:
+        raise ValueError(f"scene_size.{name} = {v:g} m is too small for this scene "
+                         f"(at least {lo:g} m)")
+    return float(v)
+
+
+def _room(rng: np.random.Generator, size: dict) -> tuple[MeshBuilder, list, bool, dict]:
     w, d, h = rng.uniform(5.0, 9.0), rng.uniform(4.0, 7.0), rng.uniform(2.5, 3.2)
+    w, d, h = _sized(size, "width_m", w, 3.2), _sized(size, "depth_m", d, 3.2), \
+        _sized(size, "height_m", h)
     mb = MeshBuilder()
     mb.floor_plan([(0, 0, w, d)], h)
     # furniture against the walls: a cabinet, a table, a shelf (class other)
@@ -200,22 +214,33 @@ def _room(rng: np.random.Generator) -> tuple[MeshBuilder, list, bool, dict]:
     return mb, route, True, {"width_m": w, "depth_m": d, "height_m": h}
 
 
-def _corridor(rng: np.random.Generator):
+def _corridor(rng: np.random.Generator, size: dict):
     l1, l2 = rng.uniform(10.0, 16.0), rng.uniform(8.0, 12.0)
     wd, h = rng.uniform(1.6, 2.4), rng.uniform(2.4, 3.0)
+    l1, wd, h = _sized(size, "length_m", l1, 6.0), _sized(size, "width_m", wd, 1.4), \
+        _sized(size, "height_m", h)
+    l2 = _sized(size, "leg2_m", l2)
+    if 0.0 < l2 < wd + 4.0:
+        raise ValueError(f"scene_size.leg2_m = {l2:g} m: 0 (a straight corridor) or at least "
+                         f"{wd + 4.0:.1f} m")
     mb = MeshBuilder()
-    mb.floor_plan([(0, 0, l1, wd), (l1 - wd, 0, l1, l2)], h)
+    mb.floor_plan([(0, 0, l1, wd), (l1 - wd, 0, l1, l2)] if l2 > 0 else [(0, 0, l1, wd)], h)
     # a radiator and a bench along the walls
     rx = rng.uniform(1.0, l1 - 4.0)
     mb.box((rx, 0.02, 0.15), (rx + 1.0, 0.12, 0.75), OTHER)
-    by = rng.uniform(2.5, l2 - 2.0)
-    mb.box((l1 - 0.45, by, 0.0), (l1 - 0.02, by + 1.2, 0.45), OTHER)
     c = wd / 2
-    route = [(1.0, c), (l1 - c, c), (l1 - c, l2 - 1.0)]
+    if l2 > 0:
+        by = rng.uniform(2.5, l2 - 2.0)
+        mb.box((l1 - 0.45, by, 0.0), (l1 - 0.02, by + 1.2, 0.45), OTHER)
+        route = [(1.0, c), (l1 - c, c), (l1 - c, l2 - 1.0)]
+    else:  # straight: the bench on the other long wall, the route along the axis
+        bx = rng.uniform(1.0, l1 - 2.2)
+        mb.box((bx, wd - 0.45, 0.0), (bx + 1.2, wd - 0.02, 0.45), OTHER)
+        route = [(1.0, c), (l1 - 1.0, c)]
     return mb, route, False, {"leg1_m": l1, "leg2_m": l2, "width_m": wd, "height_m": h}
 
 
-def _two_rooms(rng: np.random.Generator):
+def _two_rooms(rng: np.random.Generator, size: dict):
     a, b = rng.uniform(4.5, 7.0), rng.uniform(4.5, 7.0)
     d, h = rng.uniform(4.0, 6.5), rng.uniform(2.5, 3.0)
     door_w = 0.9
@@ -233,8 +258,10 @@ def _two_rooms(rng: np.random.Generator):
                               "door_y_m": door_y, "door_width_m": door_w}
 
 
-def _office(rng: np.random.Generator):
+def _office(rng: np.random.Generator, size: dict):
     w, d, h = rng.uniform(14.0, 20.0), rng.uniform(10.0, 14.0), rng.uniform(2.7, 3.1)
+    w, d, h = _sized(size, "width_m", w, 8.0), _sized(size, "depth_m", d, 8.0), \
+        _sized(size, "height_m", h, 2.4)
     mb = MeshBuilder()
     mb.floor_plan([(0, 0, w, d)], h)
     # aisles at y = d/4 and 3d/4 (route); desk islands between them and the walls
@@ -267,8 +294,10 @@ def _centered_grid(length: float, margin: float, spacing: float) -> np.ndarray:
     return length / 2 + (np.arange(n) - (n - 1) / 2) * spacing
 
 
-def _hall(rng: np.random.Generator):
+def _hall(rng: np.random.Generator, size: dict):
     w, d, h = rng.uniform(25.0, 40.0), rng.uniform(15.0, 25.0), rng.uniform(6.0, 10.0)
+    w, d, h = _sized(size, "width_m", w, 8.0), _sized(size, "depth_m", d, 8.0), \
+        _sized(size, "height_m", h, 2.4)
     mb = MeshBuilder()
     mb.floor_plan([(0, 0, w, d)], h)
     sp = rng.uniform(6.0, 8.0)
@@ -284,12 +313,25 @@ _BUILDERS = {"room": _room, "corridor": _corridor, "two_rooms": _two_rooms, "off
              "hall": _hall}
 
 
-def make_scene(name: str, seed: int) -> Scene:
-    """Parametric scene ``name`` (one of ``SCENE_NAMES``), dimensions drawn from ``seed``."""
+#: the ``scene_size`` fields each parametric scene takes
+SIZE_FIELDS = {"room": ("width_m", "depth_m", "height_m"),
+               "corridor": ("length_m", "leg2_m", "width_m", "height_m"),
+               "two_rooms": (), "office": ("width_m", "depth_m", "height_m"),
+               "hall": ("width_m", "depth_m", "height_m")}
+
+
+def make_scene(name: str, seed: int, size: dict | None = None) -> Scene:
+    """Parametric scene ``name`` (one of ``SCENE_NAMES``), dimensions drawn from ``seed``;
+    ``size`` (``SceneSizeConfig`` fields) fixes some of them (None values: drawn)."""
     if name not in _BUILDERS:
         raise ValueError(f"unknown scene {name!r} (choose from {', '.join(SCENE_NAMES)})")
+    size = {k: v for k, v in (size or {}).items() if v is not None}
+    bad = sorted(set(size) - set(SIZE_FIELDS[name]))
+    if bad:
+        raise ValueError(f"scene {name!r} has no size {', '.join(bad)} (it takes: "
+                         f"{', '.join(SIZE_FIELDS[name]) or 'none'})")
     rng = np.random.default_rng([seed, 0x5CE7E])
-    mb, route, closed, params = _BUILDERS[name](rng)
+    mb, route, closed, params = _BUILDERS[name](rng, size)
     return mb.build(name, route, closed, {k: round(float(v), 4) for k, v in params.items()}, rng)
 
 
