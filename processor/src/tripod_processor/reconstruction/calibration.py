@@ -405,7 +405,7 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
                    ext: Extrinsic, *, fit_lever: bool = True, fit_time: bool = True,
                    fit_rotation: bool = True, max_stations: int = 4,
                    points_per_station: int = 80_000, voxel_m: float = 0.25,
-                   min_separation_s: float = 0.3, iterations: int = 5,
+                   min_separation_s: float = 0.3, iterations: int = 8,
                    max_range: float = 60.0, sigma_inflation: float = 3.0,
                    ) -> SelfCalibration:
     """Lever arm, IMU time offset and mount rotation that make every station self-consistent.
@@ -475,7 +475,10 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
                 R_wl = R_wi @ R_il
                 for m in range(2):
                     J[:, :, c + m] = -np.einsum("nij,nj->ni", R_wl, np.cross(xyz, U_r[:, m]))
-            r, Jr = _voxel_plane_residuals(p, J, t, voxel_m, sep_ns)
+            # coarse to fine: a large lever-arm error doubles surfaces by twice its size, which
+            # small voxels would see as two planes (or none)
+            vox = voxel_m * max(1.0, 2.4 / (1.0 + it))
+            r, Jr = _voxel_plane_residuals(p, J, t, vox, sep_ns)
             if len(r):
                 all_r.append(r)
                 all_J.append(Jr)
@@ -519,7 +522,7 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
                         "lever_arm_m": ell.tolist(), "time_offset_ms": off * 1e-6})
         small = (not fit_lever or np.all(np.abs(step[:2]) < 1e-4)) and (
             not fit_time or abs(step[2 if fit_lever else 0]) < 5e-5)
-        if small and it >= 1:
+        if small and vox <= voxel_m:
             break
     # covariance: robust residual variance over the information, inflated (shared planes)
     try:

@@ -142,6 +142,15 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
         with _Stage(times, "calibration", None, quiet):
             ext, orient, calib = _self_calibrate(rec, seg, orient, ext, cfg, fit_lever,
                                                  fit_time, fit_rot, notes)
+    if calib is not None or pc.extrinsic.q_imu_lidar is None:
+        # 4b. the stations again with the calibrated rig: the first pass only had to find
+        # stations enough to calibrate on; this one sees every station sharply
+        notes = [n for n in notes if n not in seg.notes]
+        with _Stage(times, "stations 2", n_windows, quiet) as bar:
+            seg = segment_stations(rec.lidar, orient, ext, cfg.stations, marks, progress=bar)
+        notes += seg.notes
+        if not seg.stations:
+            raise RecordingError(f"{recording_path}: no station found with the calibrated rig")
     info: dict = {}
 
     # 5. fragments (with their voxels' intensity when a survey file wants it)
