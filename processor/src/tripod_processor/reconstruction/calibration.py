@@ -234,13 +234,6 @@ def _perp_basis(b: np.ndarray) -> np.ndarray:
     return np.stack([u, np.cross(b, u)], axis=1)
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) cross-product matrices of vectors (N, 3)."""
-    z = np.zeros(len(v))
-    return np.stack([z, -v[:, 2], v[:, 1], v[:, 2], z, -v[:, 0], -v[:, 1], v[:, 0], z],
-                    axis=1).reshape(-1, 3, 3)
-
-
 @dataclass
 class SelfCalibration:
     """Rig calibration estimated from the stations' own geometry (``self_calibrate``).
@@ -418,9 +411,9 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
 
     which is linear in small changes of the lever arm ℓ (∂p/∂ℓ = R_wi), the time offset δ
     (∂p/∂δ = −[ω_w]× p, ω_w the IMU's world rate) and the mount rotation φ
-    (∂p/∂φ = −R_wi R_il [x]×). Each     Each station's sample points are gathered in ``voxel_m`` voxels; a planar voxel whose
-    points were fired at least ``min_separation_s`` apart (different parts of the pan) pulls
-    them onto one plane (:func:`_voxel_plane_residuals`, the plane adjustment of BALM).
+    (∂p/∂φ = −R_wi R_il [x]×). Each station's sample points are gathered in ``voxel_m``
+    voxels (larger in the first iterations); a planar voxel whose points were fired at least
+    ``min_separation_s`` apart (different parts of the pan) pulls them onto one plane (:func:`_voxel_plane_residuals`, the plane adjustment of BALM).
     Gauss–Newton on the point-to-plane distances (Huber weights, voxels renewed each iteration)
     gives the calibration and, from the normal matrix, its covariance (times
     ``sigma_inflation``: a voxel's residuals share its fitted plane).
