@@ -60,7 +60,7 @@ class StationConfig(StrictModel):
     still_tilt_deg: float = Field(default=0.25, gt=0)
     #: shortest station [s] (the still period, before trimming); shorter still periods are
     #: reported and not used
-    min_station_s: float = Field(default=3.0, gt=0)
+    min_station_s: float = Field(default=2.5, gt=0)
     #: seconds trimmed from both ends of a station (the tripod settling)
     trim_s: float = Field(default=0.5, ge=0)
     #: use the daemon's ``mark`` events when present (each station is matched to its mark)

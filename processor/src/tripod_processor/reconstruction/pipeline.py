@@ -133,6 +133,7 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
     # arm, the IMU time offset and the mount's tilts from the stations' self-consistency; the
     # segmentation above needed none of them (it takes the lever arm's apparent shift out)
     calib = None
+    ext_seg = Extrinsic(ext.R_imu_lidar.copy(), ext.lever_arm_m.copy(), ext.source)
     if pc.extrinsic.q_imu_lidar is None:
         ext, orient = _calibrate_mount(rec, seg, orient, ext, pc, threads, times, quiet, notes)
     fit_lever = pc.extrinsic.lever_arm_m is None and cfg.calibration.lever_arm
@@ -142,7 +143,7 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
         with _Stage(times, "calibration", None, quiet):
             ext, orient, calib = _self_calibrate(rec, seg, orient, ext, cfg, fit_lever,
                                                  fit_time, fit_rot, notes)
-    if calib is not None or pc.extrinsic.q_imu_lidar is None:
+    if _rig_changed(ext_seg, ext):
         # 4b. the stations again with the calibrated rig: the first pass only had to find
         # stations enough to calibrate on; this one sees every station sharply
         notes = [n for n in notes if n not in seg.notes]
@@ -252,6 +253,16 @@ def _calibrate_mount(rec, seg, orient, ext, pc, threads, times, quiet, notes):
             ext.source = "default"
             notes.append(f"mount calibration failed ({exc}): identity assumed")
     return ext, ImuOrientation(rec.imu, orient.clock, orient.time_offset_ns)
+
+
+def _rig_changed(a: Extrinsic, b: Extrinsic) -> bool:
+    """Did the calibration move the rig enough to change what the station splitter sees (the
+    lever arm by 5 mm, the mount by 0.1°)?"""
+    from scipy.spatial.transform import Rotation
+
+    dR = Rotation.from_matrix(a.R_imu_lidar.T @ b.R_imu_lidar).magnitude()
+    return bool(np.linalg.norm(a.lever_arm_m - b.lever_arm_m) > 0.005
+                or np.degrees(dR) > 0.1)
 
 
 def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, notes):
