@@ -125,7 +125,8 @@ def _rotvec(R: np.ndarray) -> np.ndarray:
 
 def calibrate_mount(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
                     num_threads: int = 0, step_s: float = 0.3, window_s: float = 0.1,
-                    max_pairs: int = 16) -> tuple[Extrinsic, dict]:
+                    max_pairs: int = 16, pair_turn_deg: float = 45.0,
+                    guess: Extrinsic | None = None) -> tuple[Extrinsic, dict]:
     """The lidar's mount on the IMU (R_imu_lidar, lever arm) from the data (hand-eye).
 
     While the head turns at a station, the lidar's motion between two short windows, measured by
@@ -143,30 +144,76 @@ def calibrate_mount(lidar: LidarPackets, stations: list[Station], orient: ImuOri
 
     st = most_turning_station(stations, orient)
     t0 = st.start_ns
-    times = np.arange(t0, st.end_ns - int(window_s * 1e9), int(step_s * 1e9), dtype=np.int64)
-    clouds = []
-    for t in times:
-        a, b = np.searchsorted(lidar.lidar_ns, [t, t + int(window_s * 1e9)])
-        pts = decode_timed_points(lidar.payload, lidar.lidar_ns, int(a), int(b), min_range=0.5,
-                                  max_range=40.0)
-        clouds.append(np.stack([pts["x"], pts["y"], pts["z"]], 1))
+    win = int(window_s * 1e9)
+    times = np.arange(t0, st.end_ns - win, int(step_s * 1e9), dtype=np.int64)
+    R_guess = np.eye(3) if guess is None else guess.R_imu_lidar
+    ext_g = Extrinsic(R_guess, np.zeros(3), "guess")
+    R_w = orient.rotation_at(times + win // 2)
+    clouds: dict[int, np.ndarray] = {}
+
+    def cloud(k: int) -> np.ndarray:
+        # a sweep de-skewed to its middle by the IMU (with the guess of the mount)
+        if k not in clouds:
+            a, b = np.searchsorted(lidar.lidar_ns, [times[k], times[k] + win])
+            pts = decode_timed_points(lidar.payload, lidar.lidar_ns, int(a), int(b),
+                                      min_range=0.5, max_range=40.0)
+            xyz = np.stack([pts["x"], pts["y"], pts["z"]], 1)
+            clouds[k] = (place_points(xyz, pts["time_ns"], orient, ext_g,
+                                      int(times[k]) + win // 2, num_threads).astype(np.float64)
+                         if len(xyz) else xyz)
+        return clouds[k]
+
+    def pairs_turned(min_deg: float) -> list[tuple[int, int]]:
+        out = []
+        for k in range(len(times) - 1):
+            ang = np.degrees(Rotation.from_matrix(
+                np.einsum("ji,njk->nik", R_w[k], R_w[k + 1:])).magnitude())
+            j = np.flatnonzero(ang >= min_deg)
+            if len(j):
+                out.append((k, k + 1 + int(j[0])))
+        if len(out) > max_pairs:
+            out = [out[i] for i in np.linspace(0, len(out) - 1, max_pairs).astype(int)]
+        return out
+
+    def measure(pairs):
+        A_list, B_list = [], []
+        for k, j in pairs:
+            ck, cj = cloud(k), cloud(j)
+            if len(ck) < 500 or len(cj) < 500:
+                continue
+            B = R_w[k].T @ R_w[j]
+            init = np.eye(4)
+            init[:3, :3] = R_guess.T @ B @ R_guess
+            try:
+                r = reg.register(cj, ck, method="gicp", init=init, voxel_size=0.1,
+                                 max_correspondence_distance=[1.0, 0.3, 0.15],
+                                 num_threads=num_threads)
+            except ValueError:
+                continue
+            # a turn's angle is the same in any frame: a registration that disagrees with
+            # the IMU's by more than 1° slipped (a corridor, little shared view)
+            ang_a = Rotation.from_matrix(r.T_target_source[:3, :3]).magnitude()
+            ang_b = Rotation.from_matrix(B).magnitude()
+            if r.fitness < 0.5 or abs(np.degrees(ang_a - ang_b)) > 1.0:
+                continue
+            A_list.append(r.T_target_source)
+            B_list.append(B)
+        return A_list, B_list
+
+    # pairs turned by ``pair_turn_deg`` (a rotation's axis is the better measured the bigger
+    # the turn; a near-vertical spin axis sees little of floor and ceiling, and only the axis
+    # tells its tilt), spread over the station, the IMU's turn as the registration's start;
+    # where big turns share too little view (a mount on its side), smaller ones, then
+    # consecutive windows
     A_list, B_list = [], []
-    for k in range(min(len(times) - 1, max_pairs)):
-        if len(clouds[k]) < 500 or len(clouds[k + 1]) < 500:
-            continue
-        R_a = orient.rotation_at(np.array([times[k] + int(window_s * 0.5e9)]))[0]
-        R_b = orient.rotation_at(np.array([times[k + 1] + int(window_s * 0.5e9)]))[0]
-        B = R_a.T @ R_b
-        try:
-            r = reg.register(clouds[k + 1], clouds[k], method="gicp", voxel_size=0.1,
-                             max_correspondence_distance=[1.0, 0.3, 0.15],
-                             num_threads=num_threads)
-        except ValueError:
-            continue
-        if r.fitness < 0.5:
-            continue
-        A_list.append(r.T_target_source)
-        B_list.append(B)
+    for min_deg in (pair_turn_deg, pair_turn_deg / 2, 0.0):
+        pairs = pairs_turned(min_deg)
+        probe = pairs[:: max(1, len(pairs) // 4)][:4]  # a few first: do such turns register?
+        A_list, B_list = measure(probe)
+        if len(A_list) >= 3 or min_deg == 0.0:
+            more = measure([p for p in pairs if p not in probe])
+            A_list, B_list = A_list + more[0], B_list + more[1]
+            break
     if len(A_list) < 3:
         raise ValueError("too few usable turns to calibrate the lidar mount from the data")
     a = np.array([_rotvec(A[:3, :3]) for A in A_list])
