@@ -276,6 +276,16 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
         cal = self_calibrate(rec.lidar, seg.stations, orient, ext, fit_lever=fit_lever,
                              fit_time=fit_time, fit_rotation=fit_rot,
                              max_stations=cc.max_stations)
+        if fit_rot and not cal.rotation_observable:
+            # the stations hardly see the mount's tilt (a spin axis near the pan axis in a
+            # small room): hand-eye's tilt is the better one; the rest again with it held
+            if fit_lever or fit_time:
+                cal = self_calibrate(rec.lidar, seg.stations, orient, ext, fit_lever=fit_lever,
+                                     fit_time=fit_time, fit_rotation=False,
+                                     max_stations=cc.max_stations)
+            fit_rot = False
+            notes.append("WARNING: mount tilt poorly observable from the stations' surfaces; "
+                         "hand-eye's kept")
     except ValueError as exc:
         notes.append(f"self-calibration failed ({exc}): the lever arm and time offset stay at "
                      "their priors")
@@ -299,8 +309,6 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
             notes.append(f"WARNING: IMU time offset not observable (σ "
                          f"{cal.time_offset_sigma_ms:.1f} ms): kept at "
                          f"{orient.time_offset_ns * 1e-6:.2f} ms")
-    if fit_rot and not cal.rotation_observable:
-        notes.append(f"WARNING: mount tilt poorly observable (σ {cal.rotation_sigma_deg:.3f}°)")
     R = cal.R_imu_lidar if fit_rot else ext.R_imu_lidar
     ell = cal.lever_arm_m if fit_lever else ext.lever_arm_m
     src = ext.source if not fit_lever else (
@@ -321,8 +329,9 @@ def effective_calibration(ext: Extrinsic, orient: ImuOrientation, pc, cal) -> di
         "imu_time_offset_s": orient.time_offset_ns * 1e-9,
         "source": {
             "q_imu_lidar": "config" if pc.extrinsic.q_imu_lidar is not None else (
-                "data (hand-eye, tilts refined)" if ext.source != "default"
-                else "default (identity)"),
+                "default (identity)" if ext.source == "default" else
+                "data (hand-eye, tilts refined)" if cal is not None
+                and np.isfinite(cal.rotation_sigma_deg) else "data (hand-eye)"),
             "lever_arm_m": lever_src,
             "imu_time_offset_s": "config" if pc.imu_time_offset_s is not None else (
                 "data" if cal is not None and np.isfinite(cal.time_offset_sigma_ms)
