@@ -124,6 +124,14 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
     marks = [(int(clock.to_lidar(np.array([h]))[0]), label) for h, label in rec.marks]
     with _Stage(times, "stations", n_windows, quiet) as bar:
         seg = segment_stations(rec.lidar, orient, ext, cfg.stations, marks, progress=bar)
+    uncalibrated = (pc.extrinsic.q_imu_lidar is None or pc.extrinsic.lever_arm_m is None)
+    loose_pass = not seg.stations and uncalibrated
+    if loose_pass:
+        # a rig far from the defaults can blur the lidar's cue everywhere: stations to
+        # calibrate on from the IMU's cue alone (the second pass below decides)
+        loose = cfg.stations.model_copy(update={"still_threshold": 1.0})
+        with _Stage(times, "stations", n_windows, quiet) as bar:
+            seg = segment_stations(rec.lidar, orient, ext, loose, marks, progress=bar)
     notes += seg.notes
     if not seg.stations:
         raise RecordingError(f"{recording_path}: no station found (no period where the tripod "
@@ -143,7 +151,7 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
         with _Stage(times, "calibration", None, quiet):
             ext, orient, calib = _self_calibrate(rec, seg, orient, ext, cfg, fit_lever,
                                                  fit_time, fit_rot, notes)
-    if _rig_changed(ext_seg, ext):
+    if loose_pass or _rig_changed(ext_seg, ext):
         # 4b. the stations again with the calibrated rig: the first pass only had to find
         # stations enough to calibrate on; this one sees every station sharply
         notes = [n for n in notes if n not in seg.notes]
