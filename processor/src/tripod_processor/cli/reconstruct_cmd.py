@@ -28,7 +28,17 @@ def results_table(summary: dict, title: str = "tripod reconstruct"):
     t.add_row("edges: odometry / loop (rejected)",
               f"{summary['odometry_edges']} ({summary.get('odometry_edges_rejected', 0)}) / "
               f"{summary['loop_edges']} ({summary['loop_edges_rejected']})")
-    t.add_row("IMU time offset", f"{summary['imu_time_offset_ms']:.2f} ms")
+    est = (summary.get("calibration") or {}).get("estimate") or {}
+    src = (summary.get("calibration") or {}).get("source", {})
+    sig_t = est.get("imu_time_offset_sigma_ms")
+    t.add_row("IMU time offset", f"{summary['imu_time_offset_ms']:.2f} ms" + (
+        f" ± {sig_t:.2f} ({src.get('imu_time_offset_s', '')})"
+        if sig_t is not None and sig_t == sig_t else ""))
+    lev = summary["extrinsic"]["lever_arm_m"]
+    sig_l = est.get("lever_arm_sigma_m")
+    t.add_row("lever arm", "[" + ", ".join(f"{100 * v:.2f}" for v in lev) + "] cm" + (
+        f" ± {1000 * max(sig_l):.1f} mm across the pan axis ({src.get('lever_arm_m', '')})"
+        if sig_l and all(v == v for v in sig_l) else f" ({src.get('lever_arm_m', 'config')})"))
     t.add_row("extrinsic", summary["extrinsic"]["source"])
     t.add_row("map points", f"{summary['map_points']:,}")
     cpu = summary.get("stage_cpu_s", {})

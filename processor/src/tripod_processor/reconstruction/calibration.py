@@ -8,6 +8,8 @@ walls, larger when a wrong offset or mount smears them while the head turns).
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -123,7 +125,8 @@ def _rotvec(R: np.ndarray) -> np.ndarray:
 
 def calibrate_mount(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
                     num_threads: int = 0, step_s: float = 0.3, window_s: float = 0.1,
-                    max_pairs: int = 16) -> tuple[Extrinsic, dict]:
+                    max_pairs: int = 16, pair_turn_deg: float = 45.0,
+                    guess: Extrinsic | None = None) -> tuple[Extrinsic, dict]:
     """The lidar's mount on the IMU (R_imu_lidar, lever arm) from the data (hand-eye).
 
     While the head turns at a station, the lidar's motion between two short windows, measured by
@@ -141,30 +144,76 @@ def calibrate_mount(lidar: LidarPackets, stations: list[Station], orient: ImuOri
 
     st = most_turning_station(stations, orient)
     t0 = st.start_ns
-    times = np.arange(t0, st.end_ns - int(window_s * 1e9), int(step_s * 1e9), dtype=np.int64)
-    clouds = []
-    for t in times:
-        a, b = np.searchsorted(lidar.lidar_ns, [t, t + int(window_s * 1e9)])
-        pts = decode_timed_points(lidar.payload, lidar.lidar_ns, int(a), int(b), min_range=0.5,
-                                  max_range=40.0)
-        clouds.append(np.stack([pts["x"], pts["y"], pts["z"]], 1))
+    win = int(window_s * 1e9)
+    times = np.arange(t0, st.end_ns - win, int(step_s * 1e9), dtype=np.int64)
+    R_guess = np.eye(3) if guess is None else guess.R_imu_lidar
+    ext_g = Extrinsic(R_guess, np.zeros(3), "guess")
+    R_w = orient.rotation_at(times + win // 2)
+    clouds: dict[int, np.ndarray] = {}
+
+    def cloud(k: int) -> np.ndarray:
+        # a sweep de-skewed to its middle by the IMU (with the guess of the mount)
+        if k not in clouds:
+            a, b = np.searchsorted(lidar.lidar_ns, [times[k], times[k] + win])
+            pts = decode_timed_points(lidar.payload, lidar.lidar_ns, int(a), int(b),
+                                      min_range=0.5, max_range=40.0)
+            xyz = np.stack([pts["x"], pts["y"], pts["z"]], 1)
+            clouds[k] = (place_points(xyz, pts["time_ns"], orient, ext_g,
+                                      int(times[k]) + win // 2, num_threads).astype(np.float64)
+                         if len(xyz) else xyz)
+        return clouds[k]
+
+    def pairs_turned(min_deg: float) -> list[tuple[int, int]]:
+        out = []
+        for k in range(len(times) - 1):
+            ang = np.degrees(Rotation.from_matrix(
+                np.einsum("ji,njk->nik", R_w[k], R_w[k + 1:])).magnitude())
+            j = np.flatnonzero(ang >= min_deg)
+            if len(j):
+                out.append((k, k + 1 + int(j[0])))
+        if len(out) > max_pairs:
+            out = [out[i] for i in np.linspace(0, len(out) - 1, max_pairs).astype(int)]
+        return out
+
+    def measure(pairs):
+        A_list, B_list = [], []
+        for k, j in pairs:
+            ck, cj = cloud(k), cloud(j)
+            if len(ck) < 500 or len(cj) < 500:
+                continue
+            B = R_w[k].T @ R_w[j]
+            init = np.eye(4)
+            init[:3, :3] = R_guess.T @ B @ R_guess
+            try:
+                r = reg.register(cj, ck, method="gicp", init=init, voxel_size=0.1,
+                                 max_correspondence_distance=[1.0, 0.3, 0.15],
+                                 num_threads=num_threads)
+            except ValueError:
+                continue
+            # a turn's angle is the same in any frame: a registration that disagrees with
+            # the IMU's by more than 1° slipped (a corridor, little shared view)
+            ang_a = Rotation.from_matrix(r.T_target_source[:3, :3]).magnitude()
+            ang_b = Rotation.from_matrix(B).magnitude()
+            if r.fitness < 0.5 or abs(np.degrees(ang_a - ang_b)) > 1.0:
+                continue
+            A_list.append(r.T_target_source)
+            B_list.append(B)
+        return A_list, B_list
+
+    # pairs turned by ``pair_turn_deg`` (a rotation's axis is the better measured the bigger
+    # the turn; a near-vertical spin axis sees little of floor and ceiling, and only the axis
+    # tells its tilt), spread over the station, the IMU's turn as the registration's start;
+    # where big turns share too little view (a mount on its side), smaller ones, then
+    # consecutive windows
     A_list, B_list = [], []
-    for k in range(min(len(times) - 1, max_pairs)):
-        if len(clouds[k]) < 500 or len(clouds[k + 1]) < 500:
-            continue
-        R_a = orient.rotation_at(np.array([times[k] + int(window_s * 0.5e9)]))[0]
-        R_b = orient.rotation_at(np.array([times[k + 1] + int(window_s * 0.5e9)]))[0]
-        B = R_a.T @ R_b
-        try:
-            r = reg.register(clouds[k + 1], clouds[k], method="gicp", voxel_size=0.1,
-                             max_correspondence_distance=[1.0, 0.3, 0.15],
-                             num_threads=num_threads)
-        except ValueError:
-            continue
-        if r.fitness < 0.5:
-            continue
-        A_list.append(r.T_target_source)
-        B_list.append(B)
+    for min_deg in (pair_turn_deg, pair_turn_deg / 2, 0.0):
+        pairs = pairs_turned(min_deg)
+        probe = pairs[:: max(1, len(pairs) // 4)][:4]  # a few first: do such turns register?
+        A_list, B_list = measure(probe)
+        if len(A_list) >= 3 or min_deg == 0.0:
+            more = measure([p for p in pairs if p not in probe])
+            A_list, B_list = A_list + more[0], B_list + more[1]
+            break
     if len(A_list) < 3:
         raise ValueError("too few usable turns to calibrate the lidar mount from the data")
     a = np.array([_rotvec(A[:3, :3]) for A in A_list])
@@ -195,3 +244,348 @@ def calibrate_mount(lidar: LidarPackets, stations: list[Station], orient: ImuOri
     return Extrinsic(R_il, ell, "calibrated"), {
         "station": st.index, "pairs": len(A_list), "axis_singular_values": S.tolist(),
         "rotation_residual_deg_median": float(np.median(resid))}
+
+
+# ---- self-calibration: lever arm, time offset and mount rotation from the stations' geometry ----
+def pan_axis_in_imu(orient: ImuOrientation, stations: list[Station], step_s: float = 0.2
+                    ) -> np.ndarray:
+    """The head's pan axis b (3,) in the IMU frame: the rate-weighted mean axis of the IMU's
+    short relative rotations R(t)ᵀR(t+step) over the stations (sign: the dominant turn)."""
+    from scipy.spatial.transform import Rotation
+
+    vecs = []
+    for st in stations:
+        t = np.arange(st.start_ns, st.end_ns - int(step_s * 1e9), int(step_s * 1e9),
+                      dtype=np.int64)
+        if len(t) < 2:
+            continue
+        Ra = orient.rotation_at(t)
+        Rb = orient.rotation_at(t + int(step_s * 1e9))
+        vecs.append(Rotation.from_matrix(np.einsum("nji,njk->nik", Ra, Rb)).as_rotvec())
+    if not vecs:
+        return np.array([0.0, 0.0, 1.0])
+    v = np.concatenate(vecs)
+    # sign-free mean axis: the principal direction of Σ v vᵀ (bigger turns weigh more)
+    w, V = np.linalg.eigh(v.T @ v)
+    b = V[:, -1]
+    if float(np.sum(v @ b)) < 0:
+        b = -b
+    return b / np.linalg.norm(b)
+
+
+def _perp_basis(b: np.ndarray) -> np.ndarray:
+    """(3, 2) orthonormal basis of the plane perpendicular to unit vector b."""
+    a = np.array([1.0, 0.0, 0.0]) if abs(b[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    u = np.cross(b, a)
+    u /= np.linalg.norm(u)
+    return np.stack([u, np.cross(b, u)], axis=1)
+
+
+@dataclass
+class SelfCalibration:
+    """Rig calibration estimated from the stations' own geometry (``self_calibrate``).
+
+    Attributes
+    ----------
+    R_imu_lidar : (3, 3) refined mount rotation
+    lever_arm_m : (3,) [m] pivot → lidar in the IMU frame; its component along ``pan_axis_imu``
+        is the prior's (unobservable: it moves every fragment rigidly along the pan axis)
+    lever_arm_sigma_m : (2,) [m] 1-sigma of the two components across the pan axis
+    pan_axis_imu : (3,) unit pan axis in the IMU frame
+    time_offset_ns : int, added to the IMU's lidar-clock stamps
+    time_offset_sigma_ms : float [ms] 1-sigma
+    rotation_sigma_deg : float [deg] 1-sigma of the two observable mount tilts (largest)
+    time_offset_observable, lever_arm_observable, rotation_observable : bool
+    stations : list of station indices used; residual_m : robust residual RMS [m]
+    """
+
+    R_imu_lidar: np.ndarray
+    lever_arm_m: np.ndarray
+    lever_arm_sigma_m: np.ndarray
+    pan_axis_imu: np.ndarray
+    time_offset_ns: int
+    time_offset_sigma_ms: float
+    rotation_sigma_deg: float
+    rotation_change_deg: float
+    time_offset_observable: bool
+    lever_arm_observable: bool
+    rotation_observable: bool
+    stations: list[int]
+    residual_m: float
+    pairs: int
+    iterations: list[dict] = field(default_factory=list)
+
+    @property
+    def lever_arm_across_m(self) -> float:
+        """Length of the lever arm across the pan axis [m]."""
+        b = self.pan_axis_imu
+        return float(np.linalg.norm(self.lever_arm_m - b * (b @ self.lever_arm_m)))
+
+    def to_dict(self) -> dict:
+        from scipy.spatial.transform import Rotation
+
+        x, y, z, w = Rotation.from_matrix(self.R_imu_lidar).as_quat()
+        return {
+            "q_imu_lidar": [float(w), float(x), float(y), float(z)],
+            "lever_arm_m": self.lever_arm_m.tolist(),
+            "lever_arm_across_axis_m": self.lever_arm_across_m,
+            "lever_arm_sigma_m": self.lever_arm_sigma_m.tolist(),
+            "lever_arm_along_axis": "unobservable (shifts every fragment rigidly along the pan "
+                                    "axis; kept at the prior)",
+            "pan_axis_imu": self.pan_axis_imu.tolist(),
+            "imu_time_offset_ms": self.time_offset_ns * 1e-6,
+            "imu_time_offset_sigma_ms": self.time_offset_sigma_ms,
+            "mount_rotation_sigma_deg": self.rotation_sigma_deg,
+            "mount_rotation_change_deg": self.rotation_change_deg,
+            "observable": {"lever_arm": self.lever_arm_observable,
+                           "time_offset": self.time_offset_observable,
+                           "mount_rotation": self.rotation_observable},
+            "stations": self.stations, "residual_m": self.residual_m, "pairs": self.pairs,
+        }
+
+
+def _pick_stations(stations: list[Station], orient: ImuOrientation, n: int) -> list[Station]:
+    """Up to n stations with the most turning (spread over the recording when tied)."""
+    def turn(st):
+        t = np.linspace(st.start_ns, st.end_ns, 24).astype(np.int64)
+        return float(np.sum(orient.angular_rate(t[1:-1]))) * (st.end_ns - st.start_ns) / 22e9
+
+    ranked = sorted(stations, key=turn, reverse=True)
+    return sorted(ranked[:n], key=lambda s: s.start_ns)
+
+
+def _station_points(lidar: LidarPackets, st: Station, n: int, seed: int, max_range: float,
+                    orient: ImuOrientation | None = None):
+    """About n points of a station (every few packets decoded, then a random subset). With
+    ``orient``, points fired while the head turns slowly (rests, ramps, a hand's pauses) are
+    taken 4x as densely: the time offset shows only between those and the fast ones."""
+    n_pk = st.packet_stop - st.packet_start
+    stride = max(1, int(n_pk * 300 / (10 * n)))  # ~300 points a packet after the range cut
+    idx = np.arange(st.packet_start, st.packet_stop, stride)
+    pts = decode_timed_points(lidar.payload[idx], lidar.lidar_ns[idx], 0, len(idx),
+                              min_range=1.0, max_range=max_range)
+    if len(pts) > n:
+        rng = np.random.default_rng(seed)
+        w = np.ones(len(pts))
+        if orient is not None:
+            grid = np.linspace(st.start_ns, st.end_ns, 200).astype(np.int64)
+            rate = np.linalg.norm(_world_rate(orient, grid), axis=1)
+            slow = np.interp(pts["time_ns"], grid, rate) < 0.7 * np.percentile(rate, 95)
+            w[slow] = 4.0
+        pts = pts[np.sort(rng.choice(len(pts), n, replace=False, p=w / w.sum()))]
+    xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=1).astype(np.float64)
+    return xyz, pts["time_ns"].astype(np.int64)
+
+
+def _world_rate(orient: ImuOrientation, t_ns: np.ndarray, h_ns: int = 100_000_000
+                ) -> np.ndarray:
+    """World-frame angular velocity (N, 3) [rad/s] of the IMU at t_ns (central difference of
+    the quaternions over h_ns: q_b ⊗ q_a* ≈ (1, ω h / 2)). A long baseline: the IMU's
+    per-sample noise (0.05° at 100 Hz) would make a 10 ms difference noisier than the rate
+    (and a noisy Jacobian biases the time offset toward zero)."""
+    qa = orient.quat_at(t_ns - h_ns // 2)
+    qb = orient.quat_at(t_ns + h_ns // 2)
+    wa, va = qa[:, 0], -qa[:, 1:]  # conjugate of q_a
+    wb, vb = qb[:, 0], qb[:, 1:]
+    w = wb * wa - np.einsum("ni,ni->n", vb, va)
+    v = wb[:, None] * va + wa[:, None] * vb + np.cross(vb, va)
+    v *= np.sign(w)[:, None]
+    return 2.0 * v / (h_ns * 1e-9)
+
+
+def _voxel_plane_residuals(p: np.ndarray, J: np.ndarray, t: np.ndarray, voxel_m: float,
+                           sep_ns: int) -> tuple[np.ndarray, np.ndarray]:
+    """Point-to-plane residuals (M,) and their Jacobians (M, n_p) of the points of planar voxels
+    seen at moments at least ``sep_ns`` apart.
+
+    Every voxel of ``voxel_m`` holding at least 10 points gets the plane of its points (centroid
+    c, normal n: the covariance's smallest eigenvector); each point's residual is n·(p − c),
+    whose Jacobian n·(J − J̄) is the point's own sensitivity less the voxel's mean — zero when
+    every point of the voxel was fired at one moment (such voxels carry no information and are
+    left out)."""
+    k3 = np.floor(p / voxel_m).astype(np.int64) & 0x1FFFFF  # 21 bits a axis (±100 km at 0.1 m)
+    keys = (k3[:, 0] << 42) | (k3[:, 1] << 21) | k3[:, 2]
+    _, inv, cnt = np.unique(keys, return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    V = len(cnt)
+    t_lo = np.full(V, np.iinfo(np.int64).max)
+    t_hi = np.full(V, np.iinfo(np.int64).min)
+    np.minimum.at(t_lo, inv, t)
+    np.maximum.at(t_hi, inv, t)
+    ok_v = (cnt >= 10) & (t_hi - t_lo > sep_ns)
+    sel = ok_v[inv]
+    if sel.sum() < 100:
+        return np.zeros(0), np.zeros((0, J.shape[2]))
+    # compact the chosen voxels
+    vid = np.cumsum(ok_v) - 1
+    iv = vid[inv[sel]]
+    ps, Js = p[sel], J[sel]
+    W = int(ok_v.sum())
+    n = np.bincount(iv, minlength=W).astype(np.float64)
+    c = np.stack([np.bincount(iv, ps[:, i], W) for i in range(3)], axis=1) / n[:, None]
+    d = ps - c[iv]
+    cov = np.zeros((W, 3, 3))
+    for i in range(3):
+        for j in range(i, 3):
+            cov[:, i, j] = cov[:, j, i] = np.bincount(iv, d[:, i] * d[:, j], W) / n
+    ev, evec = np.linalg.eigh(cov)
+    nrm = evec[:, :, 0]
+    planar = ev[:, 0] < 0.2 * ev[:, 1]
+    Jf = Js.reshape(len(Js), -1)
+    Jbar = np.stack([np.bincount(iv, Jf[:, m], W) for m in range(Jf.shape[1])], axis=1)
+    Jbar = (Jbar / n[:, None]).reshape(W, 3, -1)
+    keep = planar[iv]
+    nn = nrm[iv][keep]
+    r = np.einsum("qi,qi->q", nn, d[keep])
+    Jr = np.einsum("qi,qij->qj", nn, Js[keep] - Jbar[iv][keep])
+    return r, Jr
+
+
+def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
+                   ext: Extrinsic, *, fit_lever: bool = True, fit_time: bool = True,
+                   fit_rotation: bool = True, max_stations: int = 4,
+                   points_per_station: int = 80_000, voxel_m: float = 0.25,
+                   min_separation_s: float = 0.3, iterations: int = 8,
+                   max_range: float = 60.0, sigma_inflation: float = 3.0,
+                   ) -> SelfCalibration:
+    """Lever arm, IMU time offset and mount rotation that make every station self-consistent.
+
+    At a standing station the head turns about a fixed pivot, so a surface seen at two moments
+    of the pan lands in the same place only with the right calibration. With the pivot at the
+    origin, a point x (lidar frame, fired at t) lands at
+
+        p = R_wi(t − δ) · (R_il · exp([φ]×) · x + ℓ)
+
+    which is linear in small changes of the lever arm ℓ (∂p/∂ℓ = R_wi), the time offset δ
+    (∂p/∂δ = −[ω_w]× p, ω_w the IMU's world rate) and the mount rotation φ
+    (∂p/∂φ = −R_wi R_il [x]×). Each station's sample points are gathered in ``voxel_m``
+    voxels (larger in the first iterations); a planar voxel whose points were fired at least
+    ``min_separation_s`` apart (different parts of the pan) pulls them onto one plane (:func:`_voxel_plane_residuals`, the plane adjustment of BALM).
+    Gauss–Newton on the point-to-plane distances (Huber weights, voxels renewed each iteration)
+    gives the calibration and, from the normal matrix, its covariance (times
+    ``sigma_inflation``: a voxel's residuals share its fitted plane).
+
+    What a pan about one axis b cannot see is held at the prior: ℓ along b (moves the fragment
+    rigidly) and the mount's turn about b (turns it). The time offset is seen where the turn
+    rate changes (the pan's start and stop, a hand-turned head); at a constant rate it only
+    turns the fragment, and its sigma says so.
+    """
+    from scipy.spatial.transform import Rotation
+
+    use = _pick_stations(stations, orient, max_stations)
+    b = pan_axis_in_imu(orient, use)
+    U_l = _perp_basis(b)  # lever arm directions across the pan axis (IMU frame)
+    R_il = ext.R_imu_lidar.copy()
+    ell = ext.lever_arm_m.astype(np.float64).copy()
+    off = orient.time_offset_ns
+    data = [_station_points(lidar, st, points_per_station, 11 + k, max_range,
+                            orient if fit_time else None) for k, st in enumerate(use)]
+    sep_ns = int(min_separation_s * 1e9)
+    cols = (["l1", "l2"] if fit_lever else []) + (["dt"] if fit_time else []) + (
+        ["r1", "r2"] if fit_rotation else [])
+    n_p = len(cols)
+    history: list[dict] = []
+    H = np.zeros((n_p, n_p))
+    s_rob, n_pairs = float("nan"), 0
+    prev_step = None
+    for it in range(iterations):
+        o = orient.with_offset(off)
+        U_r = _perp_basis(R_il.T @ b)  # mount tilts the pan can see (lidar frame)
+        H = np.zeros((n_p, n_p))
+        g = np.zeros(n_p)
+        all_r, all_J = [], []
+        for xyz, t in data:
+            if len(xyz) < 500:
+                continue
+            R_wi = o.rotation_at(t)
+            v = xyz @ R_il.T + ell
+            p = np.einsum("nij,nj->ni", R_wi, v)
+            J = np.zeros((len(p), 3, n_p))
+            c = 0
+            if fit_lever:
+                J[:, :, c:c + 2] = R_wi @ U_l
+                c += 2
+            if fit_time:
+                # a later offset reads the IMU earlier: R(t − δ), ∂p/∂δ = −ω × p
+                w = _world_rate(o, t)  # (N, 3) [rad/s]
+                J[:, :, c] = -np.cross(w, p)
+                c += 1
+            if fit_rotation:
+                # ∂p/∂φ·u = −R_wi R_il [x]× u = −R_wi R_il (x × u) for the seen tilts u ∈ U_r
+                R_wl = R_wi @ R_il
+                for m in range(2):
+                    J[:, :, c + m] = -np.einsum("nij,nj->ni", R_wl, np.cross(xyz, U_r[:, m]))
+            # coarse to fine: a large lever-arm error doubles surfaces by twice its size, which
+            # small voxels would see as two planes (or none)
+            vox = voxel_m * max(1.0, 2.4 / (1.0 + it))
+            r, Jr = _voxel_plane_residuals(p, J, t, vox, sep_ns)
+            if len(r):
+                all_r.append(r)
+                all_J.append(Jr)
+        if not all_r:
+            raise ValueError("no surface seen twice at a station: nothing to calibrate on")
+        r = np.concatenate(all_r)
+        Jr = np.concatenate(all_J)
+        n_pairs = len(r)
+        s_rob = 1.4826 * float(np.median(np.abs(r - np.median(r)))) + 1e-6
+        hub = 1.345 * s_rob
+        wgt = np.where(np.abs(r) < hub, 1.0, hub / np.maximum(np.abs(r), 1e-12))
+        H = (Jr * wgt[:, None]).T @ Jr
+        g = (Jr * wgt[:, None]).T @ r
+        # scale columns for conditioning; tiny eigenvalues (no information) are left out
+        sc = np.sqrt(np.maximum(np.diag(H), 1e-30))
+        Hs = H / np.outer(sc, sc)
+        ew, EV = np.linalg.eigh(Hs)
+        keep = ew > 1e-6 * ew.max()
+        step_s = -(EV[:, keep] @ ((EV[:, keep].T @ (g / sc)) / ew[keep]))
+        step = step_s / sc
+        # the planes refitted each iteration absorb part of the error (a blurred surface gets a
+        # tilted normal), so steps shrink geometrically; a parameter whose steps keep their
+        # sign and shrink by ρ is moved to the limit of that series (Aitken), ≤ 3x the step
+        if prev_step is not None:
+            rho = step / np.where(np.abs(prev_step) > 0, prev_step, np.inf)
+            acc = (rho > 0.05) & (rho < 0.8)
+            step = np.where(acc, step / (1.0 - np.clip(rho, 0.0, 2.0 / 3.0)), step)
+        prev_step = step_s / sc
+        c = 0
+        if fit_lever:
+            ell = ell + U_l @ step[c:c + 2]
+            c += 2
+        if fit_time:
+            dt_s = float(np.clip(step[c], -0.05, 0.05))
+            off = int(round(off + dt_s * 1e9))
+            c += 1
+        if fit_rotation:
+            phi = U_r @ step[c:c + 2]
+            R_il = R_il @ Rotation.from_rotvec(phi).as_matrix()
+        history.append({"residual_m": s_rob, "pairs": n_pairs, "step": step.tolist(),
+                        "lever_arm_m": ell.tolist(), "time_offset_ms": off * 1e-6})
+        small = (not fit_lever or np.all(np.abs(step[:2]) < 1e-4)) and (
+            not fit_time or abs(step[2 if fit_lever else 0]) < 5e-5)
+        if small and vox <= voxel_m:
+            break
+    # covariance: robust residual variance over the information, inflated (shared planes)
+    try:
+        cov = np.linalg.inv(H) * s_rob**2 * sigma_inflation**2
+    except np.linalg.LinAlgError:
+        cov = np.full((n_p, n_p), np.inf)
+    sig = np.sqrt(np.abs(np.diag(cov)))
+    c = 0
+    l_sig = np.full(2, np.nan)
+    t_sig = float("nan")
+    r_sig = float("nan")
+    if fit_lever:
+        l_sig = sig[c:c + 2]
+        c += 2
+    if fit_time:
+        t_sig = float(sig[c]) * 1e3
+        c += 1
+    if fit_rotation:
+        r_sig = float(np.degrees(sig[c:c + 2].max()))
+    rot_change = float(np.degrees(Rotation.from_matrix(ext.R_imu_lidar.T @ R_il).magnitude()))
+    return SelfCalibration(
+        R_il, ell, l_sig, b, off, t_sig, r_sig, rot_change,
+        time_offset_observable=bool(fit_time and t_sig < 0.5),
+        lever_arm_observable=bool(fit_lever and np.all(l_sig < 0.003)),
+        rotation_observable=bool(fit_rotation and r_sig < 0.05),
+        stations=[st.index for st in use], residual_m=s_rob, pairs=n_pairs, iterations=history)

@@ -33,16 +33,34 @@ class PlacementConfig(StrictModel):
     max_range_m: float = Field(default=100.0, gt=0)
 
 
+class CalibrationConfig(StrictModel):
+    """Calibration from the data (``reconstruction.calibration.self_calibrate``): what the
+    config leaves null is estimated from the stations' self-consistency."""
+
+    #: estimate the lever arm (across the pan axis) when placement.extrinsic.lever_arm_m is null
+    lever_arm: bool = True
+    #: estimate the IMU time offset when placement.imu_time_offset_s is null
+    time_offset: bool = True
+    #: refine the mount's tilts when placement.extrinsic.q_imu_lidar is null
+    mount_rotation: bool = True
+    #: stations used (those the head turns most in)
+    max_stations: int = Field(default=4, ge=1)
+    #: a time offset less certain than this [ms, 1 sigma] is not applied (kept at the prior)
+    max_time_offset_sigma_ms: float = Field(default=2.0, gt=0)
+
+
 class StationConfig(StrictModel):
     #: lidar stationarity test: a 0.1 s window of points, rotated by the IMU about the head's
     #: pivot, is "still" when the pivot shift fitted to the range changes along the directions
-    #: it shares with the window ``still_gap_s`` earlier is below this [m]
+    #: it shares with the window ``still_gap_s`` earlier (less the lever arm's own apparent
+    #: shift) is below this [m]
     still_threshold: float = Field(default=0.02, gt=0)
     still_gap_s: float = Field(default=0.5, gt=0)
-    #: ... and the head's pan axis (IMU) tilts by less than this [deg] in that time
+    #: ... and the head swings off its pan axis (IMU) by less than this [deg] in that time
     still_tilt_deg: float = Field(default=0.25, gt=0)
-    #: shortest station [s]; shorter still periods are merged into the carry
-    min_station_s: float = Field(default=3.0, gt=0)
+    #: shortest station [s] (the still period, before trimming); shorter still periods are
+    #: reported and not used
+    min_station_s: float = Field(default=2.5, gt=0)
     #: seconds trimmed from both ends of a station (the tripod settling)
     trim_s: float = Field(default=0.5, ge=0)
     #: use the daemon's ``mark`` events when present (each station is matched to its mark)
@@ -125,6 +143,7 @@ class ReconstructConfig(StrictModel):
     num_threads: int = Field(default=0, ge=0)  # 0 = all cores
     placement: PlacementConfig = PlacementConfig()
     stations: StationConfig = StationConfig()
+    calibration: CalibrationConfig = CalibrationConfig()
     fragments: FragmentConfig = FragmentConfig()
     odometry: OdometryConfig = OdometryConfig()
     slam: SlamConfig = SlamConfig()

@@ -163,6 +163,31 @@ def load_sim_truth(sim_dir) -> tuple[np.ndarray, np.ndarray]:
     return t + int(clocks.get("lidar_clock_offset_ns", 0)), T
 
 
+def true_time_offset_ns(sim_dir, recording) -> int:
+    """The IMU time offset a processor should find for a ``tripod simulate`` capture, in the
+    processor's terms: what to add to the IMU's de-jittered, clock-mapped stamps to put each
+    sample at the lidar time of the instant it describes.
+
+    That is minus the IMU's latency *plus* the receive delay of the lidar packets that the host
+    → lidar clock map absorbs (a packet is stamped at its first firing and arrives after its
+    last: ~1.4 ms for a VLP-16), so it is not simply −latency_ms."""
+    import json
+    from pathlib import Path
+
+    from tripod_shared.timebase import same_hour_shift_ns
+
+    from .placement import ImuOrientation, fit_clock_map
+
+    d = Path(sim_dir)
+    raw = np.loadtxt(d / "gt" / "imu_truth.csv", delimiter=",", dtype=np.int64, usecols=(0, 1))
+    clocks = json.loads((d / "gt" / "clocks.json").read_text())
+    true_lidar = raw[:, 1] + int(clocks["lidar_clock_offset_ns"])
+    base = ImuOrientation(recording.imu, fit_clock_map(recording.lidar))._base_t
+    n = min(len(base), len(true_lidar))
+    shift = same_hour_shift_ns(int(true_lidar[0]), int(base[0]))
+    return int(np.median(true_lidar[:n] + shift - base[:n]))
+
+
 def same_hour(truth_t_ns: np.ndarray, t_ns: np.ndarray) -> np.ndarray:
     """Truth times moved by whole hours onto our time line.
 

@@ -20,7 +20,6 @@ from tripod_shared.config_io import dump_config
 from ..io import clouds as cloud_io
 from ..preprocess import mls_smooth, voxel_downsample
 from . import outputs
-from .calibration import estimate_time_offset
 from .config import ReconstructConfig
 from .fragments import Fragment, build_fragment
 from .inputs import Recording, RecordingError, read_recording
@@ -45,6 +44,7 @@ class ReconstructResult:
     files: dict[str, str] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     time_offset_info: dict = field(default_factory=dict)
+    calibration: dict = field(default_factory=dict)  # effective calibration (calibration.json)
 
     @property
     def station_t_ns(self) -> np.ndarray:
@@ -124,23 +124,43 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
     marks = [(int(clock.to_lidar(np.array([h]))[0]), label) for h, label in rec.marks]
     with _Stage(times, "stations", n_windows, quiet) as bar:
         seg = segment_stations(rec.lidar, orient, ext, cfg.stations, marks, progress=bar)
+    uncalibrated = (pc.extrinsic.q_imu_lidar is None or pc.extrinsic.lever_arm_m is None)
+    loose_pass = not seg.stations and uncalibrated
+    if loose_pass:
+        # a rig far from the defaults can blur the lidar's cue everywhere: stations to
+        # calibrate on from the IMU's cue alone (the second pass below decides)
+        loose = cfg.stations.model_copy(update={"still_threshold": 1.0})
+        with _Stage(times, "stations", n_windows, quiet) as bar:
+            seg = segment_stations(rec.lidar, orient, ext, loose, marks, progress=bar)
     notes += seg.notes
     if not seg.stations:
         raise RecordingError(f"{recording_path}: no station found (no period where the tripod "
                              f"stands for {cfg.stations.min_station_s:g} s)")
 
-    # 3b. the mount rotation from the data (hand-eye) when not given; the segmentation above
-    # used identity, good enough to find still periods when the IMU sits near the lidar's axes
+    # 4. calibration from the data: the mount rotation (hand-eye) when not given, then the lever
+    # arm, the IMU time offset and the mount's tilts from the stations' self-consistency; the
+    # segmentation above needed none of them (it takes the lever arm's apparent shift out)
+    calib = None
+    ext_seg = Extrinsic(ext.R_imu_lidar.copy(), ext.lever_arm_m.copy(), ext.source)
     if pc.extrinsic.q_imu_lidar is None:
         ext, orient = _calibrate_mount(rec, seg, orient, ext, pc, threads, times, quiet, notes)
-
-    # 4. IMU time offset (from the data unless configured)
+    fit_lever = pc.extrinsic.lever_arm_m is None and cfg.calibration.lever_arm
+    fit_time = pc.imu_time_offset_s is None and cfg.calibration.time_offset
+    fit_rot = pc.extrinsic.q_imu_lidar is None and cfg.calibration.mount_rotation
+    if fit_lever or fit_time or fit_rot:
+        with _Stage(times, "calibration", None, quiet):
+            ext, orient, calib = _self_calibrate(rec, seg, orient, ext, cfg, fit_lever,
+                                                 fit_time, fit_rot, notes)
+    if loose_pass or _rig_changed(ext_seg, ext):
+        # 4b. the stations again with the calibrated rig: the first pass only had to find
+        # stations enough to calibrate on; this one sees every station sharply
+        notes = [n for n in notes if n not in seg.notes]
+        with _Stage(times, "stations 2", n_windows, quiet) as bar:
+            seg = segment_stations(rec.lidar, orient, ext, cfg.stations, marks, progress=bar)
+        notes += seg.notes
+        if not seg.stations:
+            raise RecordingError(f"{recording_path}: no station found with the calibrated rig")
     info: dict = {}
-    if pc.imu_time_offset_s is None:
-        with _Stage(times, "time offset", None, quiet):
-            off, info = estimate_time_offset(rec.lidar, seg.stations, orient, ext,
-                                             pc.time_offset_search_s)
-        orient = orient.with_offset(off)
 
     # 5. fragments (with their voxels' intensity when a survey file wants it)
     oc = cfg.output
@@ -167,7 +187,8 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
     notes += slam.notes
 
     res = ReconstructResult(out, rec, seg, frags, slam, ext, orient.time_offset_ns, delta,
-                            times, notes=notes, time_offset_info=info)
+                            times, notes=notes, time_offset_info=info,
+                            calibration=effective_calibration(ext, orient, pc, calib))
 
     # 8. outputs
     with _Stage(times, "outputs", None, quiet):
@@ -223,22 +244,110 @@ def trajectory(res: ReconstructResult, orient: ImuOrientation, hz: float
 
 def _calibrate_mount(rec, seg, orient, ext, pc, threads, times, quiet, notes):
     """(extrinsic, orientation) with the mount rotation calibrated from the data (hand-eye);
-    identity, and a note, when that fails."""
+    identity, and a note, when that fails. When the lever arm is not given either, hand-eye's
+    rough one is the self-calibration's starting point."""
     from .calibration import calibrate_mount
 
     with _Stage(times, "mount calib", None, quiet):
         try:
             cal, calib_info = calibrate_mount(rec.lidar, seg.stations, orient, threads)
-            ext = Extrinsic(cal.R_imu_lidar, ext.lever_arm_m, "calibrated rotation")
+            ell = ext.lever_arm_m
+            if pc.extrinsic.lever_arm_m is None and np.linalg.norm(cal.lever_arm_m) < 0.3:
+                ell = cal.lever_arm_m
+            ext = Extrinsic(cal.R_imu_lidar, ell, "calibrated rotation")
             notes.append("lidar-IMU mount rotation calibrated from the data (hand-eye, "
-                         f"median residual {calib_info['rotation_residual_deg_median']:.2f}°)"
-                         "; lever arm " + ("from the config" if pc.extrinsic.lever_arm_m
-                                           else "not given: 0 (fragments blur by up to "
-                                           "twice the real lever arm)"))
+                         f"median residual {calib_info['rotation_residual_deg_median']:.2f}°)")
         except ValueError as exc:
             ext.source = "default"
             notes.append(f"mount calibration failed ({exc}): identity assumed")
     return ext, ImuOrientation(rec.imu, orient.clock, orient.time_offset_ns)
+
+
+def _rig_changed(a: Extrinsic, b: Extrinsic) -> bool:
+    """Did the calibration move the rig enough to change what the station splitter sees (the
+    lever arm by 5 mm, the mount by 0.1°)?"""
+    from scipy.spatial.transform import Rotation
+
+    dR = Rotation.from_matrix(a.R_imu_lidar.T @ b.R_imu_lidar).magnitude()
+    return bool(np.linalg.norm(a.lever_arm_m - b.lever_arm_m) > 0.005
+                or np.degrees(dR) > 0.1)
+
+
+def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, notes):
+    """(extrinsic, orientation, SelfCalibration | None) refined from the stations' geometry;
+    what the data cannot see well is warned about (and a time offset not seen at all is kept
+    at the prior)."""
+    from .calibration import self_calibrate
+
+    cc = cfg.calibration
+    try:
+        cal = self_calibrate(rec.lidar, seg.stations, orient, ext, fit_lever=fit_lever,
+                             fit_time=fit_time, fit_rotation=fit_rot,
+                             max_stations=cc.max_stations)
+        if fit_rot and not cal.rotation_observable:
+            # the stations hardly see the mount's tilt (a spin axis near the pan axis in a
+            # small room): hand-eye's tilt is the better one; the rest again with it held
+            if fit_lever or fit_time:
+                cal = self_calibrate(rec.lidar, seg.stations, orient, ext, fit_lever=fit_lever,
+                                     fit_time=fit_time, fit_rotation=False,
+                                     max_stations=cc.max_stations)
+            fit_rot = False
+            notes.append("WARNING: mount tilt poorly observable from the stations' surfaces; "
+                         "hand-eye's kept")
+    except ValueError as exc:
+        notes.append(f"self-calibration failed ({exc}): the lever arm and time offset stay at "
+                     "their priors")
+        return ext, orient, None
+    if fit_lever:
+        if cal.lever_arm_observable:
+            pass
+        else:
+            notes.append("WARNING: lever arm poorly observable (σ "
+                         f"{np.max(cal.lever_arm_sigma_m) * 1000:.1f} mm): few surfaces seen "
+                         "from opposite sides of the pan")
+    off = orient.time_offset_ns
+    if fit_time:
+        if cal.time_offset_sigma_ms <= cc.max_time_offset_sigma_ms:
+            off = cal.time_offset_ns
+            if not cal.time_offset_observable:
+                notes.append(f"WARNING: IMU time offset poorly observable (σ "
+                             f"{cal.time_offset_sigma_ms:.2f} ms): the head turns at a nearly "
+                             "constant rate (a time offset then only turns each station)")
+        else:
+            notes.append(f"WARNING: IMU time offset not observable (σ "
+                         f"{cal.time_offset_sigma_ms:.1f} ms): kept at "
+                         f"{orient.time_offset_ns * 1e-6:.2f} ms")
+    R = cal.R_imu_lidar if fit_rot else ext.R_imu_lidar
+    ell = cal.lever_arm_m if fit_lever else ext.lever_arm_m
+    src = ext.source if not fit_lever else (
+        "calibrated" if ext.source.startswith("calibrated") or fit_rot else "config rotation, "
+        "calibrated lever arm")
+    return Extrinsic(R, ell, src), orient.with_offset(off), cal
+
+
+def effective_calibration(ext: Extrinsic, orient: ImuOrientation, pc, cal) -> dict:
+    """The calibration the run used, each value with its source and (when estimated) its
+    uncertainty and observability (written as calibration.json)."""
+    lever_src = "config" if pc.extrinsic.lever_arm_m is not None else (
+        "data" if cal is not None and cal.lever_arm_sigma_m is not None
+        and np.all(np.isfinite(cal.lever_arm_sigma_m)) else "default (0)")
+    out = {
+        "q_imu_lidar": ext.q_imu_lidar_wxyz,
+        "lever_arm_m": [float(v) for v in ext.lever_arm_m],
+        "imu_time_offset_s": orient.time_offset_ns * 1e-9,
+        "source": {
+            "q_imu_lidar": "config" if pc.extrinsic.q_imu_lidar is not None else (
+                "default (identity)" if ext.source == "default" else
+                "data (hand-eye, tilts refined)" if cal is not None
+                and np.isfinite(cal.rotation_sigma_deg) else "data (hand-eye)"),
+            "lever_arm_m": lever_src,
+            "imu_time_offset_s": "config" if pc.imu_time_offset_s is not None else (
+                "data" if cal is not None and np.isfinite(cal.time_offset_sigma_ms)
+                else "default (0)")},
+    }
+    if cal is not None:
+        out["estimate"] = cal.to_dict()
+    return out
 
 
 def _write_outputs(res: ReconstructResult, cfg: ReconstructConfig, orient: ImuOrientation) -> None:
@@ -301,6 +410,9 @@ def _write_outputs(res: ReconstructResult, cfg: ReconstructConfig, orient: ImuOr
     res.files["pose_graph"] = str(out / "pose_graph.g2o")
     dump_config(cfg, out / "config.yaml")
     res.files["config"] = str(out / "config.yaml")
+    # the effective calibration: loads back with --calibration (q_imu_lidar, lever_arm_m)
+    outputs.write_json(out / "calibration.json", res.calibration)
+    res.files["calibration"] = str(out / "calibration.json")
     if attrs is not None and oc.write_las != "none":
         from ..io.las import write_las
 
@@ -348,6 +460,7 @@ def summary(res: ReconstructResult) -> dict:
         "disconnected_stations": slam.disconnected,
         "marks": len(res.recording.marks),
         "imu_time_offset_ms": res.time_offset_ns * 1e-6,
+        "calibration": res.calibration,
         "host_minus_lidar_ms": res.host_minus_lidar_ns * 1e-6,
         "extrinsic": {"q_imu_lidar": res.extrinsic.q_imu_lidar_wxyz,
                       "lever_arm_m": res.extrinsic.lever_arm_m.tolist(),

@@ -72,22 +72,53 @@ def plot_odometry_vs_optimized(path: Path, T_odom: np.ndarray, T_opt: np.ndarray
     plt.close(fig)
 
 
-def plot_segmentation(path: Path, t_ns: np.ndarray, motion: np.ndarray, still: np.ndarray,
-                      spans: list[tuple[int, int]], threshold: float) -> None:
+def plot_station_timeline(path: Path, seg, t0_ns: int, threshold_m: float, tilt_deg: float
+                          ) -> None:
+    """The station timeline: the lidar's pivot shift and the IMU's swing off the pan axis over
+    time with their thresholds, and a band of still windows, stations (numbered), still periods
+    too short for a station, and the operator's marks."""
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(10, 2.8), dpi=110)
-    t0 = t_ns[0] if len(t_ns) else 0
-    ts = (t_ns - t0) * 1e-9
-    m = np.where(np.isfinite(motion), motion, np.nan)
-    ax.plot(ts, m, "-", c="0.3", lw=0.8, label="pivot shift")
-    ax.axhline(threshold, c="tab:red", lw=0.8, ls="--", label="still threshold")
-    for a, b in spans:
-        ax.axvspan((a - t0) * 1e-9, (b - t0) * 1e-9, color="tab:green", alpha=0.2)
-    ax.set_yscale("log")
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("pivot shift in 0.5 s [m]")
-    ax.set_title("station segmentation (green: stations)")
-    ax.legend(fontsize=8, loc="upper right")
+    fig, ax = plt.subplots(3, 1, figsize=(11, 5.2), dpi=110, sharex=True,
+                           gridspec_kw={"height_ratios": [2, 1.3, 0.9]})
+    ts = (seg.t_ns - t0_ns) * 1e-9
+    m = np.where(np.isfinite(seg.motion_m), seg.motion_m, np.nan)
+    ax[0].plot(ts, np.maximum(m, 1e-4), "-", c="0.3", lw=0.8, label="pivot shift (lidar)")
+    ax[0].axhline(threshold_m, c="tab:red", lw=0.8, ls="--", label="still threshold")
+    ax[0].set_yscale("log")
+    ax[0].set_ylabel("pivot shift\nin 0.5 s [m]")
+    ax[0].legend(fontsize=7, loc="upper right")
+    if seg.tilt_deg is not None:
+        ax[1].plot(ts, np.maximum(seg.tilt_deg, 1e-3), "-", c="tab:purple", lw=0.8,
+                   label="swing off the pan axis (IMU)")
+        ax[1].axhline(tilt_deg, c="tab:red", lw=0.8, ls="--")
+        ax[1].set_yscale("log")
+        ax[1].legend(fontsize=7, loc="upper right")
+    ax[1].set_ylabel("swing\nin 0.5 s [°]")
+    b = ax[2]
+    still = np.asarray(seg.still, dtype=bool)
+    dt = float(ts[1] - ts[0]) if len(ts) > 1 else 0.5
+    for k in np.flatnonzero(still):
+        b.axvspan(ts[k], ts[k] + dt, ymin=0.0, ymax=0.3, color="0.75", lw=0)
+    for st in seg.stations:
+        a, e = (st.start_ns - t0_ns) * 1e-9, (st.end_ns - t0_ns) * 1e-9
+        b.axvspan(a, e, ymin=0.35, ymax=0.95, color="tab:green", alpha=0.6, lw=0)
+        b.text(0.5 * (a + e), 0.65, str(st.index), ha="center", va="center", fontsize=7)
+        for x in (ax[0], ax[1]):
+            x.axvspan(a, e, color="tab:green", alpha=0.12, lw=0)
+    for a_ns, e_ns in getattr(seg, "short", []):
+        b.axvspan((a_ns - t0_ns) * 1e-9, (e_ns - t0_ns) * 1e-9, ymin=0.35, ymax=0.95,
+                  color="tab:orange", alpha=0.7, lw=0)
+    for t_mark, label in getattr(seg, "marks", []):
+        x = (t_mark - t0_ns) * 1e-9
+        for a_ in ax:
+            a_.axvline(x, c="tab:blue", lw=0.8)
+        b.text(x, 1.0, f" {label}", fontsize=6, va="bottom", color="tab:blue", rotation=30)
+    b.set_yticks([])
+    b.set_ylim(0, 1)
+    b.set_xlabel("time [s]")
+    b.set_ylabel("still /\nstations", fontsize=8)
+    ax[0].set_title("station timeline (grey: still windows; green: stations; orange: still but "
+                    "too short; blue: marks)", fontsize=9)
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
@@ -133,6 +164,50 @@ def plot_plane_violins(path: Path, errors: list[dict[str, np.ndarray]]) -> dict:
     return stats
 
 
+def calibration_section(cal: dict) -> list[str]:
+    """Markdown lines of the report's calibration section (from the run's calibration.json)."""
+    est = cal.get("estimate") or {}
+    src = cal.get("source", {})
+    obs = est.get("observable", {})
+
+    def seen(key):
+        if key not in obs:
+            return "—"
+        return "well observed" if obs[key] else "**poorly observable**"
+
+    lines = ["## Calibration", "",
+             "Values the run used (`calibration.json`; it loads back with `--calibration`). "
+             "Estimated from the data when the config leaves them out: the stations' own "
+             "surfaces, seen at different moments of each pan, must coincide "
+             "(see the README's reconstruction method).", "",
+             "| quantity | value | 1σ | source | observability |", "|---|---|---|---|---|"]
+    lev = np.asarray(cal.get("lever_arm_m", [0, 0, 0]))
+    ls = est.get("lever_arm_sigma_m")
+    lines.append(f"| lever arm (pivot → lidar, IMU frame) | {np.round(lev * 100, 2).tolist()} cm "
+                 f"| {np.round(np.asarray(ls) * 1000, 2).tolist() if ls else '—'} mm (across "
+                 f"the pan axis) | {src.get('lever_arm_m', '')} | {seen('lever_arm')} |")
+    if est:
+        lines.append(f"| lever arm across the pan axis | "
+                     f"{est['lever_arm_across_axis_m'] * 100:.2f} cm | | | |")
+        lines.append("| lever arm along the pan axis | kept at the prior | | | unobservable "
+                     "(it moves a whole station alike; changes nothing) |")
+    ts = est.get("imu_time_offset_sigma_ms")
+    lines.append(f"| IMU time offset | {cal.get('imu_time_offset_s', 0.0) * 1e3:.2f} ms | "
+                 f"{f'{ts:.2f} ms' if ts is not None and np.isfinite(ts) else '—'} | "
+                 f"{src.get('imu_time_offset_s', '')} | {seen('time_offset')} |")
+    rs = est.get("mount_rotation_sigma_deg")
+    lines.append(f"| mount rotation q_imu_lidar (w, x, y, z) | "
+                 f"{np.round(cal.get('q_imu_lidar', [1, 0, 0, 0]), 5).tolist()} | "
+                 f"{f'{rs:.3f}° (tilts)' if rs is not None and np.isfinite(rs) else '—'} | "
+                 f"{src.get('q_imu_lidar', '')} | {seen('mount_rotation')}; the turn about "
+                 "the pan axis is unobservable (turns a whole station) |")
+    if est:
+        lines += ["", f"Pan axis in the IMU frame {np.round(est['pan_axis_imu'], 4).tolist()}; "
+                      f"{est['pairs']} point-to-plane residuals on stations {est['stations']}, "
+                      f"robust RMS {est['residual_m'] * 100:.2f} cm."]
+    return lines
+
+
 def write_report(res, cfg: ReconstructConfig, s: dict) -> Path:
     """Write ``report.md`` and its PNGs into the run's output folder; return the report path.
 
@@ -151,8 +226,8 @@ def write_report(res, cfg: ReconstructConfig, s: dict) -> Path:
     plot_odometry_vs_optimized(out / "report_odometry.png", slam.T_odometry[main],
                                slam.T_optimized[main])
     seg = res.segmentation
-    plot_segmentation(out / "report_stations.png", seg.t_ns, seg.motion_m, seg.still,
-                      [(s.start_ns, s.end_ns) for s in seg.stations], cfg.stations.still_threshold)
+    plot_station_timeline(out / "report_stations.png", seg, int(res.recording.lidar.lidar_ns[0]),
+                          cfg.stations.still_threshold, cfg.stations.still_tilt_deg)
     # plane fits on a random sample of each fragment: the residuals keep their statistics, the
     # RANSAC gets far cheaper
     rng = np.random.default_rng(0)
@@ -205,6 +280,7 @@ def write_report(res, cfg: ReconstructConfig, s: dict) -> Path:
             chi, kept = float("nan"), False
         lines.append(f"| {e.i}→{e.j} | {e.kind} | {e.fitness:.3f} | {e.rmse * 100:.2f} | "
                      f"{chi:.1f} | {'yes' if kept else 'no'} |")
+    lines += [""] + calibration_section(res.calibration)
     lines += ["", "## Stations", "", "![stations](report_stations.png)", "",
               "| station | start [s] | duration [s] | label |", "|---|---|---|---|"]
     t0 = res.recording.lidar.lidar_ns[0]

@@ -1,14 +1,24 @@
 # SPDX-License-Identifier: BSD-3-Clause
 """Split a recording into stations: periods when the tripod stands (its head may turn).
 
-Stationarity comes from the lidar and the IMU together: short windows of points are rotated by
-the IMU (and the extrinsic) into the head-pivot frame, where a standing tripod sees the same
-scene whatever the head does; a window is "still" when the pivot shift fitted to the range
-changes along the directions it shares with the window ``still_gap_s`` earlier is below
-``still_threshold`` [m], and the IMU's pan axis (the tripod's vertical) has not tilted by more
-than ``still_tilt_deg`` in that time (carrying sways it). Runs of still windows
-longer than ``min_station_s`` are stations. The operator's ``mark`` events label the stations
-they fall in; a mark outside every still period is reported.
+A station is a period in which the head only turns about its pan axis, about a pivot that does
+not move. Two cues, each blind to the rig's calibration:
+
+* **IMU**: the rotation between two moments ``still_gap_s`` apart is a pure turn about the pan
+  axis (a rig constant in the IMU frame, found as the dominant axis of the IMU's turns); its
+  *swing* (what is not about that axis) stays below ``still_tilt_deg`` at a station. Carrying
+  sways the head. A motor or a hand, an uneven speed, a pause or a reversal all keep the swing
+  at zero.
+* **lidar**: short windows of points are rotated by the IMU about the pivot; the shift of the
+  pivot between two windows is fitted to the range changes along the directions both windows
+  sampled. An unknown lever arm ℓ shows at a standing tripod as a shift (R_k − R_j)·ℓ, linear in
+  ℓ, so ℓ's error is fitted over the windows the IMU calls still and taken out; what is left,
+  below ``still_threshold`` [m], is stillness.
+
+Runs of still windows are merged when the pivot did not move across the gap between them (a
+station is never cut in two); runs of at least ``min_station_s`` are stations, shorter ones are
+reported. The operator's ``mark`` events label the stations they fall in, and split a still run
+that holds two marks; a mark outside every station is reported.
 """
 
 from __future__ import annotations
@@ -48,18 +58,28 @@ class Station:
 class Segmentation:
     stations: list[Station]
     t_ns: np.ndarray  # (K,) window times
-    motion_m: np.ndarray  # (K,) median displacement against the window still_gap_s before
+    motion_m: np.ndarray  # (K,) pivot shift against the window still_gap_s before [m]
     still: np.ndarray  # (K,) bool
     notes: list[str] = field(default_factory=list)
-    tilt_deg: np.ndarray | None = None  # (K,) change of the pan axis over still_gap_s [deg]
+    tilt_deg: np.ndarray | None = None  # (K,) swing off the pan axis over still_gap_s [deg]
+    #: still periods too short for a station: (start_ns, end_ns)
+    short: list[tuple[int, int]] = field(default_factory=list)
+    #: marks (lidar ns, label) and the pan axis (IMU frame) the IMU cue used
+    marks: list[tuple[int, str]] = field(default_factory=list)
+    pan_axis_imu: np.ndarray | None = None
+    #: lever-arm error taken out of the lidar cue [m], IMU frame (ℓ_true − ℓ_used, across the
+    #: pan axis; a first guess the calibration refines)
+    lever_correction_m: np.ndarray | None = None
+    merged_gaps: int = 0  # gaps between still runs closed because the pivot did not move
 
 
 def _window_cloud(lidar: LidarPackets, a: int, b: int, orient: ImuOrientation, ext: Extrinsic,
-                  n_max: int, rng: np.random.Generator) -> np.ndarray:
-    """Points of packets [a, b) in the head-pivot frame, at most n_max (random subset)."""
+                  n_max: int, rng: np.random.Generator) -> tuple[np.ndarray, int]:
+    """Points of packets [a, b) in the head-pivot frame, at most n_max (random subset), and the
+    lidar time [ns] whose IMU attitude placed them."""
     pts = decode_timed_points(lidar.payload, lidar.lidar_ns, a, b, min_range=0.5)
     if len(pts) == 0:
-        return np.zeros((0, 3))
+        return np.zeros((0, 3)), int(lidar.lidar_ns[min(a, len(lidar.lidar_ns) - 1)])
     order = None
     if len(pts) > n_max:
         sel = rng.choice(len(pts), n_max, replace=False)  # random order: any prefix is a sample
@@ -72,50 +92,106 @@ def _window_cloud(lidar: LidarPackets, a: int, b: int, orient: ImuOrientation, e
     placed = place_points(xyz, pts["time_ns"], orient, ext, anchor, num_threads=1)
     T_a = pose_world_lidar(orient, ext, np.array([anchor]))[0]
     p = placed.astype(np.float64) @ T_a[:3, :3].T + T_a[:3, 3]
-    return p if order is None else p[order]
+    return (p if order is None else p[order]), anchor
 
 
-def pivot_shift(ref: np.ndarray, query: np.ndarray, max_angle_deg: float = 0.3) -> float:
-    """How far the head's pivot moved between two windows [m], from the ranges along the
-    directions both windows sampled (pivot frame).
+def pivot_shift_fit(ref: np.ndarray, query: np.ndarray, max_angle_deg: float = 0.3
+                    ) -> tuple[np.ndarray, np.ndarray] | None:
+    """The pivot's shift d (3,) [m] between two windows and the projector P (3, 3) onto the
+    directions the shared view constrains (pivot frame); None when fewer than 50 directions
+    match.
 
     A standing tripod sees the same range in every direction from the pivot whatever the head
     does. If the pivot moved by d, the range along direction u changes by about −u·d, so a
     robust least-squares fit of d to the range changes measures the motion in whatever
-    directions the shared view constrains (weakly constrained directions are left out). Only
-    directions sampled by both windows (within ``max_angle_deg``) are compared, because a tilted
-    lidar on a panning head sweeps different parts of the sphere from moment to moment.
-    NaN when fewer than 50 directions match.
+    directions the shared view constrains. Only directions sampled by both windows (within
+    ``max_angle_deg``) are compared, because a tilted lidar on a panning head sweeps different
+    parts of the sphere from moment to moment. Residuals are weighted by range: a direction
+    mismatch of δ moves an oblique surface's range by about r·δ·tan(incidence), so far points
+    (a 40 m hall) are noisier by nature, not because the tripod moves.
     """
     r_ref = np.linalg.norm(ref, axis=1)
     r_q = np.linalg.norm(query, axis=1)
     ok_r, ok_q = r_ref > 0.3, r_q > 0.3
     ref, r_ref, query, r_q = ref[ok_r], r_ref[ok_r], query[ok_q], r_q[ok_q]
     if len(ref) < 50 or len(query) < 50:
-        return float("nan")
+        return None
     u_q = query / r_q[:, None]
     # exact nearest neighbours; an unbalanced tree builds ~2x faster and queries alike here
     tree = cKDTree(ref / r_ref[:, None], balanced_tree=False, compact_nodes=False)
-    dist, idx = tree.query(u_q, k=1,
-                                                    distance_upper_bound=np.radians(max_angle_deg))
+    dist, idx = tree.query(u_q, k=1, distance_upper_bound=np.radians(max_angle_deg))
     hit = np.isfinite(dist)
     if hit.sum() < 50:
-        return float("nan")
+        return None
     A = -u_q[hit]
     b = r_q[hit] - r_ref[idx[hit]]
+    # noise model [m]: 3 cm range noise plus the range change of a direction mismatch
+    sig = np.hypot(0.03, r_q[hit] * dist[hit] * 2.0)
+    wgt = 1.0 / sig
+    A_w, b_w = A * wgt[:, None], b * wgt
     keep = np.ones(len(b), dtype=bool)
     d = np.zeros(3)
     for _ in range(3):  # least squares, then trim outliers (occlusion edges, grazing surfaces)
-        d, *_ = np.linalg.lstsq(A[keep], b[keep], rcond=None)
-        res = b - A @ d
+        d, *_ = np.linalg.lstsq(A_w[keep], b_w[keep], rcond=None)
+        res = b_w - A_w @ d
         mad = np.median(np.abs(res[keep] - np.median(res[keep]))) + 1e-6
         keep = np.abs(res) < 3.0 * 1.4826 * mad
         if keep.sum() < 20:
-            return float("nan")
+            return None
     # only the directions the shared view constrains
     w, V = np.linalg.eigh(A[keep].T @ A[keep] / keep.sum())
-    d_obs = V[:, w > 0.05] @ (V[:, w > 0.05].T @ d)
-    return float(np.linalg.norm(d_obs))
+    Vo = V[:, w > 0.05]
+    return d, Vo @ Vo.T
+
+
+def pivot_shift(ref: np.ndarray, query: np.ndarray, max_angle_deg: float = 0.3) -> float:
+    """|P·d| of :func:`pivot_shift_fit` [m]; NaN when fewer than 50 directions match."""
+    fit = pivot_shift_fit(ref, query, max_angle_deg)
+    return float("nan") if fit is None else float(np.linalg.norm(fit[1] @ fit[0]))
+
+
+def _swing_deg(R_a: np.ndarray, R_b: np.ndarray, axis_imu: np.ndarray) -> np.ndarray:
+    """Angle [deg] by which the pan axis moved in the world between attitudes R_a and R_b
+    (N, 3, 3): the swing of R_aᵀR_b off a pure turn about ``axis_imu``."""
+    ua = np.einsum("nij,j->ni", R_a, axis_imu)
+    ub = np.einsum("nij,j->ni", R_b, axis_imu)
+    return np.degrees(np.arccos(np.clip(np.einsum("ni,ni->n", ua, ub), -1.0, 1.0)))
+
+
+def _imu_pan_axis(R: np.ndarray) -> np.ndarray:
+    """The dominant turn axis (IMU frame) of consecutive attitudes R (K, 3, 3)."""
+    from scipy.spatial.transform import Rotation
+
+    if len(R) < 3:
+        return np.array([0.0, 0.0, 1.0])
+    v = Rotation.from_matrix(np.einsum("nji,njk->nik", R[:-1], R[1:])).as_rotvec()
+    w, V = np.linalg.eigh(v.T @ v)
+    b = V[:, -1]
+    return b if float(np.sum(v @ b)) >= 0 else -b
+
+
+def _fit_lever_correction(D: np.ndarray, Pm: np.ndarray, M: np.ndarray, use: np.ndarray,
+                          axis_imu: np.ndarray, threshold: float) -> np.ndarray:
+    """e (3,) with P_k·d_k ≈ P_k·M_k·e over the windows ``use`` (robust; across the pan axis).
+
+    D (K, 3) pivot shifts, Pm (K, 3, 3) their projectors, M (K, 3, 3) = R_k − R_j."""
+    from .calibration import _perp_basis
+
+    U = _perp_basis(axis_imu)
+    e = np.zeros(3)
+    sel = np.flatnonzero(use)
+    for _ in range(4):
+        if len(sel) < 4:
+            break
+        A = np.einsum("kij,kjl,lm->kim", Pm[sel], M[sel], U).reshape(-1, 2)
+        y = np.einsum("kij,kj->ki", Pm[sel], D[sel]).reshape(-1)
+        c, *_ = np.linalg.lstsq(A, y, rcond=None)
+        e = U @ c
+        res = np.linalg.norm(np.einsum("kij,kj->ki", Pm[use], D[use] - np.einsum(
+            "kij,j->ki", M[use], e)), axis=1)
+        lim = max(threshold, 3.0 * float(np.median(res)))
+        sel = np.flatnonzero(use)[res < lim]
+    return e
 
 
 def segment_stations(lidar: LidarPackets, orient: ImuOrientation, ext: Extrinsic,
@@ -127,37 +203,52 @@ def segment_stations(lidar: LidarPackets, orient: ImuOrientation, ext: Extrinsic
     t0, t1 = int(lidar.lidar_ns[0]), int(lidar.lidar_ns[-1])
     step, win = int(step_s * 1e9), int(window_s * 1e9)
     times = np.arange(t0, t1 - win, step, dtype=np.int64)
+    K = len(times)
     gap = max(1, int(round(cfg.still_gap_s / step_s)))
     rng = np.random.default_rng(0)
-    clouds: list[np.ndarray] = []
-    motion = np.full(len(times), np.inf)
+    clouds: list[np.ndarray | None] = []
+    anchors = np.zeros(K, dtype=np.int64)
+    D = np.full((K, 3), np.nan)
+    Pm = np.zeros((K, 3, 3))
     for k, t in enumerate(times):
         a, b = np.searchsorted(lidar.lidar_ns, [t, t + win])
-        clouds.append(_window_cloud(lidar, int(a), int(b), orient, ext, n_points, rng))
+        c, anchors[k] = _window_cloud(lidar, int(a), int(b), orient, ext, n_points, rng)
+        clouds.append(c)
         j = k - gap
-        if j >= 0 and len(clouds[j]) > 50 and len(clouds[k]) > 50:
-            motion[k] = pivot_shift(clouds[j], clouds[k][:n_query])
+        if j >= 0 and clouds[j] is not None and len(clouds[j]) > 50 and len(c) > 50:
+            fit = pivot_shift_fit(clouds[j], c[:n_query])
+            if fit is not None:
+                D[k], Pm[k] = fit
         if j >= 0:
-            clouds[j] = None  # type: ignore[call-overload]  (bounded memory)
+            clouds[j] = None  # bounded memory
         if progress is not None:
             progress.update(1)
+    # the IMU's view: at a station the head only turns about its pan axis
+    R_w = orient.rotation_at(anchors) if K else np.zeros((0, 3, 3))
+    axis = _imu_pan_axis(R_w[::max(1, gap)] if K > 3 * gap else R_w)
+    tilt = np.zeros(K)
+    if K > gap:
+        tilt[gap:] = _swing_deg(R_w[:-gap], R_w[gap:], axis)
+    moving_imu = tilt > cfg.still_tilt_deg
+    # the lidar's view with the lever arm's own apparent shift taken out: fitted on the windows
+    # the IMU calls still whose shift a lever arm of up to 0.3 m could explain
+    M = np.zeros((K, 3, 3))
+    if K > gap:
+        M[gap:] = R_w[gap:] - R_w[:-gap]
+    known = np.isfinite(D[:, 0])
+    Dz = np.where(known[:, None], D, 0.0)
+    raw = np.linalg.norm(np.einsum("kij,kj->ki", Pm, Dz), axis=1)
+    bound = cfg.still_threshold + 0.3 * np.linalg.norm(M, ord=2, axis=(1, 2))
+    cand = known & ~moving_imu & (raw < bound)
+    e = _fit_lever_correction(Dz, Pm, M, cand, axis, cfg.still_threshold)
+    motion = np.full(K, np.inf)
+    motion[known] = np.linalg.norm(np.einsum("kij,kj->ki", Pm[known], Dz[known] - np.einsum(
+        "kij,j->ki", M[known], e)), axis=1)
     # unknown (too little shared view): take the neighbours' verdict
     bad = ~np.isfinite(motion)
     if bad.any() and (~bad).any():
         good = np.flatnonzero(~bad)
         motion[bad] = np.interp(np.flatnonzero(bad), good, motion[good])
-    # the IMU's view: a standing tripod's pan axis stays put; carrying sways it. The pan axis
-    # in the IMU frame is the mean of the world's up seen by the IMU (the base is level at
-    # every station, and sway averages out).
-    tilt = np.zeros(len(times))
-    if len(times) > gap:
-        R_all = orient.rotation_at(times + win // 2)
-        b = np.einsum("nji,j->ni", R_all, np.array([0.0, 0.0, 1.0])).mean(axis=0)
-        b /= np.linalg.norm(b)
-        axis_w = np.einsum("nij,j->ni", R_all, b)
-        c = np.clip(np.einsum("ni,ni->n", axis_w[gap:], axis_w[:-gap]), -1.0, 1.0)
-        tilt[gap:] = np.degrees(np.arccos(c))
-    moving_imu = tilt > cfg.still_tilt_deg
     # a 3-window median removes single spikes (a person walking by, a bad match)
     if len(motion) >= 3:
         padded = np.concatenate([motion[:1], motion, motion[-1:]])
@@ -167,27 +258,159 @@ def segment_stations(lidar: LidarPackets, orient: ImuOrientation, ext: Extrinsic
     still = still_pair.copy()
     still[: len(still) - gap] |= still_pair[gap:]
 
+    runs = _runs(still)
+    ctx = _Ctx(lidar, orient, ext, times, win, R_w, axis, e, cfg, rng, n_points, n_query)
+    runs, merged = _merge_runs(runs, ctx)
+    marks = sorted(marks_lidar_ns or []) if cfg.use_marks else []
+    runs = _split_by_marks(runs, marks, times, win)
+
     stations: list[Station] = []
+    short: list[tuple[int, int]] = []
+    notes: list[str] = []
     trim = int(cfg.trim_s * 1e9)
+    for k, e_k in runs:
+        r0, r1 = int(times[k]), int(times[e_k]) + win
+        if (r1 - r0) * 1e-9 >= cfg.min_station_s:
+            s_ns, e_ns = r0 + trim, r1 - trim
+            a, b = np.searchsorted(lidar.lidar_ns, [s_ns, e_ns])
+            stations.append(Station(len(stations), s_ns, e_ns, int(a), int(b)))
+        elif (r1 - r0) * 1e-9 >= 1.0:
+            short.append((r0, r1))
+            notes.append(f"still period of {(r1 - r0) * 1e-9:.1f} s at {(r0 - t0) * 1e-9:.1f} s "
+                         f"is shorter than a station ({cfg.min_station_s:g} s): not used")
+    for t_mark, label in marks:
+        hit = [s for s in stations if s.start_ns - 2 * step <= t_mark <= s.end_ns + 2 * step]
+        if hit:
+            hit[0].label = label or hit[0].label
+        else:
+            notes.append(f"mark {label!r} at {(t_mark - t0) * 1e-9:.3f} s falls in no station")
+    if merged:
+        notes.append(f"{merged} short interruption(s) of stillness inside stations ignored (the "
+                     "pivot did not move across them)")
+    return Segmentation(stations, times, motion, still, notes, tilt, short, list(marks), axis, e,
+                        merged)
+
+
+def _runs(still: np.ndarray) -> list[tuple[int, int]]:
+    """[first, last] window indices of the runs of True."""
+    out = []
     k = 0
-    while k < len(times):
+    while k < len(still):
         if not still[k]:
             k += 1
             continue
         e = k
-        while e + 1 < len(times) and still[e + 1]:
+        while e + 1 < len(still) and still[e + 1]:
             e += 1
-        s_ns, e_ns = int(times[k]) + trim, int(times[e]) + win - trim
-        if (e_ns - s_ns) * 1e-9 >= cfg.min_station_s:
-            a, b = np.searchsorted(lidar.lidar_ns, [s_ns, e_ns])
-            stations.append(Station(len(stations), s_ns, e_ns, int(a), int(b)))
+        out.append((k, e))
         k = e + 1
-    notes = []
-    if marks_lidar_ns and cfg.use_marks:
-        for t_mark, label in marks_lidar_ns:
-            hit = [s for s in stations if s.start_ns - 2 * step <= t_mark <= s.end_ns + 2 * step]
-            if hit:
-                hit[0].label = label or hit[0].label
-            else:
-                notes.append(f"mark {label!r} at {t_mark * 1e-9:.3f} s falls in no still period")
-    return Segmentation(stations, times, motion, still, notes, tilt)
+    return out
+
+
+@dataclass
+class _Ctx:
+    lidar: LidarPackets
+    orient: ImuOrientation
+    ext: Extrinsic
+    times: np.ndarray
+    win: int
+    R_w: np.ndarray
+    axis: np.ndarray
+    e: np.ndarray
+    cfg: StationConfig
+    rng: np.random.Generator
+    n_points: int
+    n_query: int
+
+
+def _same_place(ctx: _Ctx, i: int, j: int) -> bool | None:
+    """Did the pivot stay put between windows i and j (lever-arm correction applied)? None
+    when the two windows share too little view to say."""
+    out = []
+    for k in (i, j):
+        t = ctx.times[k]
+        a, b = np.searchsorted(ctx.lidar.lidar_ns, [t, t + ctx.win])
+        out.append(_window_cloud(ctx.lidar, int(a), int(b), ctx.orient, ctx.ext, ctx.n_points,
+                                 ctx.rng)[0])
+    if len(out[0]) < 50 or len(out[1]) < 50:
+        return None
+    fit = pivot_shift_fit(out[0], out[1][: ctx.n_query])
+    if fit is None:
+        return None
+    d, P = fit
+    if np.linalg.matrix_rank(P) < 2:
+        return None
+    r = np.linalg.norm(P @ (d - (ctx.R_w[j] - ctx.R_w[i]) @ ctx.e))
+    return bool(r < ctx.cfg.still_threshold)
+
+
+def _pan_angle(R_w: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """The head's turn about the pan axis (K,) [rad], unwrapped, from a reference direction."""
+    from .calibration import _perp_basis
+
+    u = _perp_basis(axis)[:, 0]
+    v = np.einsum("kij,j->ki", R_w, u)  # a direction across the pan axis, in the world
+    return np.unwrap(np.arctan2(v[:, 1], v[:, 0]))
+
+
+def _merge_runs(runs: list[tuple[int, int]], ctx: _Ctx, max_gap_s: float = 10.0
+                ) -> tuple[list[tuple[int, int]], int]:
+    """Close the gaps between still runs across which the pivot did not move: the head swung
+    by less than ``still_tilt_deg`` from one to the other, and the lidar sees no shift between
+    a window at the end of the first and one at the start of the second at the nearest pan
+    angle (a station is never cut in two by a noisy moment)."""
+    if len(runs) < 2:
+        return runs, 0
+    step_ns = int(ctx.times[1] - ctx.times[0]) if len(ctx.times) > 1 else 1
+    pan = _pan_angle(ctx.R_w, ctx.axis)
+    out = [runs[0]]
+    merged = 0
+    for k, e in runs[1:]:
+        pk, pe = out[-1]
+        gap_s = (ctx.times[k] - ctx.times[pe]) * 1e-9
+        if gap_s > max_gap_s:
+            out.append((k, e))
+            continue
+        # the IMU: no swing between the end of one run and the start of the next
+        sw = _swing_deg(ctx.R_w[pe:pe + 1], ctx.R_w[k:k + 1], ctx.axis)[0]
+        # ... and no swing at any moment of the gap against the run before it
+        sw_gap = _swing_deg(np.repeat(ctx.R_w[pe:pe + 1], k - pe + 1, axis=0),
+                            ctx.R_w[pe:k + 1], ctx.axis).max()
+        if sw > ctx.cfg.still_tilt_deg or sw_gap > 2 * ctx.cfg.still_tilt_deg:
+            out.append((k, e))
+            continue
+        # the lidar: windows of the two runs at the nearest pan angles (the most shared view)
+        ii = np.arange(max(pk, pe - int(5e9 / step_ns)), pe + 1)
+        jj = np.arange(k, min(e, k + int(5e9 / step_ns)) + 1)
+        dphi = np.abs(np.angle(np.exp(1j * (pan[ii][:, None] - pan[jj][None, :]))))
+        order = np.argsort(dphi, axis=None)[:2]
+        votes = [_same_place(ctx, int(ii[o // len(jj)]), int(jj[o % len(jj)])) for o in order]
+        votes = [v for v in votes if v is not None]
+        if votes and all(votes):
+            out[-1] = (pk, e)
+            merged += 1
+        else:
+            out.append((k, e))
+    return out, merged
+
+
+def _split_by_marks(runs: list[tuple[int, int]], marks: list[tuple[int, str]],
+                    times: np.ndarray, win: int) -> list[tuple[int, int]]:
+    """A run holding two or more marks is split halfway between them (the operator's marks win
+    over a merge)."""
+    out = []
+    for k, e in runs:
+        inside = [t for t, _ in marks if times[k] <= t <= times[e] + win]
+        if len(inside) < 2:
+            out.append((k, e))
+            continue
+        cuts = [(a + b) // 2 for a, b in zip(inside[:-1], inside[1:])]
+        s = k
+        for c in cuts:
+            m = int(np.searchsorted(times, c))
+            if s < m - 1:
+                out.append((s, m - 1))
+            s = m + 1
+        if s <= e:
+            out.append((s, e))
+    return out
