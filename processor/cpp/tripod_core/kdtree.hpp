@@ -300,7 +300,7 @@ private:
         const float* hi = lo + Dim;
         float s = 0.f;
         for (int d = 0; d < Dim; ++d) {
-            const float e = std::max({0.f, lo[d] - q[d], q[d] - hi[d]});
+            const float e = std::max(std::max(lo[d] - q[d], q[d] - hi[d]), 0.f);
             s += e * e;
         }
         return s;
@@ -323,7 +323,7 @@ private:
         const float* nhi = nlo + Dim;
         float s = 0.f;
         for (int d = 0; d < Dim; ++d) {
-            const float e = std::max({0.f, lo[d] - nhi[d], nlo[d] - hi[d]});
+            const float e = std::max(std::max(lo[d] - nhi[d], nlo[d] - hi[d]), 0.f);
             s += e * e;
         }
         if (s > r2) return;
@@ -337,7 +337,7 @@ private:
             const float* p = point_at(i);
             float t = 0.f;
             for (int d = 0; d < Dim; ++d) {
-                const float e = std::max({0.f, lo[d] - p[d], p[d] - hi[d]});
+                const float e = std::max(std::max(lo[d] - p[d], p[d] - hi[d]), 0.f);
                 t += e * e;
             }
             if (t <= r2) out.push_back(i);
@@ -414,24 +414,29 @@ private:
 
     // Nearest neighbour below `best` in the subtree `id` (whose box is nearer than `best`):
     // the nearer child first, each child only while its tight box can hold a nearer point.
-    void nn_box(int id, const float* q, int& idx, float& best) const {
+    // (`skip`: a leaf already scanned.)
+    void nn_box(int id, const float* q, int& idx, float& best, int skip = -1) const {
         const Node& nd = nodes_[id];
         if (nd.axis < 0) {
-            for (int i = nd.begin; i < nd.end; ++i) {
-                const float d = sq_bounded(q, point_at(i), best);
-                if (d < best) {
-                    best = d;
-                    idx = static_cast<int>(order_[i]);
-                }
-            }
+            if (id != skip) scan_leaf(nd, q, idx, best);
             return;
         }
         const float dl = box_dist(nd.left, q), dr = box_dist(nd.right, q);
         const bool left_first = dl <= dr;
         const int near = left_first ? nd.left : nd.right, far = left_first ? nd.right : nd.left;
         const float dn = left_first ? dl : dr, df = left_first ? dr : dl;
-        if (dn < best) nn_box(near, q, idx, best);
-        if (df < best) nn_box(far, q, idx, best);
+        if (dn < best) nn_box(near, q, idx, best, skip);
+        if (df < best) nn_box(far, q, idx, best, skip);
+    }
+
+    void scan_leaf(const Node& nd, const float* q, int& idx, float& best) const {
+        for (int i = nd.begin; i < nd.end; ++i) {
+            const float d = sq_bounded(q, point_at(i), best);
+            if (d < best) {
+                best = d;
+                idx = static_cast<int>(order_[i]);
+            }
+        }
     }
 
     void radius_rec(int id, const float* q, float r2, std::vector<int>& idx,

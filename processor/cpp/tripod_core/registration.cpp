@@ -379,6 +379,8 @@ void estimate_gicp_geometry(PreparedCloud& pc, int k, const Eigen::Vector3d& vie
             });
         }
     }
+    pc.cov_scale = s2;
+    pc.cov_plane = 1 - kEps;
 }
 }  // namespace
 
@@ -419,6 +421,8 @@ std::shared_ptr<PreparedCloud> prepare_cloud(const PointsXYZ& points, const Neig
         const Eigen::Matrix3d& U = g.frames[i];
         pc->covariances[i].noalias() = U * diag.asDiagonal() * U.transpose();
     }
+    pc->cov_scale = s2;  // U diag(eps, 1, 1) U^T = I - (1 - eps) n n^T
+    pc->cov_plane = 1 - kEps;
     return pc;
 }
 
