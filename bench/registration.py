@@ -197,6 +197,10 @@ def local_rows(tools, pairs, repeats, threads_list=(1, 2)):
     """Best of `repeats` per (pair, tool, method), runs interleaved across tools and methods so
     that the load of a shared machine falls on all of them alike."""
     rows = []
+    for tool in tools:  # untimed warm-up: imports, thread pools, first allocations
+        fn, methods = TOOLS[tool]
+        for threads in threads_list:
+            fn(methods[0], pairs[0], threads)
     for pair in pairs:
         best = {}
         for _ in range(repeats):
@@ -345,12 +349,11 @@ def thread_scaling(pairs, repeats, threads_list=(1, 2)):
 def print_thread_table(con, rows, load):
     from rich.table import Table
 
-    t = Table(title="tripod GICP thread scaling (pairs >= 50k raw points; wall and CPU time, best "
-                    "of the repeats; speed-up = wall 1 thread / wall n threads)")
-    for col in ("pair", "raw points", "threads", "prepare wall (ms)", "prepare CPU (ms)",
-                "register wall (ms)", "register CPU (ms)", "speed-up prepare",
-                "speed-up register", "speed-up total"):
-        t.add_column(col, justify="left" if col == "pair" else "right")
+    t = Table(title="tripod GICP thread scaling, pairs >= 50k raw points: wall and CPU time [ms], "
+                    "best of the repeats; x = speed-up, wall 1 thread / wall n threads")
+    for col in ("pair", "raw pts", "thr", "prepare wall", "prepare CPU", "register wall",
+                "register CPU", "x prepare", "x register", "x total"):
+        t.add_column(col, justify="left" if col == "pair" else "right", no_wrap=True)
     one = {r["pair"]: r for r in rows if r["threads"] == 1}
     for r in rows:
         b = one[r["pair"]]
