@@ -31,6 +31,7 @@ only, so success there is 2 deg / 10 cm), and three simulated VLP-16 station pai
 
     .venv/bin/python bench/registration.py            # full run (a few minutes on 2 cores)
     .venv/bin/python bench/registration.py --quick    # 1 repeat, fewer global trials
+    .venv/bin/python bench/registration.py --threads  # thread scaling only (idle machine)
 Open3D's OpenMP thread count is fixed at import, so its rows run in child processes; without
 Open3D installed its rows are left out (said in the output).
 """
@@ -196,6 +197,10 @@ def local_rows(tools, pairs, repeats, threads_list=(1, 2)):
     """Best of `repeats` per (pair, tool, method), runs interleaved across tools and methods so
     that the load of a shared machine falls on all of them alike."""
     rows = []
+    for tool in tools:  # untimed warm-up: imports, thread pools, first allocations
+        fn, methods = TOOLS[tool]
+        for threads in threads_list:
+            fn(methods[0], pairs[0], threads)
     for pair in pairs:
         best = {}
         for _ in range(repeats):
@@ -308,6 +313,62 @@ def global_trials(n_tripod, n_open3d, seed=7):
     return res
 
 
+# ---------------------------------------------------------------------------- threads
+def thread_scaling(pairs, repeats, threads_list=(1, 2)):
+    """Wall and CPU time of tripod GICP's two stages on the pairs with >= 50k raw points:
+    preparing both clouds (downsampling, k-d tree, 20-NN normals and covariances) and the
+    registration of the prepared clouds, best of `repeats` per thread count."""
+    from tripod_processor import registration as reg
+
+    rows = []
+    for pair in pairs:
+        if len(pair.src) + len(pair.tgt) < 50_000:
+            continue
+        for threads in threads_list:
+            best = {"prepare": [np.inf, np.inf], "register": [np.inf, np.inf]}
+            for _ in range(repeats):
+                c0, w0 = time.process_time(), time.perf_counter()
+                s = reg.prepare(pair.src, pair.voxel, NEIGHBORS, num_threads=threads)
+                t = reg.prepare(pair.tgt, pair.voxel, NEIGHBORS, num_threads=threads)
+                c1, w1 = time.process_time(), time.perf_counter()
+                r = reg.register(s, t, method="gicp", init=pair.init,
+                                 max_correspondence_distance=[pair.dist],
+                                 max_iterations=MAX_ITERATIONS, rotation_eps=ROT_EPS,
+                                 translation_eps=pair.trans_eps, num_threads=threads)
+                c2, w2 = time.process_time(), time.perf_counter()
+                for k, (w, c) in {"prepare": (w1 - w0, c1 - c0),
+                                  "register": (w2 - w1, c2 - c1)}.items():
+                    best[k] = [min(best[k][0], w), min(best[k][1], c)]
+            rows.append({"pair": pair.name, "points": len(pair.src) + len(pair.tgt),
+                         "threads": threads, "iterations": r.iterations, **{
+                             f"{k}_{m}": v * 1e3 for k, (w, c) in best.items()
+                             for m, v in (("wall_ms", w), ("cpu_ms", c))}})
+    return rows
+
+
+def print_thread_table(con, rows, load):
+    from rich.table import Table
+
+    t = Table(title="tripod GICP thread scaling, pairs >= 50k raw points: wall and CPU time [ms], "
+                    "best of the repeats; x = speed-up, wall 1 thread / wall n threads")
+    for col in ("pair", "raw pts", "thr", "prepare wall", "prepare CPU", "register wall",
+                "register CPU", "x prepare", "x register", "x total"):
+        t.add_column(col, justify="left" if col == "pair" else "right", no_wrap=True)
+    one = {r["pair"]: r for r in rows if r["threads"] == 1}
+    for r in rows:
+        b = one[r["pair"]]
+        sp = b["prepare_wall_ms"] / r["prepare_wall_ms"]
+        sr = b["register_wall_ms"] / r["register_wall_ms"]
+        st = ((b["prepare_wall_ms"] + b["register_wall_ms"])
+              / (r["prepare_wall_ms"] + r["register_wall_ms"]))
+        t.add_row(r["pair"], str(r["points"]), str(r["threads"]), f"{r['prepare_wall_ms']:.1f}",
+                  f"{r['prepare_cpu_ms']:.1f}", f"{r['register_wall_ms']:.1f}",
+                  f"{r['register_cpu_ms']:.1f}", f"{sp:.2f}", f"{sr:.2f}", f"{st:.2f}")
+    con.print(t)
+    con.print(f"load average (1 min) at start/end: {load[0]:.2f}/{load[1]:.2f} on "
+              f"{os.cpu_count()} cores (the figure needs an idle machine: load < 0.5)")
+
+
 # ---------------------------------------------------------------------------- tables
 def _geo(x):
     x = np.asarray([v for v in x if np.isfinite(v) and v > 0])
@@ -368,6 +429,8 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=None)
     ap.add_argument("--data", type=Path, default=DATA, help="the shared registration data")
     ap.add_argument("--no-global", action="store_true", help="skip the global table")
+    ap.add_argument("--threads", action="store_true",
+                    help="only the thread-scaling table of tripod GICP (5 repeats)")
     ap.add_argument("--o3d-worker", type=int, default=0, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     repeats = args.repeats or (1 if args.quick else 3)
@@ -386,6 +449,10 @@ def main(argv=None) -> int:
 
     con = Console(width=150)
     load0 = os.getloadavg()[0]
+    if args.threads:
+        rows = thread_scaling(pairs, args.repeats or 5)
+        print_thread_table(con, rows, (load0, os.getloadavg()[0]))
+        return 0
     rows = local_rows(["tripod", "small_gicp"], pairs, repeats)
     try:
         import open3d  # noqa: F401

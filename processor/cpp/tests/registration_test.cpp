@@ -80,6 +80,45 @@ INSTANTIATE_TEST_SUITE_P(
                                          Method::kVGICP, Method::kSymmetric, Method::kLM),
                        ::testing::Values(1, 2, 4)));
 
+// GICP inverts plane-form covariances in closed form: the same solution as the general 3x3
+// inverse of the same covariances (a copy of the clouds without the plane form).
+TEST(Registration, GicpClosedFormMatchesGeneralCovariances) {
+    const Eigen::Matrix4d T_true = known_transform();
+    Neighborhood nb;
+    const Eigen::Vector3d view(3, 2, 1.3);
+    const auto tgt = prepare_cloud(test::box_room(15000, 0.005, 61), nb, view, 0.005, 2);
+    const auto src = prepare_cloud(transformed(test::box_room(15000, 0.005, 62), T_true.inverse()),
+                                   nb, view, 0.005, 2);
+    ASSERT_GT(tgt->cov_scale, 0);
+    const auto general = [](const PreparedCloud& c) {
+        auto g = std::make_unique<PreparedCloud>();
+        g->points = c.points;
+        g->normals = c.normals;
+        g->covariances = c.covariances;
+        g->normal_valid = c.normal_valid;
+        g->tree = std::make_unique<KdTree<3>>(g->points.data(), g->points.rows());
+        return g;  // cov_scale 0: general covariances
+    };
+    const auto tgt_g = general(*tgt), src_g = general(*src);
+    for (size_t i = 0; i < src->covariances.size(); i += 997) {
+        const Eigen::Vector3d n = src->normals.row(i).transpose();
+        const Eigen::Matrix3d form =
+            src->cov_scale * (Eigen::Matrix3d::Identity() - src->cov_plane * n * n.transpose());
+        EXPECT_LT((form - src->covariances[i]).norm(), 1e-12 * src->cov_scale);
+    }
+    RegistrationOptions opt;
+    opt.method = Method::kGICP;
+    opt.max_correspondence_distances = {0.5, 0.1};
+    const RegistrationResult a = register_local(*src, *tgt, Eigen::Matrix4d::Identity(), opt);
+    const RegistrationResult b = register_local(*src_g, *tgt_g, Eigen::Matrix4d::Identity(), opt);
+    EXPECT_TRUE(a.converged) << a.status;
+    EXPECT_EQ(a.iterations, b.iterations);
+    EXPECT_LT((a.T_target_source - b.T_target_source).norm(), 1e-9);
+    EXPECT_NEAR(a.final_error, b.final_error, 1e-6 * b.final_error);
+    EXPECT_LT((a.information - b.information).norm(), 1e-6 * b.information.norm());
+    EXPECT_LT(rotation_error_deg(a.T_target_source, T_true), 0.05);
+}
+
 TEST(Registration, SinglePlaneIsDegenerate) {
     PointsXYZ floor = test::box_room(7000, 0.002, 30);
     PointsXYZ only_floor(1000, 3);

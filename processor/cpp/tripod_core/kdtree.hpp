@@ -2,14 +2,17 @@
 // A static k-d tree over float points of fixed dimension (3 for clouds, 33 for FPFH features).
 // Points are copied in tree order so a leaf scan reads contiguous memory; indices returned are
 // the caller's row indices. Header-only so the compiler specialises the search on Dim.
-// Each leaf keeps its cell (the box its splits bound): a warm-started nearest-neighbour query
-// whose ball around the query (radius: the distance to the hint) lies inside the hint's cell
-// scans that one leaf and skips the tree (ICP's later iterations, where points barely move).
+// Each node keeps the tight bounding box of its points (searches prune on it: scans sample
+// surfaces, and a node's cell is mostly empty space) and its cell (the box its splits bound):
+// a warm-started nearest-neighbour query climbs from the hint's leaf only to the first cell that
+// holds its ball (ICP's later iterations, where points barely move, scan a leaf or two).
 #pragma once
 
 #include <Eigen/Core>
 #include <algorithm>
+#include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <limits>
 #include <numeric>
 #include <vector>
@@ -32,10 +35,13 @@ public:
         pts_.resize(static_cast<size_t>(n) * Dim);
         src_ = data;
         nodes_.reserve(2 * (n / leaf_size_ + 1));
-        leaf_of_.resize(n);
+        boxes_.reserve(nodes_.capacity() * 2 * Dim);
+        cells_.reserve(nodes_.capacity() * 2 * Dim);
+        parent_.reserve(nodes_.capacity());
+        leaf_node_.resize(n);
         if (n > 0) {
             Row lo = Row::Constant(-std::numeric_limits<float>::infinity()), hi = -lo;
-            build(0, static_cast<int>(n), lo, hi);
+            build(0, static_cast<int>(n), lo, hi, -1);
         }
         pos_.resize(n);
         for (int64_t i = 0; i < n; ++i) {
@@ -69,49 +75,163 @@ public:
     int nearest(const float* q, float max_sq_dist, float* sq_dist) const {
         int idx = -1;
         float best = max_sq_dist;
-        float off[Dim] = {};
-        if (!nodes_.empty()) nn_rec(0, q, idx, best, 0.f, off);
+        if (!nodes_.empty() && box_dist(0, q) < best) nn_box(0, q, idx, best);
         if (sq_dist) *sq_dist = best;
         return idx;
     }
 
     /// Nearest neighbour within sqrt(max_sq_dist), warm-started from a row `hint` (e.g. the
-    /// previous ICP iteration's match; -1 for none): its distance bounds the search, which
-    /// then prunes most of the tree. Same answer as nearest() up to ties.
+    /// previous ICP iteration's match; -1 for none). The search starts at the hint's leaf and
+    /// climbs to the first node whose cell holds the whole ball about q through the hint (no
+    /// point outside that cell can be nearer), then searches that subtree only: in ICP's later
+    /// iterations, where points barely move, a leaf or two. Same answer as nearest() up to
+    /// ties.
     int nearest_from(const float* q, float max_sq_dist, int hint, float* sq_dist) const {
         int idx = -1;
         float best = max_sq_dist;
-        if (hint >= 0) {
+        int node = 0;
+        if (!nodes_.empty() && hint >= 0) {
             const int pos = pos_[hint];
-            const float d = sq(q, pts_.data() + static_cast<size_t>(pos) * Dim);
+            const float d = sq(q, point_at(pos));
             if (d < best) {
                 best = d;
                 idx = hint;
-                // the ball of radius sqrt(d) about q inside the hint's cell: no point outside
-                // the cell can be nearer, so the answer is in this leaf
-                const Leaf& lf = leaves_[leaf_of_[pos]];
-                bool inside = true;
-                for (int a = 0; a < Dim && inside; ++a) {
-                    const float dl = q[a] - lf.lo[a], dh = lf.hi[a] - q[a];
-                    inside = dl >= 0 && dh >= 0 && dl * dl >= d && dh * dh >= d;
-                }
-                if (inside) {
-                    for (int i = lf.begin; i < lf.end; ++i) {
-                        const float e = sq(q, pts_.data() + static_cast<size_t>(i) * Dim);
-                        if (e < best) {
-                            best = e;
-                            idx = static_cast<int>(order_[i]);
-                        }
-                    }
-                    if (sq_dist) *sq_dist = best;
-                    return idx;
-                }
             }
+            node = leaf_node_[pos];
+            while (node != 0 && !ball_inside(node, q, best)) node = parent_[node];
         }
-        float off[Dim] = {};
-        if (!nodes_.empty()) nn_rec(0, q, idx, best, 0.f, off);
+        if (!nodes_.empty() && box_dist(node, q) < best) nn_box(node, q, idx, best);
         if (sq_dist) *sq_dist = best;
         return idx;
+    }
+
+    /// The caller's row stored at tree position `pos`, and its coordinates (Dim floats).
+    int64_t row_at(int64_t pos) const { return order_[pos]; }
+    const float* point_at(int64_t pos) const { return pts_.data() + pos * Dim; }
+
+    /// Groups of consecutive tree positions that are spatially compact (the subtrees of at most
+    /// `max_points` points): boundaries g[0] = 0 < g[1] < ... < g.back() = size().
+    std::vector<int> groups(int max_points) const {
+        std::vector<int> g{0};
+        if (nodes_.empty()) return g;
+        int stack[128], sp = 0;
+        stack[sp++] = 0;
+        while (sp > 0) {
+            const Node& nd = nodes_[stack[--sp]];
+            if (nd.axis < 0 || nd.end - nd.begin <= max_points) {
+                g.push_back(nd.end);
+                continue;
+            }
+            stack[sp++] = nd.right;  // the left one is popped first: groups in position order
+            stack[sp++] = nd.left;
+        }
+        return g;
+    }
+
+    /// Scratch buffers of knn_range (one per thread; reused, so queries allocate nothing).
+    struct KnnScratch {
+        std::vector<int> cand, idx;
+        std::vector<uint64_t> key;
+        std::vector<float> cx, cy, cz, d, dist;
+    };
+
+    /// k nearest neighbours of each stored point at the tree positions [begin, end) (best a
+    /// group from groups(): the search is shared by the whole range). Calls
+    /// fn(pos, nbr, sq_dist, m) per position, in order, with its m = min(k, size()) nearest
+    /// neighbours as tree positions (point_at(), row_at()), itself included, in no particular
+    /// order. Exact, ties at the k-th distance broken by tree position; each point's answer
+    /// depends only on the tree and k, not on the range it is asked in.
+    ///
+    /// How: one k-NN search from the point nearest the range's centre gives a radius r0; the
+    /// points within R = 1.5 r0 of the range's bounding box are gathered once (in SoA); each
+    /// query takes its k nearest among those within R of it. With k of them there, no point
+    /// outside can be nearer (the query lies in the box), so that is exact; with fewer (a query
+    /// at the sparse edge of the range) the query searches the tree instead.
+    template <class Fn>
+    void knn_range(int k, int begin, int end, KnnScratch& s, Fn&& fn) const {
+        static_assert(Dim == 3, "knn_range is for 3-D points");
+        k = static_cast<int>(std::min<int64_t>(k, size()));
+        if (k <= 0 || begin >= end) return;
+        s.idx.resize(k);
+        s.dist.resize(k);
+        // 1. the range's box, and the point nearest its centre
+        Row lo = Row::Constant(std::numeric_limits<float>::infinity()), hi = -lo;
+        for (int i = begin; i < end; ++i) {
+            Eigen::Map<const Row> p(point_at(i));
+            lo = lo.cwiseMin(p);
+            hi = hi.cwiseMax(p);
+        }
+        const Row centre = 0.5f * (lo + hi);
+        int q0 = begin;
+        float best = std::numeric_limits<float>::infinity();
+        for (int i = begin; i < end; ++i) {
+            const float d = sq(centre.data(), point_at(i));
+            if (d < best) best = d, q0 = i;
+        }
+        const int m0 = knn(point_at(q0), k, s.idx.data(), s.dist.data());
+        const float r = 1.5f * std::sqrt(s.dist[m0 - 1]);
+        const float R2 = r * r;
+        // 2. candidates: the points within R of the box, in position order, as SoA
+        s.cand.clear();
+        box_range(0, lo.data(), hi.data(), R2, s.cand);
+        const int nc = static_cast<int>(s.cand.size());
+        s.cx.resize(nc);
+        s.cy.resize(nc);
+        s.cz.resize(nc);
+        s.d.resize(nc);
+        s.key.resize(nc);
+        for (int j = 0; j < nc; ++j) {
+            const float* p = point_at(s.cand[j]);
+            s.cx[j] = p[0];
+            s.cy[j] = p[1];
+            s.cz[j] = p[2];
+        }
+        constexpr float kGuess = 1.25f;  // squared margin on the previous k-th distance
+        float guess = kGuess * s.dist[m0 - 1];
+        // 3. per query: distances to all candidates (vectorised), those within R, their k nearest
+        for (int pos = begin; pos < end; ++pos) {
+            const float* q = point_at(pos);
+            const float qx = q[0], qy = q[1], qz = q[2];
+            float* d = s.d.data();
+            const float *cx = s.cx.data(), *cy = s.cy.data(), *cz = s.cz.data();
+            for (int j = 0; j < nc; ++j) {
+                const float ex = qx - cx[j], ey = qy - cy[j], ez = qz - cz[j];
+                d[j] = ex * ex + ey * ey + ez * ez;  // the sum sq() forms
+            }
+            // keys (distance bits, candidate): a non-negative float's bits order as it does, and
+            // the candidate (in position order) breaks ties as the position does. Only those
+            // within a guess T of the k-th distance (the previous query's, a neighbour, with a
+            // margin) are kept, to select from few; too few: again with R.
+            uint64_t* key = s.key.data();
+            int m = 0;
+            for (float T = std::min(R2, guess);; T = R2) {
+                m = 0;
+                for (int j = 0; j < nc; ++j) {
+                    uint32_t bits;
+                    std::memcpy(&bits, &d[j], sizeof bits);
+                    key[m] = (uint64_t(bits) << 32) | uint32_t(j);
+                    m += d[j] <= T;
+                }
+                if (m >= k || T == R2) break;
+            }
+            if (m < k) {  // the k-th nearest may lie outside: search the tree
+                const int f = knn(q, k, s.idx.data(), s.dist.data());
+                for (int j = 0; j < f; ++j) s.idx[j] = pos_[s.idx[j]];
+                guess = kGuess * s.dist[f - 1];
+                fn(pos, static_cast<const int*>(s.idx.data()),
+                   static_cast<const float*>(s.dist.data()), f);
+                continue;
+            }
+            if (m > k) std::nth_element(key, key + (k - 1), key + m);
+            for (int j = 0; j < k; ++j) {
+                const int c = static_cast<int>(key[j] & 0xffffffffu);
+                s.idx[j] = s.cand[c];
+                s.dist[j] = d[c];
+            }
+            guess = kGuess * d[key[k - 1] & 0xffffffffu];
+            fn(pos, static_cast<const int*>(s.idx.data()),
+               static_cast<const float*>(s.dist.data()), k);
+        }
     }
 
     /// All rows within `radius` of q (unordered), at most `max_nn` if > 0 (the first found).
@@ -130,31 +250,29 @@ private:
         int left, right;
     };
 
-    struct Leaf {
-        int begin, end;
-        Row lo, hi;  // the cell (infinite towards the outside of the root)
-    };
-
-    int make_leaf(int id, int begin, int end, const Row& lo, const Row& hi) {
-        const int l = static_cast<int>(leaves_.size());
-        leaves_.push_back({begin, end, lo, hi});
-        for (int i = begin; i < end; ++i) leaf_of_[i] = l;
+    int make_leaf(int id, int begin, int end) {
+        for (int i = begin; i < end; ++i) leaf_node_[i] = id;
         return id;
     }
 
-    int build(int begin, int end, const Row& cell_lo, const Row& cell_hi) {
+    int build(int begin, int end, const Row& cell_lo, const Row& cell_hi, int parent) {
         const int id = static_cast<int>(nodes_.size());
         nodes_.push_back({begin, end, -1, 0.f, -1, -1});
-        if (end - begin <= leaf_size_) return make_leaf(id, begin, end, cell_lo, cell_hi);
+        parent_.push_back(parent);
+        cells_.insert(cells_.end(), cell_lo.data(), cell_lo.data() + Dim);
+        cells_.insert(cells_.end(), cell_hi.data(), cell_hi.data() + Dim);
         Row lo = Row::Constant(std::numeric_limits<float>::infinity()), hi = -lo;
         for (int i = begin; i < end; ++i) {
             Eigen::Map<const Row> p(src_ + order_[i] * Dim);
             lo = lo.cwiseMin(p);
             hi = hi.cwiseMax(p);
         }
+        boxes_.insert(boxes_.end(), lo.data(), lo.data() + Dim);
+        boxes_.insert(boxes_.end(), hi.data(), hi.data() + Dim);
+        if (end - begin <= leaf_size_) return make_leaf(id, begin, end);
         int axis;
         const float extent = (hi - lo).maxCoeff(&axis);
-        if (!(extent > 0.f)) return make_leaf(id, begin, end, cell_lo, cell_hi);  // all equal
+        if (!(extent > 0.f)) return make_leaf(id, begin, end);  // all equal
         const int mid = begin + (end - begin) / 2;
         std::nth_element(order_.begin() + begin, order_.begin() + mid, order_.begin() + end,
                          [&](int64_t a, int64_t b) {
@@ -165,13 +283,65 @@ private:
         Row left_hi = cell_hi, right_lo = cell_lo;
         left_hi[axis] = split;
         right_lo[axis] = split;
-        const int l = build(begin, mid, cell_lo, left_hi);
-        const int r = build(mid, end, right_lo, cell_hi);
+        const int l = build(begin, mid, cell_lo, left_hi, id);
+        const int r = build(mid, end, right_lo, cell_hi, id);
         nodes_[id].axis = axis;
         nodes_[id].split = split;
         nodes_[id].left = l;
         nodes_[id].right = r;
         return id;
+    }
+
+    /// Squared distance from q to node `id`'s bounding box (0 inside). Never above the
+    /// distance sq() gives to a point in the box (float rounding is monotonic), so pruning on
+    /// it is exact.
+    float box_dist(int id, const float* q) const {
+        const float* lo = boxes_.data() + static_cast<size_t>(id) * 2 * Dim;
+        const float* hi = lo + Dim;
+        float s = 0.f;
+        for (int d = 0; d < Dim; ++d) {
+            const float e = std::max(std::max(lo[d] - q[d], q[d] - hi[d]), 0.f);
+            s += e * e;
+        }
+        return s;
+    }
+
+    /// Whether the ball of squared radius r2 about q lies inside node `id`'s cell.
+    bool ball_inside(int id, const float* q, float r2) const {
+        const float* lo = cells_.data() + static_cast<size_t>(id) * 2 * Dim;
+        const float* hi = lo + Dim;
+        for (int a = 0; a < Dim; ++a) {
+            const float dl = q[a] - lo[a], dh = hi[a] - q[a];
+            if (!(dl >= 0 && dh >= 0 && dl * dl >= r2 && dh * dh >= r2)) return false;
+        }
+        return true;
+    }
+
+    /// Tree positions of the points within sqrt(r2) of the box [lo, hi], in position order.
+    void box_range(int id, const float* lo, const float* hi, float r2, std::vector<int>& out) const {
+        const float* nlo = boxes_.data() + static_cast<size_t>(id) * 2 * Dim;
+        const float* nhi = nlo + Dim;
+        float s = 0.f;
+        for (int d = 0; d < Dim; ++d) {
+            const float e = std::max(std::max(lo[d] - nhi[d], nlo[d] - hi[d]), 0.f);
+            s += e * e;
+        }
+        if (s > r2) return;
+        const Node& nd = nodes_[id];
+        if (nd.axis >= 0) {
+            box_range(nd.left, lo, hi, r2, out);
+            box_range(nd.right, lo, hi, r2, out);
+            return;
+        }
+        for (int i = nd.begin; i < nd.end; ++i) {
+            const float* p = point_at(i);
+            float t = 0.f;
+            for (int d = 0; d < Dim; ++d) {
+                const float e = std::max(std::max(lo[d] - p[d], p[d] - hi[d]), 0.f);
+                t += e * e;
+            }
+            if (t <= r2) out.push_back(i);
+        }
     }
 
     static float sq(const float* a, const float* b) {
@@ -242,26 +412,30 @@ private:
         }
     }
 
-    void nn_rec(int id, const float* q, int& idx, float& best, float mindist, float* off) const {
+    // Nearest neighbour below `best` in the subtree `id` (whose box is nearer than `best`):
+    // the nearer child first, each child only while its tight box can hold a nearer point.
+    // (`skip`: a leaf already scanned.)
+    void nn_box(int id, const float* q, int& idx, float& best, int skip = -1) const {
         const Node& nd = nodes_[id];
         if (nd.axis < 0) {
-            for (int i = nd.begin; i < nd.end; ++i) {
-                const float d = sq_bounded(q, pts_.data() + static_cast<size_t>(i) * Dim, best);
-                if (d < best) {
-                    best = d;
-                    idx = static_cast<int>(order_[i]);
-                }
-            }
+            if (id != skip) scan_leaf(nd, q, idx, best);
             return;
         }
-        const float diff = q[nd.axis] - nd.split;
-        nn_rec(diff < 0 ? nd.left : nd.right, q, idx, best, mindist, off);
-        const float old = off[nd.axis];
-        const float far_dist = mindist - old * old + diff * diff;
-        if (far_dist < best) {
-            off[nd.axis] = diff;
-            nn_rec(diff < 0 ? nd.right : nd.left, q, idx, best, far_dist, off);
-            off[nd.axis] = old;
+        const float dl = box_dist(nd.left, q), dr = box_dist(nd.right, q);
+        const bool left_first = dl <= dr;
+        const int near = left_first ? nd.left : nd.right, far = left_first ? nd.right : nd.left;
+        const float dn = left_first ? dl : dr, df = left_first ? dr : dl;
+        if (dn < best) nn_box(near, q, idx, best, skip);
+        if (df < best) nn_box(far, q, idx, best, skip);
+    }
+
+    void scan_leaf(const Node& nd, const float* q, int& idx, float& best) const {
+        for (int i = nd.begin; i < nd.end; ++i) {
+            const float d = sq_bounded(q, point_at(i), best);
+            if (d < best) {
+                best = d;
+                idx = static_cast<int>(order_[i]);
+            }
         }
     }
 
@@ -291,8 +465,10 @@ private:
     std::vector<int> pos_;        // caller's row -> tree position
     std::vector<float> pts_;      // rows in tree order
     std::vector<Node> nodes_;
-    std::vector<Leaf> leaves_;
-    std::vector<int> leaf_of_;    // tree position -> its leaf
+    std::vector<float> boxes_;    // per node: the tight bounding box of its points, lo then hi
+    std::vector<float> cells_;    // per node: its cell (the box its splits bound), lo then hi
+    std::vector<int> parent_;     // per node (-1: the root)
+    std::vector<int> leaf_node_;  // tree position -> its leaf node
 };
 
 }  // namespace tripod

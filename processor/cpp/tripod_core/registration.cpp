@@ -8,6 +8,8 @@
 //   d e / d w = [R p]x ,   d e / d v = -I.
 #include "tripod_core/registration.hpp"
 
+#include <omp.h>
+
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 #include <Eigen/SVD>
@@ -315,6 +317,73 @@ void finish_result(const Problem& P, RegistrationResult& res, std::vector<int> c
 
 }  // namespace detail
 
+namespace {
+/// Normals and plane-regularised GICP covariances of every point from its k nearest
+/// neighbours (PCA), fused: one k-NN per group of nearby points (KdTree::knn_range), the 3x3
+/// scatter and its eigenvectors, and the covariance written straight away; nothing allocated
+/// per point. Each point's result depends only on the tree, so it is the same bit for bit on
+/// any number of threads.
+void estimate_gicp_geometry(PreparedCloud& pc, int k, const Eigen::Vector3d& viewpoint,
+                            double point_sigma, int num_threads) {
+    const KdTree<3>& tree = *pc.tree;
+    const int64_t n = pc.points.rows();
+    pc.normals.setZero(n, 3);
+    pc.normal_valid.assign(n, 0);
+    pc.covariances.resize(n);
+    constexpr double kEps = 1e-3;
+    const double s2 = point_sigma * point_sigma / kEps;
+    // U diag(eps, 1, 1) U^T s2 = s2 (I - (1 - eps) n n^T): only the normal is needed
+    const Eigen::Matrix3d iso = s2 * Eigen::Matrix3d::Identity();
+    const std::vector<int> groups = tree.groups(32);
+    const int64_t num_groups = static_cast<int64_t>(groups.size()) - 1;
+#pragma omp parallel num_threads(num_threads > 0 ? num_threads : omp_get_max_threads())
+    {
+        KdTree<3>::KnnScratch scratch;
+#pragma omp for schedule(dynamic, 4)
+        for (int64_t g = 0; g < num_groups; ++g) {
+            tree.knn_range(k, groups[g], groups[g + 1], scratch,
+                           [&](int64_t pos, const int* nbr, const float*, int m) {
+                const int64_t i = tree.row_at(pos);
+                pc.covariances[i] = iso;  // isotropic unless a plane is found
+                if (m < 3) return;
+                // mean and scatter about the query (numerically safe far from the origin)
+                const float* o = tree.point_at(pos);
+                double sx = 0, sy = 0, sz = 0, sxx = 0, sxy = 0, sxz = 0, syy = 0, syz = 0,
+                       szz = 0;
+                for (int j = 0; j < m; ++j) {
+                    const float* p = tree.point_at(nbr[j]);
+                    const double x = double(p[0]) - o[0], y = double(p[1]) - o[1],
+                                 z = double(p[2]) - o[2];
+                    sx += x, sy += y, sz += z;
+                    sxx += x * x, sxy += x * y, sxz += x * z;
+                    syy += y * y, syz += y * z, szz += z * z;
+                }
+                const double inv = 1.0 / m, mx = sx * inv, my = sy * inv, mz = sz * inv;
+                Eigen::Matrix3d cov;
+                cov(0, 0) = sxx * inv - mx * mx;
+                cov(1, 0) = cov(0, 1) = sxy * inv - mx * my;
+                cov(2, 0) = cov(0, 2) = sxz * inv - mx * mz;
+                cov(1, 1) = syy * inv - my * my;
+                cov(2, 1) = cov(1, 2) = syz * inv - my * mz;
+                cov(2, 2) = szz * inv - mz * mz;
+                Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
+                es.computeDirect(cov);
+                const Eigen::Vector3d ev = es.eigenvalues().cwiseMax(0.0);  // ascending
+                if (!(ev[1] > 1e-12 * std::max(ev[2], 1e-30)) || !(ev[2] > 0)) return;  // collinear
+                Eigen::Vector3d nrm = es.eigenvectors().col(0);
+                const Eigen::Vector3d po(o[0], o[1], o[2]);
+                if (nrm.dot(viewpoint - po) < 0) nrm = -nrm;
+                pc.normals.row(i) = nrm.transpose();
+                pc.normal_valid[i] = 1;
+                pc.covariances[i].noalias() = iso - (s2 * (1 - kEps)) * nrm * nrm.transpose();
+            });
+        }
+    }
+    pc.cov_scale = s2;
+    pc.cov_plane = 1 - kEps;
+}
+}  // namespace
+
 std::shared_ptr<PreparedCloud> prepare_cloud(const PointsXYZ& points, const Neighborhood& nb,
                                              const Eigen::Vector3d& viewpoint, double point_sigma,
                                              int num_threads) {
@@ -322,9 +391,19 @@ std::shared_ptr<PreparedCloud> prepare_cloud(const PointsXYZ& points, const Neig
     auto pc = std::make_shared<PreparedCloud>();
     const std::vector<int64_t> rows = finite_rows(points);
     pc->num_dropped = points.rows() - static_cast<int64_t>(rows.size());
-    pc->points.resize(static_cast<Eigen::Index>(rows.size()), 3);
-    for (size_t i = 0; i < rows.size(); ++i) pc->points.row(i) = points.row(rows[i]);
+    if (static_cast<int64_t>(rows.size()) == points.rows()) {
+        pc->points = points;
+    } else {
+        pc->points.resize(static_cast<Eigen::Index>(rows.size()), 3);
+        for (size_t i = 0; i < rows.size(); ++i) pc->points.row(i) = points.row(rows[i]);
+    }
     pc->tree = std::make_unique<KdTree<3>>(pc->points.data(), pc->points.rows());
+    if (!(nb.radius > 0)) {
+        if (nb.k_neighbors <= 0)
+            throw std::invalid_argument("neighbourhood needs k_neighbors > 0 or radius > 0");
+        estimate_gicp_geometry(*pc, nb.k_neighbors, viewpoint, point_sigma, num_threads);
+        return pc;
+    }
     const LocalGeometry g =
         estimate_local_geometry(pc->points, *pc->tree, nb, viewpoint, num_threads, true);
     pc->normals = g.normals;
@@ -342,6 +421,8 @@ std::shared_ptr<PreparedCloud> prepare_cloud(const PointsXYZ& points, const Neig
         const Eigen::Matrix3d& U = g.frames[i];
         pc->covariances[i].noalias() = U * diag.asDiagonal() * U.transpose();
     }
+    pc->cov_scale = s2;  // U diag(eps, 1, 1) U^T = I - (1 - eps) n n^T
+    pc->cov_plane = 1 - kEps;
     return pc;
 }
 

@@ -25,6 +25,12 @@ struct PreparedCloud {
     std::vector<uint8_t> normal_valid;          ///< N: 1 where the normal is defined
     std::unique_ptr<KdTree<3>> tree;  ///< over `points`
     int64_t num_dropped = 0;          ///< non-finite input rows dropped
+    /// When > 0, every covariance is in the "plane" form prepare_cloud() builds:
+    /// covariances[i] = cov_scale (I - cov_plane n_i n_i^T), n_i = normals row i (zero where
+    /// invalid). GICP then inverts C_q + R C_p R^T in closed form (a rank-2 update of a
+    /// multiple of I) instead of as a general 3x3. 0: general covariances.
+    double cov_scale = 0;  ///< [m^2]
+    double cov_plane = 0;  ///< in [0, 1)
 };
 
 /// Build a PreparedCloud: drop non-finite rows, build the tree, estimate normals (towards

@@ -26,6 +26,82 @@ bool is_plane_family(Method m) {
     return m == Method::kPointToPlane || m == Method::kSymmetric || m == Method::kLM;
 }
 
+/// Inverse of C = a I - aq u u^T - ap v v^T (C_q + R C_p R^T of two plane-form covariances,
+/// u = n_q, v = R n_p; either may be 0) by the Woodbury identity, with U = [u v],
+/// D = diag(aq, ap), G = U^T U:
+///   C^-1 = (I + U K U^T) / a,   K = (a I - D G)^-1 D   (2x2, symmetric)
+/// about a third of the flops of R C_p R^T and a general 3x3 inverse.
+inline Eigen::Matrix3d plane_information(const Eigen::Vector3d& u, const Eigen::Vector3d& v,
+                                         double aq, double ap, double a) {
+    const double uu = u.squaredNorm(), vv = v.squaredNorm(), g = u.dot(v);
+    const double d11 = a - aq * uu, d22 = a - ap * vv;
+    // det >= a (a - aq - ap) > 0: both covariances are positive definite
+    const double inv_det = 1.0 / (d11 * d22 - aq * ap * g * g);
+    const double k11 = aq * d22 * inv_det, k12 = aq * ap * g * inv_det,
+                 k22 = ap * d11 * inv_det;
+    // U K U^T = u p^T + v q^T
+    const Eigen::Vector3d p = k11 * u + k12 * v, q = k12 * u + k22 * v;
+    const double ia = 1.0 / a;
+    Eigen::Matrix3d W;
+    W(0, 0) = (1 + u.x() * p.x() + v.x() * q.x()) * ia;
+    W(1, 1) = (1 + u.y() * p.y() + v.y() * q.y()) * ia;
+    W(2, 2) = (1 + u.z() * p.z() + v.z() * q.z()) * ia;
+    W(1, 0) = W(0, 1) = (u.y() * p.x() + v.y() * q.x()) * ia;
+    W(2, 0) = W(0, 2) = (u.z() * p.x() + v.z() * q.x()) * ia;
+    W(2, 1) = W(1, 2) = (u.z() * p.y() + v.z() * q.y()) * ia;
+    return W;
+}
+
+/// GICP normal equations of one chunk, lower triangle only, written out from the skew
+/// structure of S = [R p]x (A = W S: 18 products; S^T A, lower half: 12):
+///   H_rr += w S^T W S,   H_tr += -w W S,   H_tt += w W,   b_r += w (W e) x R p,   b_t -= w W e
+struct GicpSums {
+    double rr[6] = {}, tr[9] = {}, tt[6] = {}, br[3] = {}, bt[3] = {};
+    void add(double w, const Eigen::Matrix3d& W, const Eigen::Vector3d& We,
+             const Eigen::Vector3d& r) {
+        const double x = r.x(), y = r.y(), z = r.z();
+        double A[3][3];
+        for (int i = 0; i < 3; ++i) {
+            A[i][0] = W(i, 1) * z - W(i, 2) * y;
+            A[i][1] = W(i, 2) * x - W(i, 0) * z;
+            A[i][2] = W(i, 0) * y - W(i, 1) * x;
+        }
+        rr[0] += w * (z * A[1][0] - y * A[2][0]);
+        rr[1] += w * (x * A[2][0] - z * A[0][0]);
+        rr[2] += w * (x * A[2][1] - z * A[0][1]);
+        rr[3] += w * (y * A[0][0] - x * A[1][0]);
+        rr[4] += w * (y * A[0][1] - x * A[1][1]);
+        rr[5] += w * (y * A[0][2] - x * A[1][2]);
+        for (int i = 0; i < 3; ++i)
+            for (int j = 0; j < 3; ++j) tr[3 * i + j] -= w * A[i][j];
+        tt[0] += w * W(0, 0);
+        tt[1] += w * W(1, 0);
+        tt[2] += w * W(1, 1);
+        tt[3] += w * W(2, 0);
+        tt[4] += w * W(2, 1);
+        tt[5] += w * W(2, 2);
+        const Eigen::Vector3d c = We.cross(r);
+        for (int k = 0; k < 3; ++k) {
+            br[k] += w * c[k];
+            bt[k] -= w * We[k];
+        }
+    }
+    /// Into the lower triangle of acc.H and into acc.b.
+    void store(Normal& acc) const {
+        static constexpr int kI[6] = {0, 1, 1, 2, 2, 2}, kJ[6] = {0, 0, 1, 0, 1, 2};
+        for (int k = 0; k < 6; ++k) {
+            acc.H(kI[k], kJ[k]) += rr[k];
+            acc.H(3 + kI[k], 3 + kJ[k]) += tt[k];
+        }
+        for (int i = 0; i < 3; ++i)
+            for (int j = 0; j < 3; ++j) acc.H(3 + i, j) += tr[3 * i + j];
+        for (int k = 0; k < 3; ++k) {
+            acc.b[k] += br[k];
+            acc.b[3 + k] += bt[k];
+        }
+    }
+};
+
 template <Method M>
 Normal linearize_model(const Problem& P, const Eigen::Isometry3d& T, std::vector<int>& corr,
                        bool with_jacobian, double associate_sq_dist,
@@ -51,6 +127,10 @@ Normal linearize_model(const Problem& P, const Eigen::Isometry3d& T, std::vector
     const double inv_s2 = 1.0 / (P.opt.point_sigma * P.opt.point_sigma);
     const Kernel kernel{P.opt.loss, std::pow(P.opt.loss_scale / P.opt.point_sigma, 2)};
     const bool oriented = P.opt.oriented;
+    // GICP over plane-form covariances: C = a I - aq n_q n_q^T - ap (R n_p)(R n_p)^T
+    const bool plane_form = tgt.cov_scale > 0 && src.cov_scale > 0;
+    const double aq = tgt.cov_scale * tgt.cov_plane, ap = src.cov_scale * src.cov_plane;
+    const double a = tgt.cov_scale + src.cov_scale;
     const double min_cos = P.opt.min_normal_cos;
     const int64_t m = static_cast<int64_t>(P.rows.size());
     // Fixed chunks handed out dynamically (a descheduled thread on a busy machine does not hold
@@ -61,6 +141,7 @@ Normal linearize_model(const Problem& P, const Eigen::Isometry3d& T, std::vector
 #pragma omp parallel for num_threads(threads(P.num_threads)) schedule(dynamic, 1)
     for (int64_t chunk = 0; chunk < num_chunks; ++chunk) {
         Normal acc;
+        GicpSums gicp;
         const int64_t end = std::min(m, (chunk + 1) * kChunk);
         for (int64_t k = chunk * kChunk; k < end; ++k) {
             const int64_t i = P.rows[k];
@@ -87,26 +168,21 @@ Normal linearize_model(const Problem& P, const Eigen::Isometry3d& T, std::vector
             const Eigen::Vector3d e = q - Tp;
             double w = 0, rho = 0;
             if constexpr (kGicp) {
-                Eigen::Matrix3d W;
+                Eigen::Matrix3d W;  // (C_q + R C_p R^T)^-1
                 if (reuse_M) {
                     W = (*mahalanobis)[i];
+                } else if (!kVoxels && plane_form) {
+                    W = plane_information(tgt.normals.row(j).transpose(),
+                                          R * src.normals.row(i).transpose(), aq, ap, a);
                 } else {
                     const Eigen::Matrix3d& Cq = kVoxels ? vox->covariance(j) : tgt.covariances[j];
                     const Eigen::Matrix3d C = Cq + R * src.covariances[i] * R.transpose();
                     W = C.inverse();
-                    if (store_M) (*mahalanobis)[i] = W;
                 }
+                if (store_M) (*mahalanobis)[i] = W;
                 const Eigen::Vector3d We = W * e;
                 kernel(e.dot(We), w, rho);
-                if (with_jacobian) {
-                    const Eigen::Matrix3d S = skew(Rp);
-                    const Eigen::Matrix3d WS = W * S;
-                    acc.H.topLeftCorner<3, 3>().noalias() -= w * (S * WS);
-                    acc.H.bottomLeftCorner<3, 3>().noalias() -= w * WS;
-                    acc.H.bottomRightCorner<3, 3>().noalias() += w * W;
-                    acc.b.head<3>() += w * We.cross(Rp);
-                    acc.b.tail<3>() -= w * We;
-                }
+                if (with_jacobian) gicp.add(w, W, We, Rp);
             } else if constexpr (kPlane) {
                 if (!tgt.normal_valid[j]) continue;
                 Eigen::Vector3d nrm = tgt.normals.row(j).transpose();
@@ -149,6 +225,7 @@ Normal linearize_model(const Problem& P, const Eigen::Isometry3d& T, std::vector
             acc.sq_dist += e.squaredNorm();
             if constexpr (!kPlane) acc.sq_res += e.squaredNorm();
         }
+        if constexpr (kGicp) gicp.store(acc);
         parts[chunk] = acc;
     }
     Normal out;
