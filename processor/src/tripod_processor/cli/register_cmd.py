@@ -44,6 +44,13 @@ def register_cmd(
     output: Optional[Path] = typer.Option(None, "-o", "--output",
                                           help="Also write the JSON here (and the options beside)."),
     threads: int = typer.Option(0, "--threads", help="Threads (0: all cores)."),
+    up: Optional[str] = typer.Option(
+        None, "--up", help="heightmaps: up direction X,Y,Z of both clouds in their own frames "
+                           "(overrides the files'; tripod reconstruct writes it)."),
+    source_up: Optional[str] = typer.Option(None, "--source-up",
+                                            help="heightmaps: the source's up X,Y,Z (over --up)."),
+    target_up: Optional[str] = typer.Option(None, "--target-up",
+                                            help="heightmaps: the target's up X,Y,Z (over --up)."),
 ) -> None:
     """Register SOURCE onto TARGET; prints JSON: the 4x4 T_target_source and quality figures."""
     import numpy as np
@@ -54,8 +61,11 @@ def register_cmd(
     if method == "heightmaps":  # scene understanding's global method (no initial guess needed)
         from ._heightmap_register import register_heightmaps_cmd
 
-        register_heightmaps_cmd(source, target, output, threads, _dumps)
+        register_heightmaps_cmd(source, target, output, threads, _dumps,
+                                source_up or up, target_up or up)
         return
+    if up or source_up or target_up:
+        fail("--up, --source-up and --target-up apply to --method heightmaps only")
     if method not in reg.METHODS + ("heightmaps",):
         fail(f"unknown method '{method}' (choose from {', '.join(reg.METHODS + ('heightmaps',))})")
     if loss not in reg.LOSSES:
