@@ -143,13 +143,13 @@ def pairs(split: str, rigs=tuple(RIGS), scenes=SCENES):
 
 
 def bench_heightmap_pairs(split: str = "test", quick: bool = False, with_up: bool = True,
-                          row=None) -> dict:
+                          row=None, rigs=tuple(RIGS), scenes=None) -> dict:
     """Run the section; ``row(section, item, value)`` collects the table rows. Returns the
     counts."""
     from tripod_processor.scene.heightmap_registration import register_by_heightmaps
 
     row = row or (lambda s, i, v: print(f"  {s:<14} {i:<58} {v}", flush=True))
-    scenes = SCENES[:2] if quick else SCENES
+    scenes = scenes or (SCENES[:2] if quick else SCENES)
     seed, draw = SPLITS[split]
     print(f"  heightmap pairs of reconstruct's fragments: {split} split, seed {seed}, draw "
           f"{draw}, up {'from the files' if with_up else 'ignored'}", flush=True)
@@ -159,7 +159,7 @@ def bench_heightmap_pairs(split: str = "test", quick: bool = False, with_up: boo
     times, overlaps, errs = [], [], []
     c0 = time.process_time()
     for (name, rig, scene, tgt, src, up_t, up_s, T_true, ov, vp_t,
-         vp_s) in pairs(split, tuple(RIGS), scenes):
+         vp_s) in pairs(split, tuple(rigs), scenes):
         n += 1
         overlaps.append(ov)
         t0 = time.perf_counter()
@@ -212,8 +212,10 @@ def main(argv=None) -> int:
     ap.add_argument("--split", choices=sorted(SPLITS), default="test")
     ap.add_argument("--quick", action="store_true", help="two scenes only")
     ap.add_argument("--no-up", action="store_true", help="ignore the up the files carry")
+    ap.add_argument("--rigs", nargs="+", choices=list(RIGS), default=list(RIGS))
+    ap.add_argument("--scenes", nargs="+", choices=list(SCENES), default=None)
     a = ap.parse_args(argv)
-    bench_heightmap_pairs(a.split, a.quick, not a.no_up)
+    bench_heightmap_pairs(a.split, a.quick, not a.no_up, rigs=a.rigs, scenes=a.scenes)
     return 0
 
 

@@ -169,3 +169,18 @@ def test_heightmaps_levels_by_the_up(side_run, tmp_path, capsys):
     assert {p["label"] for p in horiz} == {0, 1}
     for p in horiz:
         assert abs(abs(p["normal"][2]) - 1) < 0.01
+
+
+def test_register_global_gravity_uses_the_files_up(side_run, capsys):
+    res, T_true, out = side_run
+    f = out / "fragments"
+    rc = main(["register", str(f / "station_001.ply"), str(f / "station_000.ply"), "--global",
+               "--gravity", "--voxel", "0.1", "--method", "plane", "--threads", "2"])
+    r = json.loads(capsys.readouterr().out)
+    assert rc == 0 and r["global"]["success"]
+    E = np.linalg.inv(_truth_T(T_true, 0, 1)) @ np.array(r["T_target_source"])
+    assert _rot_err_deg(E[:3, :3]) < 1.0 and np.linalg.norm(E[:3, 3]) < 0.05
+    # --up belongs to the heightmaps method and --gravity only
+    assert main(["register", str(f / "station_001.ply"), str(f / "station_000.ply"),
+                 "--up", "0,0,1"]) == 2
+    assert "--gravity" in capsys.readouterr().err

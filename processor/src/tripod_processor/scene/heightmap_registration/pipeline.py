@@ -63,7 +63,8 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
                            other_weight: float = 2.0,
                            free_space_weight: float = 10.0, viewpoint_source=(0.0, 0.0, 0.0),
                            viewpoint_target=(0.0, 0.0, 0.0), weights=None, seed: int = 0,
-                           num_threads: int = 0, source_up=None, target_up=None
+                           num_threads: int = 0, source_up=None, target_up=None,
+                           source_gravity: bool = False, target_gravity: bool = False
                            ) -> HeightmapMatch:
     """Rigid transform between two overlapping indoor scans by matching plan heightmaps.
 
@@ -95,6 +96,9 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
         None for a cloud that is already roughly z up. A cloud with one is levelled first (turned
         so that up is +z, :func:`..gravity.R_level_cloud`) and the answer turned back: any mount
         of the lidar, side-mounted included, then registers like a level one
+    source_gravity, target_gravity : the cloud's z is already up along gravity: its floor
+        plane gives the height, and refines the levelling only within 1 deg (set for a cloud
+        levelled by its up)
 
     Returns
     -------
@@ -124,8 +128,8 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
 
     # 1. level both scans on their floors
     t1 = time.perf_counter()
-    ls = level_scan(S, source_labels, seed=seed)
-    lt = level_scan(Tg, target_labels, seed=seed)
+    ls = level_scan(S, source_labels, seed=seed, gravity=source_gravity)
+    lt = level_scan(Tg, target_labels, seed=seed, gravity=target_gravity)
     stages["level"] = time.perf_counter() - t1
 
     # 2. proposals (yaw, shift) of the levelled source onto the levelled target
@@ -142,6 +146,8 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
     t1 = time.perf_counter()
     check = _Verifier(S, source_labels, Tg, target_labels, max_distance, viewpoint_source,
                       viewpoint_target, num_threads)
+    if source_gravity and target_gravity:  # both level by gravity: the ICPs keep them level
+        check.keep_level(ls.T_level_scan, lt.T_level_scan)
     screened = _screen(proposals, ls, lt, check, 3 * cp, free_space_weight)
     hyps = []
     for _, yaw0, shift0, who in screened[:verify]:
@@ -187,7 +193,8 @@ def _register_levelled(source, target, source_up, target_up, viewpoint_source, v
     Tg = np.asarray(target, np.float64) @ L_t[:3, :3].T
     r = register_by_heightmaps(
         S, Tg, viewpoint_source=L_s[:3, :3] @ np.asarray(viewpoint_source, float),
-        viewpoint_target=L_t[:3, :3] @ np.asarray(viewpoint_target, float), **kwargs)
+        viewpoint_target=L_t[:3, :3] @ np.asarray(viewpoint_target, float),
+        source_gravity=source_up is not None, target_gravity=target_up is not None, **kwargs)
     L_t_inv = np.linalg.inv(L_t)
 
     def back(T):  # T_levelT_levelS -> T_target_source
