@@ -34,6 +34,9 @@ class LevelledScan:
     floor_xy: np.ndarray
     height: float
     labels: np.ndarray
+    #: the floor is a plane with (almost) nothing below it: its height can be trusted (a
+    #: table top taken for the floor by a scan that saw no floor has walls below it)
+    floor_trusted: bool = True
 
 
 def level_scan(points, labels, *, seed: int = 0, max_points: int = 200_000,
@@ -83,4 +86,6 @@ def level_scan(points, labels, *, seed: int = 0, max_points: int = 200_000,
     else:
         height = float(np.percentile(Q[:, 2], 99.5))
     band = (Q[:, 2] > 0.10) & (Q[:, 2] < height - 0.10)
-    return LevelledScan(T, Q[band, :2], Q[band, 2], Q[floor_idx, :2], height, labels[band])
+    trusted = bool(floors) and float((Q[:, 2] < -0.10).mean()) < 0.01
+    return LevelledScan(T, Q[band, :2], Q[band, 2], Q[floor_idx, :2], height, labels[band],
+                        trusted)

@@ -147,7 +147,8 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
     check = _Verifier(S, source_labels, Tg, target_labels, max_distance, viewpoint_source,
                       viewpoint_target, num_threads)
     if source_gravity and target_gravity:  # both level by gravity: the ICPs keep them level
-        check.keep_level(ls.T_level_scan, lt.T_level_scan)
+        check.keep_level(ls.T_level_scan, lt.T_level_scan,
+                         ls.floor_trusted and lt.floor_trusted)
     screened = _screen(proposals, ls, lt, check, 3 * cp, free_space_weight)
     hyps = []
     for _, yaw0, shift0, who in screened[:verify]:
