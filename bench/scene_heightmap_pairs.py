@@ -113,9 +113,10 @@ def pairs(split: str, rigs=tuple(RIGS), scenes=SCENES):
     from tripod_processor.io import clouds as cloud_io
 
     seed, draw = SPLITS[split]
-    rng = np.random.default_rng(draw)
     for rig in rigs:
         for scene in scenes:
+            # one draw per capture: a subset of rigs or scenes gives the same pairs
+            rng = np.random.default_rng([draw, list(RIGS).index(rig), SCENES.index(scene)])
             info = reconstructed_fragments(rig, scene, seed)
             clouds = [cloud_io.read_cloud_meta(f) for f in info["files"]]
             pts = [cloud_io.xyz(c) for c, _ in clouds]
