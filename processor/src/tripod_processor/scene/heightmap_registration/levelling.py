@@ -44,10 +44,11 @@ def level_scan(points, labels, *, seed: int = 0, max_points: int = 200_000,
     """Level a labelled scan on its largest floor plane (and measure the ceiling height).
 
     ``gravity``: the scan's z is already up along gravity (levelled by its IMU up): the floor is
-    then the lowest sizeable floor plane within 10 deg of horizontal, refines the levelling only when within
-    ``max_tilt_deg`` of it (a sparse, grazing floor can fit worse than the IMU), and without one
-    the floor height comes from the lowest floor-labelled (else lowest) points: a lidar with
-    its spin axis vertical sees little floor in a small room, but gravity still levels it."""
+    then the lowest sizeable floor plane within 10 deg of horizontal, refines the levelling only
+    when within ``max_tilt_deg`` of it (a sparse, grazing floor can fit worse than the IMU), and
+    without one the floor height comes from the lowest floor-labelled (else lowest) points: a
+    lidar with its spin axis vertical sees little floor in a small room, but gravity still
+    levels it. ``floor_trusted``: the floor is a plane with under 1 % of the points below it."""
     P = np.asarray(points, np.float64)
     labels = np.asarray(labels)
     ok = np.isfinite(P).all(1)
