@@ -25,9 +25,13 @@
   the source within 10 cm of the target, each moved by a random yaw and shift; success:
   <= 1 deg and <= 5 cm; with its time, next to Open3D's FPFH + RANSAC + ICP and the core's own
   gravity-constrained ``register_global`` + ICP on the same pairs. ``--pair-source synthetic``
-  uses the ``synthetic_rooms`` generator instead.
+  uses the ``synthetic_rooms`` generator instead;
+* registration by heightmaps on ``tripod reconstruct``'s own fragments from rigs with vertical,
+  tilted and side-mounted lidars, levelled by the up direction the fragments carry
+  (``bench/scene_heightmap_pairs.py``; ``--only heightmap-pairs``, ``--pair-split`` picks its
+  seeds too).
 
-Usage: ``python bench/scene.py [--quick] [--pairs 50] [--pictures] [--only registration]
+Usage: ``python bench/scene.py [--quick] [--pairs 50] [--pictures] [--only SECTION]
 [--split test|dev|val] [--buildings 3] [--no-lofo] [--lofo-steps N] [--lofo-per-family N]
 [--no-twin] [--pair-split test|dev] [--pair-source twin|synthetic] [--no-baselines]``
 (``--pictures`` rewrites docs/*.png; ``--quick``: two families, one building each, small
@@ -472,7 +476,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description="scene understanding benchmark")
     ap.add_argument("--pairs", type=int, default=50, help="registration pairs")
     ap.add_argument("--pictures", action="store_true", help="rewrite docs/scene_*.png")
-    ap.add_argument("--only", choices=("segmentation", "real", "planes", "registration"), default=None,
+    ap.add_argument("--only", choices=("segmentation", "real", "planes", "registration",
+                                       "heightmap-pairs"), default=None,
                     help="run one section only")
     ap.add_argument("--split", choices=("test", "dev", "val"), default="test",
                     help="segmentation captures: test (seed 131, fresh, reported), dev (seed "
@@ -515,6 +520,10 @@ def main(argv=None) -> int:
         bench_planes(a.pictures)
     if a.only in (None, "registration"):
         bench_registration(a.pairs, a.pair_source, not a.no_baselines, a.pair_split, a.quick)
+    if a.only in (None, "heightmap-pairs"):  # reconstruct's fragments, any lidar mount
+        from scene_heightmap_pairs import bench_heightmap_pairs
+
+        bench_heightmap_pairs(a.pair_split, a.quick, row=row)
     from rich.console import Console
     from rich.table import Table
 

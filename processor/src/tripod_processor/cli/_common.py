@@ -62,6 +62,32 @@ def read_points(path: Path):
     return cloud, xyz(cloud, dtype="float32")
 
 
+#: help of the ``--up`` option of the scene commands
+UP_HELP = ("the cloud's up direction (against gravity) X,Y,Z in its own frame; overrides the "
+           "one the file carries (tripod reconstruct writes it); without either the cloud must "
+           "be roughly z up")
+
+
+def read_points_up(path: Path, up_option: str | None):
+    """(cloud, (N, 3) float32 xyz, up (3,) or None, where the up came from: "--up", "file" or
+    "none") of the cloud at ``path``: ``--up`` (when given) wins over the file's own. A bad
+    file or ``--up`` is one line and exit code 2."""
+    from ..io.clouds import CloudFormatError, read_meta
+    from ..scene.gravity import parse_up
+
+    cloud, pts = read_points(path)
+    if up_option:
+        try:
+            return cloud, pts, parse_up(up_option), "--up"
+        except ValueError as exc:
+            fail(str(exc))
+    try:
+        up = read_meta(path).up
+    except (CloudFormatError, OSError) as exc:
+        fail(str(exc).splitlines()[0])
+    return cloud, pts, up, "file" if up is not None else "none"
+
+
 def parse_sets(items: list[str] | None) -> dict:
     """``--set KEY=VALUE`` options as a dict of dotted keys to YAML-parsed values."""
     import yaml

@@ -32,7 +32,8 @@ def register_cmd(
     global_: bool = typer.Option(False, "--global",
                                  help="Global registration (FPFH + RANSAC) first; needs --voxel."),
     gravity: bool = typer.Option(False, "--gravity",
-                                 help="Both clouds are levelled (z up): global search over yaw only."),
+                                 help="Global search over yaw only: about each cloud's up "
+                                      "(--up, or the files'; else both z up)."),
     max_distance: Optional[str] = typer.Option(
         None, "--max-distance",
         help="Max correspondence distance in m; a comma list is a coarse-to-fine schedule."),
@@ -44,6 +45,13 @@ def register_cmd(
     output: Optional[Path] = typer.Option(None, "-o", "--output",
                                           help="Also write the JSON here (and the options beside)."),
     threads: int = typer.Option(0, "--threads", help="Threads (0: all cores)."),
+    up: Optional[str] = typer.Option(
+        None, "--up", help="heightmaps: up direction X,Y,Z of both clouds in their own frames "
+                           "(overrides the files'; tripod reconstruct writes it)."),
+    source_up: Optional[str] = typer.Option(None, "--source-up",
+                                            help="heightmaps: the source's up X,Y,Z (over --up)."),
+    target_up: Optional[str] = typer.Option(None, "--target-up",
+                                            help="heightmaps: the target's up X,Y,Z (over --up)."),
 ) -> None:
     """Register SOURCE onto TARGET; prints JSON: the 4x4 T_target_source and quality figures."""
     import numpy as np
@@ -54,8 +62,11 @@ def register_cmd(
     if method == "heightmaps":  # scene understanding's global method (no initial guess needed)
         from ._heightmap_register import register_heightmaps_cmd
 
-        register_heightmaps_cmd(source, target, output, threads, _dumps)
+        register_heightmaps_cmd(source, target, output, threads, _dumps,
+                                source_up or up, target_up or up)
         return
+    if (up or source_up or target_up) and not gravity:
+        fail("--up, --source-up and --target-up apply to --method heightmaps and --gravity")
     if method not in reg.METHODS + ("heightmaps",):
         fail(f"unknown method '{method}' (choose from {', '.join(reg.METHODS + ('heightmaps',))})")
     if loss not in reg.LOSSES:
@@ -71,9 +82,11 @@ def register_cmd(
         except ValueError:
             fail(f"--max-distance: not a number list: {max_distance!r}")
     try:
-        src = cloud_io.xyz(cloud_io.read_cloud(source))
-        tgt = cloud_io.xyz(cloud_io.read_cloud(target))
+        src_c, src_meta = cloud_io.read_cloud_meta(source)
+        tgt_c, tgt_meta = cloud_io.read_cloud_meta(target)
+        src, tgt = cloud_io.xyz(src_c), cloud_io.xyz(tgt_c)
         T0 = np.eye(4) if init == "identity" else cloud_io.read_matrix4(init)
+        ups = _gravity_ups(source_up or up, target_up or up, src_meta.up, tgt_meta.up)
     except (OSError, ValueError) as exc:
         fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
     for path, pts in ((source, src), (target, tgt)):
@@ -86,7 +99,10 @@ def register_cmd(
     r = None
     try:
         if global_:
-            g = reg.register_global(src, tgt, voxel_size=voxel, gravity_aligned=gravity,
+            g = reg.register_global(src, tgt, voxel_size=voxel,
+                                    gravity_aligned=gravity and ups is None,
+                                    up_source=ups[0] if gravity and ups else None,
+                                    up_target=ups[1] if gravity and ups else None,
                                     num_threads=threads)
             out["global"] = g.to_dict()
             if not g.success:
@@ -121,6 +137,19 @@ def register_cmd(
         fail(failure + unit_hint(src, tgt), code=EXIT_FAILED)
     if not r.converged:
         print(f"tripod: warning: registration status {r.status}", file=sys.stderr)
+
+
+def _gravity_ups(src_given, tgt_given, src_file, tgt_file):
+    """(up_source, up_target) for ``--gravity``: the command line's over the files', z for a
+    cloud without one; None when neither has one."""
+    from ..scene.gravity import parse_up
+
+    s = parse_up(src_given) if src_given else src_file
+    t = parse_up(tgt_given) if tgt_given else tgt_file
+    if s is None and t is None:
+        return None
+    z = (0.0, 0.0, 1.0)
+    return (z if s is None else s, z if t is None else t)
 
 
 def _dumps(obj) -> str:

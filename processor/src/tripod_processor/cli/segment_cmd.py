@@ -9,15 +9,17 @@ from pathlib import Path
 import typer
 
 from . import app
-from ._common import console, fail, read_points
+from ._common import UP_HELP, console, fail, read_points_up
 
 CLASS_HELP = "0 ceiling, 1 floor, 2 wall, 3 other"
 
 
 @app.command("segment", rich_help_panel="Scene understanding")
 def segment_cmd(
-    cloud: Path = typer.Argument(..., help="input cloud (PLY or PCD), z up"),
+    cloud: Path = typer.Argument(..., help="input cloud (PLY or PCD): with its up direction, "
+                                           "or z up"),
     output: Path = typer.Option(..., "-o", "--output", help="labelled cloud (.ply or .pcd)"),
+    up: str = typer.Option(None, "--up", help=UP_HELP),
     weights: Path = typer.Option(None, "--weights", help="segmenter weights (.npz); default: shipped"),
     truth_field: str = typer.Option(None, "--truth-field",
                                     help=f"score against this integer field of the input ({CLASS_HELP})"),
@@ -26,7 +28,8 @@ def segment_cmd(
                                            help="second stage: the points of one planar segment agree"),
 ) -> None:
     """Label every point ceiling / floor / wall / other (field `label`: 0 ceiling, 1 floor,
-    2 wall, 3 other). The output keeps the input's points, order and fields."""
+    2 wall, 3 other). The output keeps the input's points, order, fields and up direction.
+    A cloud with an up direction (its file's, or --up) is levelled before it is labelled."""
     import numpy as np
     from rich.table import Table
 
@@ -37,7 +40,7 @@ def segment_cmd(
 
     if output.suffix.lower() not in (".ply", ".pcd"):
         fail(f"output must end in .ply or .pcd, not {output.suffix!r}")
-    src, pts = read_points(cloud)
+    src, pts, up_vec, up_from = read_points_up(cloud, up)
     if truth_field and truth_field not in src.dtype.names:
         fail(f"{cloud}: no field {truth_field!r} to score against")
     try:
@@ -45,6 +48,10 @@ def segment_cmd(
     except (FileNotFoundError, ValueError, KeyError, OSError) as exc:
         fail(f"segmenter weights: {exc}")
     t0 = time.perf_counter()
+    if up_vec is not None:  # the segmenter wants z up: label the levelled points
+        from ..scene.gravity import level_points
+
+        pts = level_points(pts, up_vec)[0]
     labels = seg(pts)
     dt = time.perf_counter() - t0
     names = [n for n in src.dtype.names if n != "label"]
@@ -53,7 +60,7 @@ def segment_cmd(
         out[n] = src[n]
     out["label"] = labels
     output.parent.mkdir(parents=True, exist_ok=True)
-    write_cloud(output, out)
+    write_cloud(output, out, up=up_vec)
     from tripod_shared.config_io import dump_config
 
     cfg = SceneConfig(segment=SegmentConfig(weights=str(weights) if weights else None,
@@ -75,6 +82,10 @@ def segment_cmd(
             row.append(f"{ious[k]:.3f}")
         table.add_row(*row)
     console.print(table)
+    if up_vec is not None:
+        where = "--up" if up_from == "--up" else "the file"
+        console.print(f"levelled by the up direction from {where}"
+                      f" ({up_vec[0]:.3f}, {up_vec[1]:.3f}, {up_vec[2]:.3f})")
 
 
 def _labelled_cloud(path: Path, label_field: str):

@@ -5,6 +5,12 @@ binary_compressed), read and written without extra dependencies.
 In memory a cloud is a numpy *structured* array with one named field per attribute
 (``x, y, z`` [m] always; ``intensity``, ``ring``, ``time``, ``label``, normals ... as present).
 :func:`xyz` gives the plain (N, 3) view most algorithms want.
+
+A cloud may carry its **up direction** (the unit vector against gravity, in the cloud's own
+frame): one header comment, ``comment tripod up X Y Z`` in PLY and ``# tripod up X Y Z`` in PCD.
+Both formats define comments, so the usual readers (Open3D, PCL, plyfile) open the files as
+before, and plyfile and PCL's own copies keep header comments as they are. :func:`read_cloud_meta`
+returns the points with that metadata; :func:`write_cloud` writes it.
 """
 
 from __future__ import annotations
@@ -12,6 +18,7 @@ from __future__ import annotations
 import os
 import re
 import struct
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -53,6 +60,75 @@ def make_cloud(points: np.ndarray, **fields: np.ndarray) -> np.ndarray:
     return out
 
 
+@dataclass
+class CloudMeta:
+    """What a cloud file says about its frame, beyond the points.
+
+    Attributes
+    ----------
+    up : (3,) float64 unit vector or None
+        the direction against gravity in the cloud's frame (``tripod up`` header comment)
+    viewpoint : (3,) float64 [m] or None
+        the sensor position of a PCD file's ``VIEWPOINT`` line
+    """
+
+    up: np.ndarray | None = None
+    viewpoint: np.ndarray | None = None
+
+
+#: the header comment that carries the up direction (after "comment " in PLY, "# " in PCD)
+UP_TAG = "tripod up"
+
+
+def unit_up(up) -> np.ndarray:
+    """``up`` as a (3,) float64 unit vector; ValueError for a wrong shape, a non-finite or a
+    zero vector."""
+    u = np.asarray(up, dtype=np.float64).reshape(-1)
+    if u.shape != (3,) or not np.isfinite(u).all() or np.linalg.norm(u) < 1e-9:
+        raise ValueError(f"an up direction needs three finite numbers, not all 0: {up!r}")
+    return u / np.linalg.norm(u)
+
+
+def _up_comment(up) -> str:
+    u = unit_up(up)
+    return f"{UP_TAG} {u[0]:.9f} {u[1]:.9f} {u[2]:.9f}"
+
+
+def read_cloud_meta(path: str | os.PathLike) -> tuple[np.ndarray, CloudMeta]:
+    """Read a PLY or PCD cloud (as :func:`read_cloud`) and its :class:`CloudMeta` (the up
+    direction when the header carries one). A malformed ``tripod up`` comment is a
+    CloudFormatError."""
+    cloud = read_cloud(path)
+    return cloud, read_meta(path)
+
+
+def read_meta(path: str | os.PathLike) -> CloudMeta:
+    """The :class:`CloudMeta` of a PLY/PCD file from its header alone."""
+    up = None
+    is_ply = False
+    with open(path, "rb") as fh:
+        for k in range(4096):  # a header is short; stop at its end
+            raw = fh.readline(65536)
+            if not raw:
+                break
+            line = raw.decode("ascii", errors="replace").strip()
+            if k == 0 and line == "ply":
+                is_ply = True
+                continue
+            if is_ply and line.startswith("comment ") or not is_ply and line.startswith("#"):
+                text = line[len("comment "):] if is_ply else line.lstrip("#").strip()
+                if text.startswith(UP_TAG + " ") or text == UP_TAG:
+                    vals = text[len(UP_TAG):].split()
+                    try:
+                        up = unit_up([float(v) for v in vals])
+                    except ValueError:
+                        raise CloudFormatError(f"{path}: bad '{UP_TAG}' header comment "
+                                               f"{text!r} (expected three numbers)") from None
+            elif line.startswith("end_header") or line.upper().startswith("DATA"):
+                break
+    return CloudMeta(up=up, viewpoint=None if is_ply else pcd_viewpoint(path))
+
+
 def read_cloud(path: str | os.PathLike) -> np.ndarray:
     """Read a PLY or PCD file into a structured array (format from the extension, else sniffed)."""
     path = Path(path)
@@ -70,13 +146,14 @@ def read_cloud(path: str | os.PathLike) -> np.ndarray:
     raise CloudFormatError(f"{path}: not a PLY or PCD file")
 
 
-def write_cloud(path: str | os.PathLike, cloud: np.ndarray) -> None:
-    """Write by extension: ``.ply`` (binary little-endian) or ``.pcd`` (binary)."""
+def write_cloud(path: str | os.PathLike, cloud: np.ndarray, up=None) -> None:
+    """Write by extension: ``.ply`` (binary little-endian) or ``.pcd`` (binary); ``up`` (3,):
+    the cloud's up direction, written as a header comment (see the module docstring)."""
     suffix = Path(path).suffix.lower()
     if suffix == ".ply":
-        write_ply(path, cloud)
+        write_ply(path, cloud, up=up)
     elif suffix == ".pcd":
-        write_pcd(path, cloud)
+        write_pcd(path, cloud, up=up)
     else:
         raise ValueError(f"unknown cloud extension {suffix!r} (use .ply or .pcd)")
 
@@ -174,9 +251,12 @@ def read_ply(path: str | os.PathLike) -> np.ndarray:
     raise CloudFormatError(f"{path}: PLY file has no vertex element")
 
 
-def write_ply(path: str | os.PathLike, cloud: np.ndarray, comments: list[str] | None = None) -> None:
-    """Write a structured cloud as binary little-endian PLY (every field a vertex property)."""
+def write_ply(path: str | os.PathLike, cloud: np.ndarray, comments: list[str] | None = None,
+              up=None) -> None:
+    """Write a structured cloud as binary little-endian PLY (every field a vertex property);
+    ``up`` (3,): its up direction, as the comment ``tripod up X Y Z``."""
     cloud = _as_structured(cloud)
+    comments = list(comments or []) + ([_up_comment(up)] if up is not None else [])
     props = []
     cols = []
     for name in cloud.dtype.names:
@@ -346,9 +426,11 @@ def read_pcd(path: str | os.PathLike) -> np.ndarray:
     return out[keep] if len(keep) != len(out.dtype.names) else out
 
 
-def write_pcd(path: str | os.PathLike, cloud: np.ndarray) -> None:
-    """Write a structured cloud as binary PCD v0.7 (scalar fields)."""
+def write_pcd(path: str | os.PathLike, cloud: np.ndarray, up=None) -> None:
+    """Write a structured cloud as binary PCD v0.7 (scalar fields); ``up`` (3,): its up
+    direction, as the header comment ``# tripod up X Y Z``."""
     cloud = _as_structured(cloud)
+    up_line = f"# {_up_comment(up)}\n" if up is not None else ""
     names, sizes, types = [], [], []
     for name in cloud.dtype.names:
         base = cloud.dtype[name].base
@@ -359,7 +441,7 @@ def write_pcd(path: str | os.PathLike, cloud: np.ndarray) -> None:
     for n in names:
         packed[n] = cloud[n]
     header = (
-        "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\n"
+        f"# .PCD v0.7 - Point Cloud Data file format\n{up_line}VERSION 0.7\n"
         f"FIELDS {' '.join(names)}\nSIZE {' '.join(sizes)}\nTYPE {' '.join(types)}\n"
         f"COUNT {' '.join('1' for _ in names)}\nWIDTH {len(cloud)}\nHEIGHT 1\n"
         f"VIEWPOINT 0 0 0 1 0 0 0\nPOINTS {len(cloud)}\nDATA binary\n"

@@ -377,10 +377,12 @@ def _write_outputs(res: ReconstructResult, cfg: ReconstructConfig, orient: ImuOr
     # the map's fields: x, y, z, and with survey outputs intensity, station, label
     cloud = cloud_io.make_cloud(merged) if attrs is None else cloud_io.make_cloud(
         merged, intensity=attrs.map_intensity, station=attrs.map_station, label=attrs.map_label)
-    cloud_io.write_ply(out / "map.ply", cloud)
+    # every cloud carries its up direction (gravity from the IMU, in the cloud's own frame)
+    up_map = map_up(res, main)
+    cloud_io.write_ply(out / "map.ply", cloud, up=up_map)
     res.files["map_ply"] = str(out / "map.ply")
     if oc.write_pcd:
-        cloud_io.write_pcd(out / "map.pcd", cloud)
+        cloud_io.write_pcd(out / "map.pcd", cloud, up=up_map)
         res.files["map_pcd"] = str(out / "map.pcd")
     if oc.write_fragments:
         fdir = out / "fragments"
@@ -391,7 +393,8 @@ def _write_outputs(res: ReconstructResult, cfg: ReconstructConfig, orient: ImuOr
             if attrs is not None and k in main:
                 i = main.index(k)
                 fields = {"intensity": attrs.frag_intensity[i], "label": attrs.frag_label[i]}
-            cloud_io.write_ply(fdir / name, cloud_io.make_cloud(f.points, **fields))
+            cloud_io.write_ply(fdir / name, cloud_io.make_cloud(f.points, **fields),
+                               up=f.up_in_lidar)
         res.files["fragments"] = str(fdir)
     # poses
     t_st = res.station_t_ns
@@ -431,6 +434,16 @@ def _write_outputs(res: ReconstructResult, cfg: ReconstructConfig, orient: ImuOr
         outputs.write_foxglove_mcap(out / "reconstruction.mcap", merged, int(t_st[-1]),
                                     list(t_st[main]), slam.T_optimized[main], frags_out, traj)
         res.files["mcap"] = str(out / "reconstruction.mcap")
+
+
+def map_up(res: ReconstructResult, main: list[int]) -> np.ndarray:
+    """The up direction in the map frame (3,): the mean of the main stations' IMU up turned by
+    their optimised poses (R_map_lidar · R_world_lidar^T · e_z; +z when the graph kept the
+    stations level, as it should)."""
+    ups = [res.slam.T_optimized[k][:3, :3] @ res.fragments[k].up_in_lidar for k in main]
+    u = np.sum(ups, axis=0) if ups else np.array([0.0, 0.0, 1.0])
+    n = float(np.linalg.norm(u))
+    return u / n if n > 1e-9 else np.array([0.0, 0.0, 1.0])
 
 
 def summary(res: ReconstructResult) -> dict:

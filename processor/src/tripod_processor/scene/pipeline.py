@@ -85,9 +85,11 @@ def heightmap_name(k: int, plane: Plane) -> str:
 
 
 def write_scene(output: Path, res: SceneResult, points: np.ndarray, labels: np.ndarray,
-                source: str, labels_from: str, cfg: SceneConfig) -> None:
+                source: str, labels_from: str, cfg: SceneConfig, frame: dict | None = None
+                ) -> None:
     """The heightmap PNGs (+ JSON), ``room_lowpoly.ply`` and ``room_lowpoly.obj`` (+ ``.mtl``),
-    ``planes.json``, ``overview.png`` and ``config.yaml`` of a result in ``output``."""
+    ``planes.json``, ``overview.png`` and ``config.yaml`` of a result in ``output``.
+    ``frame``: how the points were levelled (up, R_level_cloud), kept in planes.json."""
     from tripod_shared.config_io import dump_config
 
     from .plots import save_overview
@@ -99,7 +101,7 @@ def write_scene(output: Path, res: SceneResult, points: np.ndarray, labels: np.n
     write_mesh_ply(output / "room_lowpoly.ply", *res.mesh)
     write_obj(output / "room_lowpoly.obj", *res.mesh, list(CLASS_NAMES), CLASS_COLOURS)
     (output / "planes.json").write_text(json.dumps(
-        {"source": source, "labels": labels_from,
+        {"source": source, "labels": labels_from, **({"frame": frame} if frame else {}),
          "planes": [dict(pl.as_dict(), heightmap=heightmap_name(k, pl))
                     for k, pl in enumerate(res.planes)]}, indent=1))
     save_overview(output / "overview.png", points, labels, res.planes, res.heightmaps,

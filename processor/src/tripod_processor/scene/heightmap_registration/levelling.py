@@ -34,10 +34,21 @@ class LevelledScan:
     floor_xy: np.ndarray
     height: float
     labels: np.ndarray
+    #: the floor is a plane with (almost) nothing below it: its height can be trusted (a
+    #: table top taken for the floor by a scan that saw no floor has walls below it)
+    floor_trusted: bool = True
 
 
-def level_scan(points, labels, *, seed: int = 0, max_points: int = 200_000) -> LevelledScan:
-    """Level a labelled scan on its largest floor plane (and measure the ceiling height)."""
+def level_scan(points, labels, *, seed: int = 0, max_points: int = 200_000,
+               gravity: bool = False, max_tilt_deg: float = 1.0) -> LevelledScan:
+    """Level a labelled scan on its largest floor plane (and measure the ceiling height).
+
+    ``gravity``: the scan's z is already up along gravity (levelled by its IMU up): the floor is
+    then the lowest sizeable floor plane within 10 deg of horizontal, refines the levelling only
+    when within ``max_tilt_deg`` of it (a sparse, grazing floor can fit worse than the IMU), and
+    without one the floor height comes from the lowest floor-labelled (else lowest) points: a
+    lidar with its spin axis vertical sees little floor in a small room, but gravity still
+    levels it. ``floor_trusted``: the floor is a plane with under 1 % of the points below it."""
     P = np.asarray(points, np.float64)
     labels = np.asarray(labels)
     ok = np.isfinite(P).all(1)
@@ -46,14 +57,28 @@ def level_scan(points, labels, *, seed: int = 0, max_points: int = 200_000) -> L
         idx = np.random.default_rng(seed).choice(len(P), max_points, replace=False)
         P, labels = P[idx], labels[idx]
     planes = extract_planes(P, labels, classes=(FLOOR, CEILING), min_points=200, seed=seed)
-    floors = [p for p in planes if p.label == FLOOR]
-    if not floors:
-        raise ValueError("no floor plane found: cannot level the scan")
-    fl = max(floors, key=lambda p: len(p.indices))
-    R = _rot_to_z(fl.normal)
+    floors = [p for p in planes if p.label == FLOOR
+              and (not gravity or abs(p.normal[2]) > np.cos(np.radians(10.0)))]
     T = np.eye(4)
-    T[:3, :3] = R
-    T[2, 3] = fl.offset  # n.x + d = 0 on the floor -> z' = n.x + d
+    if floors:
+        fl = max(floors, key=lambda p: len(p.indices))
+        if gravity:  # the lowest sizeable one: a sparse floor can be smaller than a table top
+            big = [p for p in floors if len(p.indices) >= 0.2 * len(fl.indices)]
+            fl = min(big, key=lambda p: float(np.median(P[p.indices, 2])))
+        floor_idx = fl.indices
+        if not gravity or abs(fl.normal[2]) > np.cos(np.radians(max_tilt_deg)):
+            T[:3, :3] = _rot_to_z(fl.normal)
+            T[2, 3] = fl.offset  # n.x + d = 0 on the floor -> z' = n.x + d
+        else:  # keep gravity's level; the floor gives its height only
+            T[2, 3] = -float(np.median(P[floor_idx, 2]))
+    elif gravity:
+        on_floor = labels == FLOOR
+        zf = P[on_floor, 2] if on_floor.sum() >= 50 else P[:, 2]
+        T[2, 3] = -float(np.percentile(zf, 1.0 if on_floor.sum() >= 50 else 0.5))
+        floor_idx = np.flatnonzero(np.abs(P[:, 2] + T[2, 3]) < 0.05)
+    else:
+        raise ValueError("no floor plane found: cannot level the scan")
+    R = T[:3, :3]
     Q = P @ R.T + T[:3, 3]
     ceilings = [p for p in planes if p.label == CEILING]
     if ceilings:
@@ -62,4 +87,6 @@ def level_scan(points, labels, *, seed: int = 0, max_points: int = 200_000) -> L
     else:
         height = float(np.percentile(Q[:, 2], 99.5))
     band = (Q[:, 2] > 0.10) & (Q[:, 2] < height - 0.10)
-    return LevelledScan(T, Q[band, :2], Q[band, 2], Q[fl.indices, :2], height, labels[band])
+    trusted = bool(floors) and float((Q[:, 2] < -0.10).mean()) < 0.01
+    return LevelledScan(T, Q[band, :2], Q[band, 2], Q[floor_idx, :2], height, labels[band],
+                        trusted)

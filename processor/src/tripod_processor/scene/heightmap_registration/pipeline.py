@@ -63,7 +63,9 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
                            other_weight: float = 2.0,
                            free_space_weight: float = 10.0, viewpoint_source=(0.0, 0.0, 0.0),
                            viewpoint_target=(0.0, 0.0, 0.0), weights=None, seed: int = 0,
-                           num_threads: int = 0) -> HeightmapMatch:
+                           num_threads: int = 0, source_up=None, target_up=None,
+                           source_gravity: bool = False, target_gravity: bool = False
+                           ) -> HeightmapMatch:
     """Rigid transform between two overlapping indoor scans by matching plan heightmaps.
 
     Parameters
@@ -90,11 +92,30 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
         (a fragment's origin): the free-space check and the normals' orientation need it
     other_weight : weight of the non-wall channel in the correlation score
     weights : segmenter weights when labels are None
+    source_up, target_up : (3,) the up direction (against gravity) in each cloud's frame, or
+        None for a cloud that is already roughly z up. A cloud with one is levelled first (turned
+        so that up is +z, :func:`..gravity.R_level_cloud`) and the answer turned back: any mount
+        of the lidar, side-mounted included, then registers like a level one
+    source_gravity, target_gravity : the cloud's z is already up along gravity: its floor
+        plane gives the height, and refines the levelling only within 1 deg (set for a cloud
+        levelled by its up)
 
     Returns
     -------
     :class:`HeightmapMatch` with ``T_target_source`` (4, 4): x_target = T @ x_source.
     """
+    if source_up is not None or target_up is not None:
+        return _register_levelled(
+            source, target, source_up, target_up, viewpoint_source, viewpoint_target,
+            dict(source_labels=source_labels, target_labels=target_labels,
+                 coarse_pixel=coarse_pixel, coarse_step_deg=coarse_step_deg,
+                 fine_pixel=fine_pixel, fine_step_deg=fine_step_deg,
+                 feature_pixel=feature_pixel, candidates=candidates, verify=verify,
+                 use_keypoints=use_keypoints, use_shapes=use_shapes, max_distance=max_distance,
+                 min_fitness=min_fitness, max_ambiguity=max_ambiguity,
+                 max_violation=max_violation, other_weight=other_weight,
+                 free_space_weight=free_space_weight, weights=weights, seed=seed,
+                 num_threads=num_threads))
     t0 = time.perf_counter()
     stages = {}
     S = np.asarray(source, np.float64)
@@ -107,8 +128,8 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
 
     # 1. level both scans on their floors
     t1 = time.perf_counter()
-    ls = level_scan(S, source_labels, seed=seed)
-    lt = level_scan(Tg, target_labels, seed=seed)
+    ls = level_scan(S, source_labels, seed=seed, gravity=source_gravity)
+    lt = level_scan(Tg, target_labels, seed=seed, gravity=target_gravity)
     stages["level"] = time.perf_counter() - t1
 
     # 2. proposals (yaw, shift) of the levelled source onto the levelled target
@@ -125,6 +146,9 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
     t1 = time.perf_counter()
     check = _Verifier(S, source_labels, Tg, target_labels, max_distance, viewpoint_source,
                       viewpoint_target, num_threads)
+    if source_gravity and target_gravity:  # both level by gravity: the ICPs keep them level
+        check.keep_level(ls.T_level_scan, lt.T_level_scan,
+                         ls.floor_trusted and lt.floor_trusted)
     screened = _screen(proposals, ls, lt, check, 3 * cp, free_space_weight)
     hyps = []
     for _, yaw0, shift0, who in screened[:verify]:
@@ -153,6 +177,33 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
                           rmse, _footprint_distance(ls, lt), best[2], len(checked), bool(ok),
                           time.perf_counter() - t0, stages,
                           [(c[2], c[0], c[3], c[4], c[5]) for c in checked])
+
+
+def _register_levelled(source, target, source_up, target_up, viewpoint_source, viewpoint_target,
+                       kwargs: dict) -> HeightmapMatch:
+    """register_by_heightmaps on the clouds turned so that their up is +z (a cloud without one
+    as it is), with the transforms turned back into the clouds' own frames."""
+    from ..gravity import R_level_cloud
+
+    L_s, L_t = np.eye(4), np.eye(4)  # T_level_cloud of each (a rotation about the origin)
+    if source_up is not None:
+        L_s[:3, :3] = R_level_cloud(source_up)
+    if target_up is not None:
+        L_t[:3, :3] = R_level_cloud(target_up)
+    S = np.asarray(source, np.float64) @ L_s[:3, :3].T
+    Tg = np.asarray(target, np.float64) @ L_t[:3, :3].T
+    r = register_by_heightmaps(
+        S, Tg, viewpoint_source=L_s[:3, :3] @ np.asarray(viewpoint_source, float),
+        viewpoint_target=L_t[:3, :3] @ np.asarray(viewpoint_target, float),
+        source_gravity=source_up is not None, target_gravity=target_up is not None, **kwargs)
+    L_t_inv = np.linalg.inv(L_t)
+
+    def back(T):  # T_levelT_levelS -> T_target_source
+        return L_t_inv @ T @ L_s
+
+    r.T_target_source = back(r.T_target_source)
+    r.verified = [(v[0], v[1], back(v[2]), *v[3:]) for v in r.verified]
+    return r
 
 
 def _proposals(ls, lt, stages: dict, yaws, cp: float, fpx: float, candidates: int,

@@ -104,6 +104,33 @@ class _Verifier:
             return cKDTree(pts), pts, dense.normals, dense.normal_valid
 
         self.surf_s, self.surf_t = surface(S), surface(Tg)
+        self.level = None
+
+    def keep_level(self, L_s, L_t, same_floor: bool) -> None:
+        """Both scans are levelled by gravity (T_level_scan ``L_s``, ``L_t``): every ICP result
+        is taken back to a yaw and a shift between the level frames and its translation refitted
+        with that rotation fixed (a thin band of walls, as a vertical lidar sees, lets a free
+        ICP tip over by degrees). ``same_floor``: both floors were seen (trusted), so the floors
+        coincide and the height is kept; else it stays free (such a scan may see no floor)."""
+        self.level = (np.asarray(L_s, np.float64), np.asarray(L_t, np.float64), bool(same_floor))
+
+    def _levelled(self, T, src, tgt, **kw):
+        """``T`` turned to a yaw between the level frames, its translation refitted."""
+        from ...registration.pairwise import register
+
+        L_s, L_t, same_floor = self.level
+        M = L_t @ T @ np.linalg.inv(L_s)
+        if same_floor:
+            M[2, 3] = 0.0
+        yaw = np.arctan2(M[1, 0], M[0, 0])
+        M[:3, :3] = [[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]]
+        T1 = np.ascontiguousarray(np.linalg.inv(L_t) @ M @ L_s)
+        try:
+            r = register(src, tgt, init=T1, rotation_prior=T1[:3, :3], rotation_prior_sigma=0.0,
+                         lock_z=same_floor, num_threads=self.threads, **kw)
+        except ValueError:
+            return T1, None
+        return r.T_target_source, r
 
     def free_space_violation(self, T, screen: bool = False) -> float:
         """Share of each scan's structure that the other scan saw through (points lying in front
@@ -145,6 +172,9 @@ class _Verifier:
         except ValueError:  # too few correspondences: judge the hypothesis as proposed
             return T
         T2 = r.T_target_source
+        if self.level is not None:
+            return self._levelled(T2, self.src, self.tgt, method="plane",
+                                  max_correspondence_distance=0.15, max_iterations=15)[0]
         # a hypothesis ICP tipped over (tilted) is not one the levelled images proposed
         tilt = np.degrees(np.arccos(np.clip((T2[:3, :3] @ T[:3, :3].T)[2, 2], -1, 1)))
         return T2 if tilt < 3.0 else T
@@ -156,19 +186,27 @@ class _Verifier:
         from ...preprocess import voxel_downsample
         from ...registration.pairwise import prepare, register
 
+        # level scans: 10 cm voxels and 20 neighbours; 5 cm normals on a noisy band of walls
+        # (a vertical lidar's) pull the translation by centimetres even from the true pose
+        voxel, nn = (0.10, 20) if self.level is not None else (0.05, 12)
+
         def oriented(P, v):
-            return prepare(voxel_downsample(P.astype(np.float32), 0.05), num_neighbors=12,
+            return prepare(voxel_downsample(P.astype(np.float32), voxel), num_neighbors=nn,
                            viewpoint=v, point_sigma=0.03, num_threads=self.threads)
 
         src, tgt = oriented(self._S, self.range_s.v), oriented(self._Tg, self.range_t.v)
         T2 = np.ascontiguousarray(T, dtype=np.float64)
         r = None
+        kw = dict(method="plane", max_iterations=15, rotation_eps=1e-6, translation_eps=1e-5,
+                  loss="huber", loss_scale=0.06, point_sigma=0.03, oriented=True,
+                  max_source=60_000, min_correspondences=100)
         for dist in (0.15, 0.08):
-            r = register(src, tgt, method="plane", init=T2, max_correspondence_distance=dist,
-                         max_iterations=15, rotation_eps=1e-6, translation_eps=1e-5,
-                         loss="huber", loss_scale=0.06, point_sigma=0.03, oriented=True,
-                         max_source=60_000, min_correspondences=100, num_threads=self.threads)
+            r = register(src, tgt, init=T2, max_correspondence_distance=dist,
+                         num_threads=self.threads, **kw)
             T2 = r.T_target_source
+            if self.level is not None and r.status != "too_few_correspondences":
+                T2, r2 = self._levelled(T2, src, tgt, max_correspondence_distance=dist, **kw)
+                r = r2 if r2 is not None else r
         if r.status == "too_few_correspondences" or not _same_pose(T2, T, 2.0, 0.3):
             return np.asarray(T), float("nan"), float("nan")  # ran away: keep the verified pose
         return T2, float(r.fitness), float(r.residual_rmse)
