@@ -38,6 +38,7 @@ class BatchResult:
     engine: str = ""
     engine_start_s: float = 0.0
     notes: list[str] = field(default_factory=list)
+    merge: object = None  # reconstruction.merge.MergeResult with --merge
 
     def count(self, status: str) -> int:
         return sum(o["status"] == status for o in self.outcomes)

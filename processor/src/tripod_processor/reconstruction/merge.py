@@ -341,14 +341,19 @@ class MergeResult:
 
 
 class _Timer:
+    """Wall time of a stage into ``times[name]``, CPU time (all threads) into
+    ``times["_cpu"][name]``."""
+
     def __init__(self, times: dict, name: str):
         self.times, self.name = times, name
 
     def __enter__(self):
-        self.t0 = time.perf_counter()
+        self.t0, self.c0 = time.perf_counter(), time.process_time()
 
     def __exit__(self, *exc):
         self.times[self.name] = self.times.get(self.name, 0.0) + time.perf_counter() - self.t0
+        cpu = self.times.setdefault("_cpu", {})
+        cpu[self.name] = cpu.get(self.name, 0.0) + time.process_time() - self.c0
 
 
 def merge_recordings(outdirs: list, outdir: str | os.PathLike, cfg: MergeConfig | None = None,
@@ -643,8 +648,10 @@ def merge_summary(mres: MergeResult) -> dict:
         "recording_pairs": [{"a": recs[p.A].name, "b": recs[p.B].name, "tried": p.tried,
                              "accepted": p.accepted, "links": p.links} for p in mres.pairs],
         "map_points": int(mres.files.get("_map_points", 0)),
-        "stage_s": mres.stage_s,
-        "processing_s": float(sum(mres.stage_s.values())),
+        "stage_s": {k: v for k, v in mres.stage_s.items() if k != "_cpu"},
+        "stage_cpu_s": mres.stage_s.get("_cpu", {}),
+        "processing_s": float(sum(v for k, v in mres.stage_s.items() if k != "_cpu")),
+        "processing_cpu_s": float(sum(mres.stage_s.get("_cpu", {}).values())),
         "notes": mres.notes,
     }
 
@@ -676,7 +683,9 @@ def merge_report(mres: MergeResult, summ: dict) -> str:
         tried = "; ".join(f"{s}: {n}, {v} ok" for s, n, v in p.tried) or "none"
         ln.append(f"| {recs[p.A].name} | {recs[p.B].name} | {tried} | {p.accepted or '–'} | "
                   f"{p.links} |")
-    ln += ["", "## Stages [s]", ""] + [f"- {k}: {v:.1f}" for k, v in mres.stage_s.items()]
+    cpu = summ["stage_cpu_s"]
+    ln += ["", "## Stages", "", "| stage | wall s | CPU s |", "|---|---|---|"]
+    ln += [f"| {k} | {v:.1f} | {cpu.get(k, 0.0):.1f} |" for k, v in summ["stage_s"].items()]
     if mres.notes:
         ln += ["", "## Notes", ""] + [f"- {n}" for n in mres.notes]
     return "\n".join(ln) + "\n"
