@@ -23,6 +23,10 @@ from .discovery import BatchRecording
 from .tasks import job_of, reconstruct_recording
 
 
+#: environment variables that size a worker's thread pools
+THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
 class EngineError(RuntimeError):
     """Ray could not be started or reached (one-line message)."""
 
@@ -109,8 +113,11 @@ def run_batch(recs: list[BatchRecording], outdir: Path, cfg_dict: dict, cfg_hash
             raise EngineError(f"cannot use {where}: {first}") from None
         res.engine_start_s = time.perf_counter() - t_engine
         try:
-            task = ray.remote(num_cpus=cpus_per_task, max_retries=max_retries)(
-                reconstruct_recording)
+            # a task's thread pools (OpenMP, OpenBLAS, MKL) as wide as its CPUs, not the
+            # node's: N workers on N cores then really run N recordings side by side
+            env = {k: str(cpus_per_task) for k in THREAD_ENV}
+            task = ray.remote(num_cpus=cpus_per_task, max_retries=max_retries,
+                              runtime_env={"env_vars": env})(reconstruct_recording)
             pending = {task.remote(j): j for j in jobs}
             while pending:
                 ready, _ = ray.wait(list(pending), num_returns=1)

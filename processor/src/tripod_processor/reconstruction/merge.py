@@ -18,8 +18,9 @@ Steps, for every pair of recordings (A, B):
    whose fragments would overlap there (share of coarse points within ``overlap_distance_m``
    of the other, at least ``min_overlap``) are registered from that guess (coarse-to-fine
    GICP, then oriented point-to-plane), and a pair is a verified *link* when its fitness passes
-   the odometry's ``min_fitness`` and it stays within ``guess_radius_m`` / 5° of the guess
-   (consistency). The best ``probe_links`` pairs are tried first; a hypothesis with fewer than
+   the odometry's ``min_fitness``, it stays within ``guess_radius_m`` / 5° of the guess
+   (consistency) and neither station's points lie where the other saw through (free space,
+   ``max_violation``). The best ``probe_links`` pairs are tried first; a hypothesis with fewer than
    ``min_links`` verified links is dropped (the recordings are not joined by it); the accepted
    one is then searched for every link (up to ``max_links_per_station`` per station and other
    recording);
@@ -79,6 +80,10 @@ class MergeConfig(StrictModel):
     #: a link registered from the hypothesis' guess is consistent when it moves less than this
     #: [m] (and 5 deg)
     guess_radius_m: float = Field(default=0.3, gt=0)
+    #: a link is rejected when more than this share of either station's points lies where the
+    #: other saw through (free space; a room placed inside a bigger room fits its floor and
+    #: ceiling, but its walls stand in the bigger room's free space)
+    max_violation: float = Field(default=0.05, ge=0, le=1)
     num_threads: int = Field(default=0, ge=0)
 
 
@@ -166,16 +171,29 @@ def load_recording(outdir: str | os.PathLike, name: str | None = None,
 
 # ---- station pairs ------------------------------------------------------------------------------
 class _Coarse:
-    """Each station's fragment at the overlap voxel, with its k-d tree (built once)."""
+    """Each station's fragment at the overlap voxel, with its k-d tree (built once), and its
+    range image for the free-space test (built when first needed)."""
 
     def __init__(self, recs: list[RecordingModel], voxel: float):
         from scipy.spatial import cKDTree
 
         from ..preprocess import voxel_downsample
 
+        self.recs = recs
         self.pts = [[voxel_downsample(p, voxel, 1).astype(np.float64) for p in r.points]
                     for r in recs]
         self.tree = [[cKDTree(p) for p in rp] for rp in self.pts]
+        self._range: dict[tuple[int, int], np.ndarray] = {}
+        # structure: the points off the floor and the ceiling (those overlap under any wrong
+        # pose that keeps the heights), 25 cm from the 1st and 99th height percentiles
+        self.struct = []
+        for r, rp in zip(recs, self.pts):
+            out = []
+            for up, p in zip(r.up_in_lidar, rp):
+                z = p @ up
+                lo, hi = np.percentile(z, [1, 99]) if len(z) else (0.0, 0.0)
+                out.append(p[(z > lo + 0.25) & (z < hi - 0.25)])
+            self.struct.append(out)
 
     def overlap(self, a: tuple[int, int], b: tuple[int, int], T_a_b: np.ndarray,
                 dist: float) -> float:
@@ -190,6 +208,52 @@ class _Coarse:
         pa_b = pa @ Ti[:3, :3].T + Ti[:3, 3]
         db, _ = self.tree[b[0]][b[1]].query(pa_b, distance_upper_bound=dist)
         return 0.5 * (float(np.isfinite(da).mean()) + float(np.isfinite(db).mean()))
+
+    # -- free space: a station's nearest return per direction (1 deg bins around its origin)
+    STEP_DEG = 1.0
+
+    def _bins(self, P: np.ndarray):
+        r = np.linalg.norm(P, axis=1)
+        az = np.arctan2(P[:, 1], P[:, 0]) + np.pi
+        el = np.arcsin(np.clip(P[:, 2] / np.maximum(r, 1e-9), -1, 1)) + np.pi / 2
+        step = np.radians(self.STEP_DEG)
+        i = np.minimum((az / step).astype(np.int64), int(round(360 / self.STEP_DEG)) - 1)
+        j = np.minimum((el / step).astype(np.int64), int(round(180 / self.STEP_DEG)))
+        return i, j, r
+
+    def range_image(self, a: tuple[int, int]) -> np.ndarray:
+        """(360, 181) float32: the nearest return [m] per 1° direction of station ``a``, eroded
+        over the 3 x 3 neighbourhood (only space seen through in every neighbouring direction
+        is free); inf where nothing returned."""
+        if a not in self._range:
+            from scipy import ndimage
+
+            from ..preprocess import voxel_downsample
+
+            P = voxel_downsample(self.recs[a[0]].points[a[1]], 0.05, 1).astype(np.float64)
+            i, j, r = self._bins(P)
+            img = np.full((int(round(360 / self.STEP_DEG)), int(round(180 / self.STEP_DEG)) + 1),
+                          np.inf)
+            np.minimum.at(img, (i, j), r)
+            self._range[a] = ndimage.minimum_filter(img, size=3, mode="wrap").astype(np.float32)
+        return self._range[a]
+
+    def violation(self, a: tuple[int, int], b: tuple[int, int], T_a_b: np.ndarray) -> float:
+        """Share of each fragment's structure (points off floor and ceiling) lying where the
+        other station saw through (in front of its nearest return in that direction by more
+        than 5 % + 10 cm), the mean of both directions: ~0 for a right pose; the walls of a
+        room placed inside a bigger one stand in its free space."""
+        def share(P, img):
+            if not len(P):
+                return 0.0
+            i, j, r = self._bins(P)
+            lim = img[i, j]
+            return float((np.isfinite(lim) & (r < 0.95 * lim - 0.10)).mean())
+
+        pb_a = self.struct[b[0]][b[1]] @ T_a_b[:3, :3].T + T_a_b[:3, 3]
+        Ti = inv(T_a_b)
+        pa_b = self.struct[a[0]][a[1]] @ Ti[:3, :3].T + Ti[:3, 3]
+        return 0.5 * (share(pb_a, self.range_image(a)) + share(pa_b, self.range_image(b)))
 
 
 def candidate_pairs(recs, coarse: _Coarse, A: int, B: int, T_A_B: np.ndarray,
@@ -235,10 +299,12 @@ class Link:
     kept: bool = True
 
 
-def verify_link(recs, cache: CloudCache, A: int, a: int, B: int, b: int, T_A_B: np.ndarray,
-                mcfg: MergeConfig) -> tuple[bool, np.ndarray, np.ndarray, float, float]:
-    """Register station b onto station a from the hypothesis' guess; (consistent and fit,
-    T_a_b, information, fitness, rmse)."""
+def verify_link(recs, cache: CloudCache, coarse: _Coarse, A: int, a: int, B: int, b: int,
+                T_A_B: np.ndarray, mcfg: MergeConfig
+                ) -> tuple[bool, np.ndarray, np.ndarray, float, float]:
+    """Register station b onto station a from the hypothesis' guess; (verified, T_a_b,
+    information, fitness, rmse): fit (``min_fitness``), consistent with the guess, and free
+    space respected (``max_violation``)."""
     ocfg = recs[A].config.odometry
     TA, TB = recs[A].T[a], T_A_B @ recs[B].T[b]
     guess = inv(TA) @ TB
@@ -256,7 +322,8 @@ def verify_link(recs, cache: CloudCache, A: int, a: int, B: int, b: int, T_A_B: 
             from .odometry import _cap_information
 
             T, info, rmse = T2, _cap_information(info2, ocfg), rmse2
-    ok = _close(guess, T, mcfg.guess_radius_m, 5.0)
+    ok = (_close(guess, T, mcfg.guess_radius_m, 5.0)
+          and coarse.violation((A, a), (B, b), T) <= mcfg.max_violation)
     return ok, T, info, fit, rmse
 
 
@@ -408,7 +475,7 @@ def merge_recordings(outdirs: list, outdir: str | os.PathLike, cfg: MergeConfig 
                 cands = candidate_pairs(recs, coarse, A, B, H, cfg)
                 got = []
                 for ov, a, b in cands[: cfg.probe_links]:
-                    ok, T, info, fit, rmse = verify_link(recs, cache, A, a, B, b, H, cfg)
+                    ok, T, info, fit, rmse = verify_link(recs, cache, coarse, A, a, B, b, H, cfg)
                     if ok:
                         got.append(Link(A, a, B, b, T, info, fit, rmse, ov, src))
             po.tried.append((src, len(cands), len(got)))
@@ -423,7 +490,7 @@ def merge_recordings(outdirs: list, outdir: str | os.PathLike, cfg: MergeConfig 
                 cands = candidate_pairs(recs, coarse, A, B, H, cfg)
                 found = []
                 for ov, a, b in cands:
-                    ok, T, info, fit, rmse = verify_link(recs, cache, A, a, B, b, H, cfg)
+                    ok, T, info, fit, rmse = verify_link(recs, cache, coarse, A, a, B, b, H, cfg)
                     if ok:
                         found.append(Link(A, a, B, b, T, info, fit, rmse, ov, src))
             if len(found) >= cfg.min_links:

@@ -221,7 +221,8 @@ def survey_configs(size: str = "full", seed: int = 0, pan_s: float = 5.0,
 def simulate_survey(out_dir: str | os.PathLike, size: str = "full", seed: int = 0,
                     pan_s: float = 5.0, nthreads: int = 0, progress=None) -> list[Path]:
     """Simulate every recording of a survey into ``out_dir/<k>-<name>/`` (each a ``tripod
-    simulate`` folder; an existing complete one is kept) and the building mesh
+    simulate`` folder; an existing complete one of the same config is kept, wherever its mesh
+    file was) and the building mesh
     ``out_dir/building.ply``. Returns the recording folders."""
     from .capture import META_FILE, simulate
     from .config import SimConfig
@@ -236,10 +237,19 @@ def simulate_survey(out_dir: str | os.PathLike, size: str = "full", seed: int = 
     for i, (name, cfg) in enumerate(plan):
         d = out / name
         done = d / META_FILE
-        if not done.is_file() or json.loads(done.read_text())["config"] != SimConfig(
-                **cfg).model_dump(mode="json"):
-            simulate(SimConfig.model_validate(cfg), d, nthreads=nthreads)
+        want = SimConfig.model_validate(cfg)
+        if not done.is_file() or not _same_config(json.loads(done.read_text())["config"], want):
+            simulate(want, d, nthreads=nthreads)
         dirs.append(d)
         if progress is not None:
             progress(i + 1, len(plan))
     return dirs
+
+
+def _same_config(meta_config: dict, cfg) -> bool:
+    """The capture's config equals ``cfg`` but for the mesh file's path (a moved survey)."""
+    a = dict(meta_config)
+    b = cfg.model_dump(mode="json")
+    a.pop("scene_file", None)
+    b.pop("scene_file", None)
+    return a == b
