@@ -83,28 +83,36 @@ def throughput(args, con) -> None:
               f"station poses identical between the runs: {same}")
 
 
+def building_config(calibration: Path):
+    """The building's reconstruction config: the rig's mount calibration (the same for every
+    capture, as a user passes ``--calibration``), one thread per task, and only the outputs the
+    merge reads (no MCAP, PCD, per-recording report or map smoothing: CPU for 223 stations)."""
+    from tripod_shared.config_io import load_config
+    from tripod_processor.reconstruction.config import ReconstructConfig
+    from tripod_processor.reconstruction.placement import load_extrinsic_file
+
+    q, lever = load_extrinsic_file(calibration)
+    return load_config(ReconstructConfig, overrides={
+        "num_threads": 1, "output.write_mcap": False, "output.write_pcd": False,
+        "output.report": False, "output.smooth_radius_m": 0.0,
+        "placement.extrinsic.q_imu_lidar": q, "placement.extrinsic.lever_arm_m": lever})
+
+
 def building(args, con) -> None:
     from rich.table import Table
 
-    from tripod_shared.config_io import load_config
     from tripod_processor.batch import batch_reconstruct, discover, merged_folder
-    from tripod_processor.reconstruction.config import ReconstructConfig
     from tripod_processor.reconstruction.evaluation import evaluate_merge
     from tripod_processor.reconstruction.merge import MergeConfig, merge_summary
-    from tripod_processor.reconstruction.placement import load_extrinsic_file
     from tripod_processor.sim.survey_building import simulate_survey
 
-    survey = args.work / f"building-{args.building}"
+    survey = args.survey or args.work / f"building-{args.building}"
     t0 = time.perf_counter()
     dirs = simulate_survey(survey, args.building, seed=0, pan_s=5.0, nthreads=2,
                            progress=lambda i, n: con.print(f"simulated {i}/{n}"))
     sim_s = time.perf_counter() - t0
     recs, _ = discover(dirs)
-    # the rig's mount calibration (the same for every capture), as a user passes --calibration
-    q, lever = load_extrinsic_file(dirs[0] / "gt" / "calibration.json")
-    cfg = load_config(ReconstructConfig, overrides={
-        "num_threads": 1, "output.write_mcap": False, "placement.extrinsic.q_imu_lidar": q,
-        "placement.extrinsic.lever_arm_m": lever})
+    cfg = building_config(dirs[0] / "gt" / "calibration.json")
     out = args.work / f"building-{args.building}-out"
     load0 = os.getloadavg()
     res = batch_reconstruct(recs, out, cfg, workers=args.workers, force=args.force,
@@ -149,6 +157,61 @@ def building(args, con) -> None:
         con.print(f"false link: {f}")
 
 
+_MERGE_CHILD = """
+import json, sys
+from tripod_processor.reconstruction.merge import MergeConfig, merge_recordings, merge_summary
+dirs, out, threads = json.loads(sys.argv[1]), sys.argv[2], int(sys.argv[3])
+merge_recordings(dirs, out, MergeConfig(num_threads=threads))
+"""
+
+
+def growth(args, con) -> None:
+    """Cost growth of the merge with the number of stations: the building's first recordings
+    up to ~50, ~100 and all stations, each merge in its own process (CPU time and peak RSS from
+    the kernel's accounting of that process); the reconstruction's CPU from the batch."""
+    import json
+    import subprocess
+    import sys
+
+    from rich.table import Table
+
+    out = args.work / f"building-{args.building}-out"
+    batch = json.loads((out / "batch.json").read_text())
+    recs = [o for o in batch["recordings"] if o["status"] != "failed"]
+    sizes, acc, prefixes = (50, 100), 0, []
+    for k, o in enumerate(recs):
+        acc += o["summary"]["stations"]
+        if sizes and acc >= sizes[0]:
+            prefixes.append(k + 1)
+            sizes = tuple(x for x in sizes if x > acc)
+    prefixes = sorted(set(prefixes + [len(recs)]))
+    t = Table(title="cost growth: merge of the building's first recordings (one process each)",
+              header_style="bold")
+    for c in ("recordings", "stations", "reconstruct CPU s (Σ)", "per station", "merge CPU s",
+              "per station", "merge wall s", "merge peak RSS MB", "merge CPU by stage"):
+        t.add_column(c, justify="right")
+    for n in prefixes:
+        dirs = [o["outdir"] for o in recs[:n]]
+        dest = args.work / f"growth-{n}"
+        t0 = time.perf_counter()
+        proc = subprocess.Popen([sys.executable, "-c", _MERGE_CHILD, json.dumps(dirs), str(dest),
+                                 "1"])
+        _, status, ru = os.wait4(proc.pid, 0)
+        wall = time.perf_counter() - t0
+        if status != 0:
+            con.print(f"merge of {n} recordings failed (status {status})")
+            continue
+        res = json.loads((dest / "result.json").read_text())
+        st = res["stations"]
+        rec_cpu = sum(o["summary"].get("processing_cpu_s", 0.0) for o in recs[:n])
+        cpu = ru.ru_utime + ru.ru_stime
+        t.add_row(str(n), str(st), f"{rec_cpu:.0f}", f"{rec_cpu / st:.2f}", f"{cpu:.0f}",
+                  f"{cpu / st:.2f}", f"{wall:.0f}", f"{ru.ru_maxrss / 1024:.0f}",
+                  ", ".join(f"{k} {v:.0f}" for k, v in res["stage_cpu_s"].items()))
+    con.print(t)
+    con.print(f"load average after: {os.getloadavg()}")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--recordings", type=int, default=8, help="throughput part (0: skip it)")
@@ -156,6 +219,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--building", choices=("full", "small", "none"), default="full")
     ap.add_argument("--workers", type=int, default=2, help="workers of the building's batch")
     ap.add_argument("--force", action="store_true", help="reconstruct the building again")
+    ap.add_argument("--growth", action="store_true",
+                    help="after the building: merge cost for ~50, ~100 and all stations")
+    ap.add_argument("--survey", type=Path, default=None,
+                    help="the building's captures (default WORK/building-SIZE; simulated there "
+                         "when missing)")
     ap.add_argument("--work", type=Path, default=Path("/tmp/tripod-bench-batch"))
     args = ap.parse_args(argv)
 
@@ -167,6 +235,8 @@ def main(argv: list[str] | None = None) -> int:
         throughput(args, con)
     if args.building != "none":
         building(args, con)
+        if args.growth:
+            growth(args, con)
     return 0
 
 
