@@ -1,21 +1,29 @@
 # SPDX-License-Identifier: BSD-3-Clause
-"""Batch benchmark: ``tripod batch`` over N small simulated recordings on the default local Ray
-engine, 1 worker against 2 (one CPU and one reconstruction thread per task), side by side.
+"""Batch benchmark, side by side:
 
-Reports per run: wall time (engine start included, and without it), recordings per minute, the
-throughput ratio 2 vs 1 workers, and the load average before and after (the machine may be
-shared: a busy machine caps the ratio, whatever the engine does). Outputs of both runs are
-compared (station poses byte for byte).
+1. **throughput** — ``tripod batch`` over N small simulated recordings on the default local Ray
+   engine, 1 worker against 2 (one CPU and one reconstruction thread per task): wall time
+   (engine start included, and without it), recordings per minute, the ratio 2 vs 1 workers,
+   the load average before and after (a busy machine caps the ratio whatever the engine
+   does); station poses of both runs compared byte for byte;
+2. **the merged building** — the digital twin's two-wing building surveyed as 8 recordings
+   (223 stations, ``sim.survey_building``), reconstructed by ``tripod batch`` (2 workers) and
+   merged (``--merge``), scored against the truth: station ATE over every station (the merged
+   frame aligned once), links between recordings found / true / false
+   (:func:`~tripod_processor.reconstruction.evaluation.evaluate_merge`).
 
-    .venv/bin/python bench/batch.py                       # 8 recordings, 3 stations each
-    .venv/bin/python bench/batch.py --recordings 4 --stations 2
-Captures are cached under --work (default /tmp/tripod-bench-batch).
+    .venv/bin/python bench/batch.py                       # both parts
+    .venv/bin/python bench/batch.py --building none       # throughput only (the wall-clock figure)
+    .venv/bin/python bench/batch.py --recordings 0 --building small   # the tests' small building
+Captures and outputs are cached under --work (default /tmp/tripod-bench-batch); the building's
+reconstructions are re-used when up to date (``--force`` to redo them).
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import time
 from pathlib import Path
 
 
@@ -32,14 +40,7 @@ def captures(work: Path, n: int, stations: int) -> list[Path]:
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--recordings", type=int, default=8)
-    ap.add_argument("--stations", type=int, default=3)
-    ap.add_argument("--work", type=Path, default=Path("/tmp/tripod-bench-batch"))
-    args = ap.parse_args(argv)
-
-    from rich.console import Console
+def throughput(args, con) -> None:
     from rich.table import Table
 
     from tripod_shared.config_io import load_config
@@ -71,7 +72,6 @@ def main(argv: list[str] | None = None) -> int:
         t.add_row(str(workers), f"{res.wall_s:.1f}", f"{res.engine_start_s:.1f}",
                   f"{60 * len(recs) / res.wall_s:.2f}", f"{60 * len(recs) / run_s:.2f}",
                   f"{task_s:.1f}", f"{cpu_s:.1f}", str(failed), f"{l0[0]:.1f} / {l1[0]:.1f}")
-    con = Console(width=140)
     con.print(t)
     (r1, r2) = rows[0][1], rows[1][1]
     ratio = r1.wall_s / r2.wall_s
@@ -81,6 +81,162 @@ def main(argv: list[str] | None = None) -> int:
                for a, b in zip(r1.outcomes, r2.outcomes) if a["status"] == b["status"] == "done")
     con.print(f"throughput 2 vs 1 workers: {ratio:.2f}x (engine start excluded: {ratio_run:.2f}x); "
               f"station poses identical between the runs: {same}")
+
+
+def building_config(calibration: Path):
+    """The building's reconstruction config: the rig's mount calibration (the same for every
+    capture, as a user passes ``--calibration``), one thread per task, and only the outputs the
+    merge reads (no MCAP, PCD, per-recording report or map smoothing: CPU for 223 stations)."""
+    from tripod_shared.config_io import load_config
+    from tripod_processor.reconstruction.config import ReconstructConfig
+    from tripod_processor.reconstruction.placement import load_extrinsic_file
+
+    q, lever = load_extrinsic_file(calibration)
+    return load_config(ReconstructConfig, overrides={
+        "num_threads": 1, "output.write_mcap": False, "output.write_pcd": False,
+        "output.report": False, "output.smooth_radius_m": 0.0,
+        "placement.extrinsic.q_imu_lidar": q, "placement.extrinsic.lever_arm_m": lever})
+
+
+def building(args, con) -> None:
+    from rich.table import Table
+
+    from tripod_processor.batch import batch_reconstruct, discover, merged_folder
+    from tripod_processor.reconstruction.evaluation import evaluate_merge
+    from tripod_processor.reconstruction.merge import MergeConfig, merge_summary
+    from tripod_processor.sim.survey_building import simulate_survey
+
+    survey = args.survey or args.work / f"building-{args.building}"
+    t0 = time.perf_counter()
+    dirs = simulate_survey(survey, args.building, seed=0, pan_s=5.0, nthreads=2,
+                           progress=lambda i, n: con.print(f"simulated {i}/{n}"))
+    sim_s = time.perf_counter() - t0
+    recs, _ = discover(dirs)
+    cfg = building_config(dirs[0] / "gt" / "calibration.json")
+    out = args.work / f"building-{args.building}-out"
+    load0 = os.getloadavg()
+    res = batch_reconstruct(recs, out, cfg, workers=args.workers, force=args.force,
+                            merge=MergeConfig(num_threads=args.workers))
+    load1 = os.getloadavg()
+    ms = merge_summary(res.merge)
+    names = [o["name"] for o in res.outcomes if o["status"] != "failed"]
+    ev = evaluate_merge(merged_folder(out, recs), {n: out / n for n in names},
+                        {d.name: d for d in dirs})
+    rec_cpu = sum(o["summary"].get("processing_cpu_s", 0.0) for o in res.outcomes)
+    n_st = ms["stations"]
+    t = Table(title=f"merged building ({args.building}): {len(recs)} recordings, {n_st} stations "
+                    f"reconstructed; batch {args.workers} workers", header_style="bold")
+    t.add_column("figure")
+    t.add_column("value", justify="right")
+    comps = ms["components"]
+    rows = [
+        ("stations in the merged model / all", f"{ms['merged_stations']} / {n_st}"),
+        ("components (recordings each)", ", ".join(str(len(c["recordings"])) for c in comps)),
+        ("station ATE [cm] / [deg]", f"{ev['ate_cm']:.2f} / {ev['ate_deg']:.3f}"),
+        ("max station error [cm] / [deg]", f"{ev['max_err_cm']:.2f} / {ev['max_err_deg']:.3f}"),
+        ("true links between recordings", str(ev["true_links"])),
+        ("links kept / true found / false / weak",
+         f"{ev['links_kept']} / {ev['true_links_found']} / {ev['false_links']} / "
+         f"{ev['weak_links_kept']}"),
+        ("link recall / precision", f"{ev['link_recall']:.3f} / {ev['link_precision']:.3f}"),
+        ("recording pairs joined / all",
+         f"{ms['recording_pairs_joined']} / {len(ms['recording_pairs'])}"),
+        ("reconstruction CPU s (Σ recordings) / per station", f"{rec_cpu:.0f} / "
+         f"{rec_cpu / max(n_st, 1):.2f}"),
+        ("merge CPU s / wall s", f"{ms['processing_cpu_s']:.0f} / {ms['processing_s']:.0f}"),
+        ("merge CPU s by stage", ", ".join(f"{k} {v:.0f}" for k, v in
+                                           ms["stage_cpu_s"].items())),
+        ("batch wall s (reconstruct + merge)", f"{res.wall_s:.0f}"),
+        ("simulation wall s (cached when 0)", f"{sim_s:.0f}"),
+        ("load 1 min before / after", f"{load0[0]:.1f} / {load1[0]:.1f}"),
+    ]
+    for a, b in rows:
+        t.add_row(a, b)
+    con.print(t)
+    for f in ev["false_link_list"][:10]:
+        con.print(f"false link: {f}")
+
+
+_MERGE_CHILD = """
+import json, sys
+from tripod_processor.reconstruction.merge import MergeConfig, merge_recordings, merge_summary
+dirs, out, threads = json.loads(sys.argv[1]), sys.argv[2], int(sys.argv[3])
+merge_recordings(dirs, out, MergeConfig(num_threads=threads))
+"""
+
+
+def growth(args, con) -> None:
+    """Cost growth of the merge with the number of stations: the building's first recordings
+    up to ~50, ~100 and all stations, each merge in its own process (CPU time and peak RSS from
+    the kernel's accounting of that process); the reconstruction's CPU from the batch."""
+    import json
+    import subprocess
+    import sys
+
+    from rich.table import Table
+
+    out = args.work / f"building-{args.building}-out"
+    batch = json.loads((out / "batch.json").read_text())
+    recs = [o for o in batch["recordings"] if o["status"] != "failed"]
+    sizes, acc, prefixes = (50, 100), 0, []
+    for k, o in enumerate(recs):
+        acc += o["summary"]["stations"]
+        if sizes and acc >= sizes[0]:
+            prefixes.append(k + 1)
+            sizes = tuple(x for x in sizes if x > acc)
+    prefixes = sorted(set(prefixes + [len(recs)]))
+    t = Table(title="cost growth: merge of the building's first recordings (one process each)",
+              header_style="bold")
+    for c in ("recordings", "stations", "reconstruct CPU s (Σ)", "per station", "merge CPU s",
+              "per station", "merge wall s", "merge peak RSS MB", "merge CPU by stage"):
+        t.add_column(c, justify="right")
+    for n in prefixes:
+        dirs = [o["outdir"] for o in recs[:n]]
+        dest = args.work / f"growth-{n}"
+        t0 = time.perf_counter()
+        proc = subprocess.Popen([sys.executable, "-c", _MERGE_CHILD, json.dumps(dirs), str(dest),
+                                 "1"])
+        _, status, ru = os.wait4(proc.pid, 0)
+        wall = time.perf_counter() - t0
+        if status != 0:
+            con.print(f"merge of {n} recordings failed (status {status})")
+            continue
+        res = json.loads((dest / "result.json").read_text())
+        st = res["stations"]
+        rec_cpu = sum(o["summary"].get("processing_cpu_s", 0.0) for o in recs[:n])
+        cpu = ru.ru_utime + ru.ru_stime
+        t.add_row(str(n), str(st), f"{rec_cpu:.0f}", f"{rec_cpu / st:.2f}", f"{cpu:.0f}",
+                  f"{cpu / st:.2f}", f"{wall:.0f}", f"{ru.ru_maxrss / 1024:.0f}",
+                  ", ".join(f"{k} {v:.0f}" for k, v in res["stage_cpu_s"].items()))
+    con.print(t)
+    con.print(f"load average after: {os.getloadavg()}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--recordings", type=int, default=8, help="throughput part (0: skip it)")
+    ap.add_argument("--stations", type=int, default=3)
+    ap.add_argument("--building", choices=("full", "small", "none"), default="full")
+    ap.add_argument("--workers", type=int, default=2, help="workers of the building's batch")
+    ap.add_argument("--force", action="store_true", help="reconstruct the building again")
+    ap.add_argument("--growth", action="store_true",
+                    help="after the building: merge cost for ~50, ~100 and all stations")
+    ap.add_argument("--survey", type=Path, default=None,
+                    help="the building's captures (default WORK/building-SIZE; simulated there "
+                         "when missing)")
+    ap.add_argument("--work", type=Path, default=Path("/tmp/tripod-bench-batch"))
+    args = ap.parse_args(argv)
+
+    from rich.console import Console
+
+    con = Console(width=140)
+    con.print(f"load average {os.getloadavg()}, {os.cpu_count()} CPUs")
+    if args.recordings > 0:
+        throughput(args, con)
+    if args.building != "none":
+        building(args, con)
+        if args.growth:
+            growth(args, con)
     return 0
 
 

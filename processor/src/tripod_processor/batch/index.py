@@ -41,7 +41,17 @@ def write_index(outdir: Path, outcomes: list[dict], meta: dict) -> dict[str, Pat
             f"{counts['skipped']} up to date (skipped), {counts['failed']} failed; "
             f"engine: {meta.get('engine', '')}; wall {meta.get('wall_s', 0.0):.1f} s")
 
-    md = ["# tripod batch", "", head, "", "| " + " | ".join(COLUMNS) + " |",
+    merged_md = merged_html = ""
+    m = meta.get("merge")
+    if m:
+        rel = os.path.relpath(Path(m["folder"]) / "report.md", outdir)
+        comps = m["components"]
+        text = (f"merged model: {m['merged_stations']} of {m['stations']} stations, "
+                f"{len(comps[0]['recordings']) if comps else 0} recordings joined by "
+                f"{m['links_kept']} links; {len(comps)} component(s)")
+        merged_md = f"{text}: [report]({rel})\n\n"
+        merged_html = f'<p>{html.escape(text)}: <a href="{html.escape(rel)}">report</a></p>'
+    md = ["# tripod batch", "", head, "", merged_md + "| " + " | ".join(COLUMNS) + " |",
           "|" + "---|" * len(COLUMNS)]
     rows_html = []
     for o in outcomes:
@@ -62,7 +72,7 @@ def write_index(outdir: Path, outcomes: list[dict], meta: dict) -> dict[str, Pat
     page = ("<!doctype html><html><head><meta charset='utf-8'><title>tripod batch</title>"
             "<style>body{font-family:sans-serif}td,th{padding:2px 8px;border-bottom:1px solid "
             "#ccc}</style></head><body><h1>tripod batch</h1>"
-            f"<p>{html.escape(head)}</p><table><tr>"
+            f"<p>{html.escape(head)}</p>{merged_html}<table><tr>"
             + "".join(f"<th>{html.escape(c)}</th>" for c in COLUMNS) + "</tr>"
             + "".join(rows_html) + "</table></body></html>\n")
     paths = {"md": outdir / "index.md", "html": outdir / "index.html",

@@ -23,6 +23,11 @@ from .discovery import BatchRecording
 from .tasks import job_of, reconstruct_recording
 
 
+#: environment variables that size a local worker's thread pools (a cluster's nodes keep their
+#: own: Ray sets OMP_NUM_THREADS to a task's CPUs there)
+THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
 class EngineError(RuntimeError):
     """Ray could not be started or reached (one-line message)."""
 
@@ -38,6 +43,7 @@ class BatchResult:
     engine: str = ""
     engine_start_s: float = 0.0
     notes: list[str] = field(default_factory=list)
+    merge: object = None  # reconstruction.merge.MergeResult with --merge
 
     def count(self, status: str) -> int:
         return sum(o["status"] == status for o in self.outcomes)
@@ -66,7 +72,7 @@ def plan(recs: list[BatchRecording], outdir: Path, cfg_dict: dict, cfg_hash: str
     return jobs, skipped
 
 
-def _init_ray(workers: int, address: str | None):
+def _init_ray(workers: int, address: str | None, cpus_per_task: int = 1):
     import ray
 
     # no usage-stats upload attempt (offline machines), no dashboard, warnings only
@@ -76,8 +82,21 @@ def _init_ray(workers: int, address: str | None):
     if address:
         ray.init(address=address, **kw)
         return ray, f"cluster {address} ({int(ray.cluster_resources().get('CPU', 0))} CPUs)"
-    # results are small dicts: a small object store spares the shared machine's /dev/shm
-    ray.init(num_cpus=workers, object_store_memory=80 * 1024 * 1024, **kw)
+    # a local worker's thread pools (OpenMP, OpenBLAS, MKL) as wide as a task's CPUs, not the
+    # machine's: N workers on N cores then really run N recordings side by side. The workers
+    # inherit the environment of the raylet this starts; the driver's is restored after.
+    saved = {k: os.environ.get(k) for k in THREAD_ENV}
+    for k in THREAD_ENV:
+        os.environ.setdefault(k, str(cpus_per_task))
+    try:
+        # results are small dicts: a small object store spares the shared machine's /dev/shm
+        ray.init(num_cpus=workers, object_store_memory=80 * 1024 * 1024, **kw)
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
     return ray, f"local Ray, {workers} worker{'s' if workers != 1 else ''}"
 
 
@@ -101,7 +120,7 @@ def run_batch(recs: list[BatchRecording], outdir: Path, cfg_dict: dict, cfg_hash
     if jobs:
         t_engine = time.perf_counter()
         try:
-            ray, res.engine = _init_ray(workers, address)
+            ray, res.engine = _init_ray(workers, address, cpus_per_task)
         except Exception as exc:  # noqa: BLE001  Ray raises several types here
             first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
             where = f"the Ray cluster at {address}" if address else "a local Ray instance"

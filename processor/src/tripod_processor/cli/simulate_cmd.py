@@ -44,11 +44,20 @@ def simulate_cmd(
         None, "--rig", help="A random rig and capture drawn from this seed (sim.rigs: mount, "
                             "lever arm, IMU latency, hand or motor pan, scene size; development "
                             "seeds 0-9999, test seeds 10000+); the options above override it."),
+    survey: Optional[str] = typer.Option(
+        None, "--survey", help="The two-wing building surveyed as many recordings: full (8 "
+                               "recordings, 223 stations) or small (3, for tests), one capture "
+                               "folder each under OUTPUT (for tripod batch --merge); with "
+                               "--seed only."),
 ) -> None:
     """Simulate a tripod capture: capture.pcap, IMU log, ground truth, mesh, labels, meta.json."""
     from tripod_shared.config_io import ConfigError, load_config
 
     from ..sim import SimConfig, simulate
+
+    if survey is not None:
+        _survey(output, survey, seed or 0, threads)
+        return
 
     overrides = {
         "scene": scene,
@@ -118,4 +127,29 @@ def simulate_cmd(
     t.add_row("IMU samples", str(s.imu_samples))
     t.add_row("wall time (s)", f"{s.wall_s:.2f}")
     t.add_row("real-time factor", f"{s.realtime_factor:.1f}x")
+    console.print(t)
+
+
+def _survey(output: Path, size: str, seed: int, threads: int) -> None:
+    """``--survey``: every recording of the building (sim.survey_building)."""
+    from rich.table import Table
+
+    from ..sim.survey_building import simulate_survey, survey_plan
+
+    if size not in ("full", "small"):
+        fail(f"unknown survey {size!r} (full or small)")
+    plan = survey_plan(size)
+    try:
+        dirs = simulate_survey(output, size, seed, nthreads=threads,
+                               progress=lambda i, n: console.print(f"recording {i}/{n}"))
+    except (ValueError, OSError) as exc:
+        fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
+    t = Table(title=f"tripod simulate --survey {size} → {output}")
+    for c in ("recording", "stations", "route m"):
+        t.add_column(c, justify="left" if c == "recording" else "right")
+    import json
+
+    for d, r in zip(dirs, plan):
+        meta = json.loads((d / "meta.json").read_text())
+        t.add_row(d.name, str(r.stations), f"{meta['scene']['route_length_m']:.1f}")
     console.print(t)

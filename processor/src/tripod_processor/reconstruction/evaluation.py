@@ -231,3 +231,101 @@ def evaluate_run(outdir, truth_t_ns: np.ndarray, truth_T: np.ndarray,
         r["map_to_mesh_median_cm"] = float(np.median(d)) * 100
         r["map_to_mesh_p95_cm"] = float(np.percentile(d, 95)) * 100
     return r
+
+
+# ---- a merged model of many recordings (tripod batch --merge) ----------------------------------
+def evaluate_merge(merged_dir, recording_dirs: dict, sim_dirs: dict, *, true_overlap: float = 0.3,
+                   false_overlap: float = 0.1, link_tol_m: float = 0.10,
+                   link_tol_deg: float = 1.0) -> dict:
+    """Accuracy of a merged model against the simulator's truth of every recording.
+
+    ``recording_dirs`` / ``sim_dirs``: {recording name: its reconstruction folder / its
+    ``tripod simulate`` folder}; all captures share the building frame.
+
+    - station ATE over every station of the merged model (``stations.tum``), the merged frame
+      aligned to the building frame once (:func:`align_poses`);
+    - links between recordings: a station pair of two recordings is a *true link* when its true
+      fragments overlap: the mean share of each fragment's points (20 cm voxels) within 20 cm of
+      the other's, both placed by the truth, is at least ``true_overlap``. A kept link is
+      *false* when that share is below ``false_overlap`` or its relative pose is off the truth by
+      more than ``link_tol_m`` / ``link_tol_deg``; pairs in between are weak (neither needed
+      nor false). Recall = true links kept / true links; precision = kept links not false /
+      kept links.
+    """
+    import csv
+    from pathlib import Path
+
+    from .merge import MergeConfig, _Coarse, load_recording
+    from .outputs import read_tum
+
+    merged = Path(merged_dir)
+    truth = {n: load_sim_truth(d) for n, d in sim_dirs.items()}
+    # stations of the merged model
+    t, T = read_tum(merged / "stations.tum")
+    with open(merged / "stations.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    T_true = np.empty_like(T)
+    for i, row in enumerate(rows):
+        tt, TT = truth[row["recording"]]
+        tt = same_hour(tt, t[i:i + 1])
+        T_true[i] = interpolate_poses(tt, TT, t[i:i + 1])[0]
+    e = pose_errors(T, T_true)
+    # true links: every cross-recording station pair, from the truth
+    names = list(recording_dirs)
+    recs = [load_recording(recording_dirs[n], n) for n in names]
+    mc = MergeConfig()
+    coarse = _Coarse(recs, mc.overlap_voxel_m)
+    T_st = []
+    for r in recs:
+        tt, TT = truth[r.name]
+        T_st.append(interpolate_poses(same_hour(tt, r.t_ns), TT, r.t_ns))
+    key = {(r.name, r.index[k]): (ri, k) for ri, r in enumerate(recs) for k in range(len(r.t_ns))}
+    true_pairs, share = set(), {}
+    for A in range(len(recs)):
+        for B in range(A + 1, len(recs)):
+            for a in range(len(recs[A].t_ns)):
+                for b in range(len(recs[B].t_ns)):
+                    Tab = np.linalg.inv(T_st[A][a]) @ T_st[B][b]
+                    if np.linalg.norm(Tab[:3, 3]) > mc.max_link_distance_m:
+                        continue
+                    ov = coarse.overlap((A, a), (B, b), Tab, mc.overlap_distance_m)
+                    share[(A, a, B, b)] = ov
+                    if ov >= true_overlap:
+                        true_pairs.add((A, a, B, b))
+    kept, false_links, found, false_set = 0, [], set(), set()
+    with open(merged / "links.csv") as fh:
+        for row in csv.DictReader(fh):
+            if row["kept"] != "1":
+                continue
+            A, a = key[(row["recording_a"], int(row["station_a"]))]
+            B, b = key[(row["recording_b"], int(row["station_b"]))]
+            if A > B:
+                A, a, B, b = B, b, A, a
+            kept += 1
+            found.add((A, a, B, b))
+    # a kept link's pose error needs its measured T_a_b: the merged poses carry it (the graph
+    # agrees with its kept links), so compare the merged relative pose with the truth
+    pos = {(row["recording"], int(row["station_index"])): i for i, row in enumerate(rows)}
+    for A, a, B, b in sorted(found):
+        ov = share.get((A, a, B, b), 0.0)
+        ia, ib = pos.get((names[A], recs[A].index[a])), pos.get((names[B], recs[B].index[b]))
+        err_m = err_deg = float("nan")
+        if ia is not None and ib is not None:
+            E = np.linalg.inv(np.linalg.inv(T_true[ia]) @ T_true[ib]) @ (np.linalg.inv(T[ia])
+                                                                          @ T[ib])
+            err_m = float(np.linalg.norm(E[:3, 3]))
+            err_deg = float(np.degrees(Rotation.from_matrix(E[:3, :3]).magnitude()))
+        if ov < false_overlap or not (err_m <= link_tol_m and err_deg <= link_tol_deg):
+            false_set.add((A, a, B, b))
+            false_links.append({"a": f"{names[A]}#{recs[A].index[a]}",
+                                "b": f"{names[B]}#{recs[B].index[b]}", "true_overlap": ov,
+                                "err_m": err_m, "err_deg": err_deg})
+    hit = len((true_pairs & found) - false_set)
+    return {"stations": int(len(t)), "ate_cm": e.ate_m * 100, "ate_deg": e.ate_deg,
+            "max_err_cm": e.max_m * 100, "max_err_deg": e.max_deg,
+            "true_links": len(true_pairs), "true_links_found": hit,
+            "links_kept": kept, "false_links": len(false_links),
+            "weak_links_kept": len(found - true_pairs - false_set),
+            "link_recall": hit / len(true_pairs) if true_pairs else 1.0,
+            "link_precision": (kept - len(false_links)) / kept if kept else 1.0,
+            "false_link_list": false_links}
