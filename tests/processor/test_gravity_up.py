@@ -135,7 +135,7 @@ def test_up_option_overrides_the_file(side_run, capsys, tmp_path):
         c, meta = cloud_io.read_cloud_meta(out / "fragments" / f"station_{k:03d}.ply")
         cloud_io.write_ply(tmp_path / f"w{k}.ply", c, up=E_Z)
         wrong.append((tmp_path / f"w{k}.ply", meta.up))
-    up = ",".join(f"{v:.4f}" for v in wrong[0][1])
+    up = ",".join(f"{v:.7f}" for v in wrong[0][1])
     rc, r = _register(capsys, wrong[1][0], wrong[0][0], "--up", up)
     assert rc == 0 and r["success"] and r["up"]["target_from"] == "--up"
     E = np.linalg.inv(_truth_T(T_true, 0, 2)) @ np.array(r["T_target_source"])
