@@ -50,7 +50,7 @@ from ..registration import pose_graph as pg
 from .config import ReconstructConfig
 from .odometry import CloudCache, icp_refine, oriented_refine
 from .outputs import read_tum, write_tum
-from .slam import inv
+from .slam import inv, optimize_graph
 
 
 class MergeConfig(StrictModel):
@@ -603,10 +603,7 @@ def _optimize(recs, members, T_rec, links, scfg, num_threads):
     gres = None
     converged = True
     if graph.edges:
-        gres = graph.optimize(loss=scfg.loss, loss_scale=scfg.loss_scale,
-                              outlier_chi2=scfg.outlier_chi2, num_threads=num_threads,
-                              fixed_node=0, robust_odometry=scfg.robust_odometry,
-                              reject_odometry=scfg.robust_odometry)
+        gres = optimize_graph(graph, scfg, num_threads)
         poses = gres.T_world_node
         converged = bool(gres.converged)
         for lk, ok in zip(links, gres.edge_inlier[first_link:]):

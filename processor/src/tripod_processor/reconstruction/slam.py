@@ -39,6 +39,14 @@ class SlamResult:
     loop_candidates: int = 0
     notes: list[str] = field(default_factory=list)
 
+def optimize_graph(graph: pg.PoseGraph, scfg: SlamConfig, num_threads: int = 0):
+    """Optimise a station pose graph with the SLAM config's robust loss and outlier rules
+    (node 0 fixed); the one place both SLAM and the multi-recording merge call."""
+    return graph.optimize(loss=scfg.loss, loss_scale=scfg.loss_scale,
+                          outlier_chi2=scfg.outlier_chi2, num_threads=num_threads,
+                          fixed_node=0, robust_odometry=scfg.robust_odometry,
+                          reject_odometry=scfg.robust_odometry)
+
 
 def _edge(i: int, j: int, r: PairResult, kind: str) -> pg.Edge:
     return pg.Edge(i, j, r.T_target_source, r.information, kind, r.fitness, r.rmse)
@@ -153,10 +161,7 @@ def run_slam(frags: list[Fragment], T_odom: np.ndarray, odom_edges: list[pg.Edge
     T_opt = T_init.copy()
     gres = None
     if graph.edges:
-        gres = graph.optimize(loss=scfg.loss, loss_scale=scfg.loss_scale,
-                              outlier_chi2=scfg.outlier_chi2, num_threads=num_threads,
-                              fixed_node=0, robust_odometry=scfg.robust_odometry,
-                              reject_odometry=scfg.robust_odometry)
+        gres = optimize_graph(graph, scfg, num_threads)
         for k in members:
             T_opt[k] = gres.T_world_node[index[k]]
     disconnected = [k for k in range(n) if comp[k] != main]
