@@ -177,6 +177,9 @@ class ZenohConfig(StrictModel):
     queue_messages: int = Field(50_000, ge=1)  # live-path queue; beyond it messages are dropped
     congestion_control: Literal["block", "drop"] = "drop"  # see publisher.py
     publish_lidar: Bool = True
+    # live lidar blocks (tripod_shared.lidar_block) of at most this many bytes: the default fits
+    # one zenoh batch (64 KiB), so a block is never cut into fragments (49 packets)
+    lidar_block_bytes: int = Field(60_000, ge=1238)
     max_message_bytes: int = Field(1 << 20, ge=65536)  # larger zenoh messages are refused [B]
     tls: ZenohTlsConfig = ZenohTlsConfig()
     auth: ZenohAuthConfig = ZenohAuthConfig()
@@ -196,6 +199,9 @@ class ZenohConfig(StrictModel):
 
     @model_validator(mode="after")
     def _consistent(self):
+        if self.lidar_block_bytes > self.max_message_bytes:
+            raise ValueError(f"lidar_block_bytes ({self.lidar_block_bytes}) is more than "
+                             f"max_message_bytes ({self.max_message_bytes})")
         if any(ep.startswith("tls/") for ep in self.listen) and not self.tls.certificate:
             raise ValueError("a tls/ listen endpoint needs tls.certificate and tls.private_key")
         if self.control.users and not self.auth.users_file:

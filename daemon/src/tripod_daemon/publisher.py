@@ -9,7 +9,14 @@ a slow subscriber loses its own data (zenoh drops for that link only; the subscr
 gap in the packets' stamps) and never holds up another subscriber or the recording. ``block``
 makes the publishing thread wait for the slowest subscriber: every subscriber then gets only
 what the slowest takes, and our queue's overflow is counted.
-Payloads are the very bytes recorded to MCAP (CDR, or JSON for status and events).
+Payloads are the very bytes recorded to MCAP (CDR, or JSON for status and events), except the
+live lidar stream: its data packets go out in blocks (``lidar/blocks``, layout in
+``tripod_shared.lidar_block``) of at most ``lidar_block_bytes``, so a subscriber pays per block,
+not per packet (at 50,000 packets/s a per-sample Python callback alone is more than a small
+machine can give). Each block carries the number of its first packet among all the data packets
+this live path was given (those dropped at our queue included), so a subscriber counts exactly
+what it lost. The per-packet key (``lidar/packets``, one CDR message per sample) is published
+only while zenoh reports a subscriber matching it: no cost when nobody wants it.
 
 Security (see the README's security section): the session is built with the config's TLS
 (mutual when ``tls.client_ca`` is set) and user/password authentication, and with zenoh access
@@ -33,8 +40,13 @@ from collections.abc import Callable
 
 import zenoh
 
+import numpy as np
+
 from tripod_shared import topics
-from tripod_shared.mcap_writer import MessageBlock
+from tripod_shared.lidar_block import encode_block, max_packets_for
+from tripod_shared.mcap_writer import MESSAGE_HEADER_SIZE, MessageBlock
+from tripod_shared.messages import PACKET_PAYLOAD_OFFSET
+from tripod_shared.velodyne import DATA_PACKET_SIZE
 
 from .config import ZenohConfig
 from .osutil import set_thread_name
@@ -181,6 +193,7 @@ class LivePublisher:
         self.cfg = cfg
         self.counts = counts
         for k in ("zenoh_published", "zenoh_dropped", "zenoh_errors", "zenoh_queries",
+                  "zenoh_lidar_blocks", "zenoh_lidar_packets",
                   "control_requests", "control_refused", "control_refused_label",
                   "control_refused_rate", "control_refused_command"):
             counts.setdefault(k, 0)
@@ -209,8 +222,15 @@ class LivePublisher:
                 topics.key_events(device_id), encoding=js,
                 congestion_control=zenoh.CongestionControl.BLOCK),
         }
-        if not cfg.publish_lidar:
+        self._blocks_pub = None
+        if cfg.publish_lidar:
+            self._blocks_pub = decl(topics.key_lidar_blocks(device_id), encoding=zenoh.Encoding(
+                "application/x-tripod-lidar-block"), congestion_control=drop)
+        else:
             del self._pubs[topics.TOPIC_LIDAR_PACKETS]
+        self._block_packets = max_packets_for(cfg.lidar_block_bytes, DATA_PACKET_SIZE)
+        self._lidar_index = 0  # number of the next data packet given to the live path
+        self._skipped = 0  # data packets dropped at submit since the last queued batch
         self._device_id = device_id
         self._queryables = [
             self.session.declare_queryable(topics.key_status(device_id), self._on_status_query),
@@ -241,36 +261,95 @@ class LivePublisher:
         n = sum([len(it) if isinstance(it, MessageBlock) else 1 for it in batch])
         if self._enqueued - self._dequeued + n > self.cfg.queue_messages:
             self.counts["zenoh_dropped"] += n
+            # the dropped data packets still get their numbers: subscribers see the gap
+            lidar = topics.TOPIC_LIDAR_PACKETS
+            self._skipped += sum([len(it) if isinstance(it, MessageBlock) else 1
+                                  for it in batch if (it.topic if isinstance(it, MessageBlock)
+                                                      else it[0]) == lidar])
             return
         self._enqueued += n
-        self._q.put(batch)
+        self._q.put((batch, self._skipped))
+        self._skipped = 0
+
+    def _put(self, pub, data) -> bool:
+        try:
+            pub.put(data)
+            return True
+        except Exception as exc:  # noqa: BLE001 - zenoh raises ZError; never fatal
+            self.counts["zenoh_errors"] += 1
+            log.debug("zenoh put failed: %s", exc)
+            return False
 
     def _run(self) -> None:
         set_thread_name("tripod-publish")
         pubs = self._pubs
         counts = self.counts
+        lidar = topics.TOPIC_LIDAR_PACKETS
+        put = self._put
         while True:
-            batch = self._q.get()
-            if batch is _STOP:
+            got = self._q.get()
+            if got is _STOP:
                 return
+            batch, skipped = got
+            self._lidar_index += skipped
             n = 0
+            # the per-packet key only while someone subscribes to it (zenoh knows)
+            per_packet = pubs.get(lidar)
+            if per_packet is not None and not per_packet.matching_status.matching:
+                per_packet = None
+            singles: list = []  # per-item lidar packets (the recvmsg path), one block at the end
+            blocks = self._blocks_pub is not None
             for it in batch:
                 if isinstance(it, MessageBlock):
                     self._dequeued += len(it)
-                    pub = pubs.get(it.topic)
-                    datas = it.datas() if pub is not None else ()
+                    if it.topic == lidar:
+                        if blocks:
+                            self._publish_rows(it)
+                            n += len(it)
+                        datas = it.datas() if per_packet is not None else ()
+                        pub = per_packet
+                    else:
+                        pub = pubs.get(it.topic)
+                        datas = it.datas() if pub is not None else ()
                 else:
                     self._dequeued += 1
-                    pub = pubs.get(it[0])
+                    if it[0] == lidar:
+                        singles.append(it)
+                        pub = per_packet
+                    else:
+                        pub = pubs.get(it[0])
                     datas = (it[2],) if pub is not None else ()
+                # a lidar packet counts once (published in a block, and maybe on its own too)
+                count_puts = pub is not per_packet or not blocks
                 for data in datas:
-                    try:
-                        pub.put(data)
+                    if put(pub, data) and count_puts:
                         n += 1
-                    except Exception as exc:  # noqa: BLE001 - zenoh raises ZError; never fatal
-                        counts["zenoh_errors"] += 1
-                        log.debug("zenoh put failed: %s", exc)
+            if singles and blocks:
+                self._publish_items(singles)
+                n += len(singles)
             counts["zenoh_published"] += n
+
+    def _publish_rows(self, mb: MessageBlock) -> None:
+        """A recorder block of data packets as lidar blocks of at most ``_block_packets``."""
+        payloads = mb.rows[:, MESSAGE_HEADER_SIZE + PACKET_PAYLOAD_OFFSET:]
+        stamps = mb.log_times.view(np.int64)
+        self._publish_arrays(stamps, payloads)
+
+    def _publish_items(self, items: list[Item]) -> None:
+        payloads = np.frombuffer(b"".join([it[2][PACKET_PAYLOAD_OFFSET:] for it in items]),
+                                 np.uint8).reshape(len(items), -1)
+        self._publish_arrays(np.array([it[1] for it in items], np.int64), payloads)
+
+    def _publish_arrays(self, stamps: np.ndarray, payloads: np.ndarray) -> None:
+        step = self._block_packets
+        total = stamps.shape[0]
+        for a in range(0, total, step):
+            b = min(total, a + step)
+            data = encode_block(self._lidar_index + a, stamps[a:b], payloads[a:b])
+            if self._put(self._blocks_pub, data):
+                self.counts["zenoh_lidar_blocks"] += 1
+                self.counts["zenoh_lidar_packets"] += b - a
+        self._lidar_index += total
 
     # ---- queryables (run on zenoh's threads) ------------------------------------------------
     def _on_status_query(self, query) -> None:
@@ -383,7 +462,9 @@ class LivePublisher:
                 q.undeclare()
             except Exception:  # noqa: BLE001
                 pass
-        for p in self._pubs.values():
+        for p in [*self._pubs.values(), self._blocks_pub]:
+            if p is None:
+                continue
             try:
                 p.undeclare()
             except Exception:  # noqa: BLE001
@@ -394,6 +475,7 @@ class LivePublisher:
             pass
         self._queryables.clear()
         self._pubs = {}
+        self._blocks_pub = None
         self.session = None
         self._status_reply = self._control = None
         gc.collect()

@@ -91,6 +91,7 @@ EVENT_JSON_SCHEMA = {
 _HDR = ENCAPSULATION_CDR_LE
 _TIME = struct.Struct("<iI")
 _PKT_OFFSET = 4 + _TIME.size  # payload starts after encapsulation + Time
+PACKET_PAYLOAD_OFFSET = _PKT_OFFSET  # of a Velodyne(Position)Packet's CDR bytes [B]
 
 
 # ---- lidar packets --------------------------------------------------------------------------

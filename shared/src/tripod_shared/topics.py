@@ -31,8 +31,15 @@ def _key(device_id: str, leaf: str) -> str:
 
 
 def key_lidar_packets(device_id: str = DEFAULT_DEVICE_ID) -> str:
-    """Raw 1206-byte data packets (CDR VelodynePacket)."""
+    """Raw 1206-byte data packets, one CDR VelodynePacket per sample. Published only while
+    someone subscribes to it; live consumers should take :func:`key_lidar_blocks`."""
     return _key(device_id, "lidar/packets")
+
+
+def key_lidar_blocks(device_id: str = DEFAULT_DEVICE_ID) -> str:
+    """The data packets in blocks, many per sample (``tripod_shared.lidar_block``): the live
+    lidar stream, at a per-sample cost a consumer can afford at any packet rate."""
+    return _key(device_id, "lidar/blocks")
 
 
 def key_lidar_position(device_id: str = DEFAULT_DEVICE_ID) -> str:
