@@ -190,6 +190,9 @@ def subscriber_main(zport: int, seconds: float, mode: str) -> int:
     conf.insert_json5("mode", '"peer"')
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("connect/endpoints", f'["tcp/127.0.0.1:{zport}"]')
+    # as a consumer on another machine: every byte over TCP (zenoh would otherwise hand a
+    # local peer the blocks through shared memory, a path a remote consumer does not have)
+    conf.insert_json5("transport/shared_memory/enabled", "false")
     dec = LidarBlockDecoder()
     st = {"packets": 0, "seq_missing": 0, "next": None}
 

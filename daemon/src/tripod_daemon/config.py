@@ -180,6 +180,10 @@ class ZenohConfig(StrictModel):
     # live lidar blocks (tripod_shared.lidar_block) of at most this many bytes: the default fits
     # one zenoh batch (64 KiB), so a block is never cut into fragments (49 packets)
     lidar_block_bytes: int = Field(60_000, ge=1238)
+    # zenoh batches (64 KiB each) queued per subscriber link for data before congestion control
+    # drops: zenoh's default 2 is ~2 ms at 50,000 packets/s, 16 (its maximum) ~20 ms: a
+    # subscriber that the scheduler leaves waiting a little does not lose data (1 MiB per link)
+    tx_queue_batches: int = Field(16, ge=1, le=16)
     max_message_bytes: int = Field(1 << 20, ge=65536)  # larger zenoh messages are refused [B]
     tls: ZenohTlsConfig = ZenohTlsConfig()
     auth: ZenohAuthConfig = ZenohAuthConfig()

@@ -117,6 +117,7 @@ def build_zenoh_config(cfg: ZenohConfig, device_id: str | None = None) -> zenoh.
     if cfg.connect:
         conf.insert_json5("connect/endpoints", json.dumps(cfg.connect))
     conf.insert_json5("scouting/multicast/enabled", json.dumps(cfg.multicast_scouting))
+    conf.insert_json5("transport/link/tx/queue/size/data", json.dumps(cfg.tx_queue_batches))
     # a query payload is a short label: refuse huge messages before they are reassembled
     conf.insert_json5("transport/link/rx/max_message_size", json.dumps(cfg.max_message_bytes))
     tls = cfg.tls
@@ -193,7 +194,7 @@ class LivePublisher:
         self.cfg = cfg
         self.counts = counts
         for k in ("zenoh_published", "zenoh_dropped", "zenoh_errors", "zenoh_queries",
-                  "zenoh_lidar_blocks", "zenoh_lidar_packets",
+                  "zenoh_lidar_blocks", "zenoh_lidar_packets", "zenoh_lidar_per_packet",
                   "control_requests", "control_refused", "control_refused_label",
                   "control_refused_rate", "control_refused_command"):
             counts.setdefault(k, 0)
@@ -322,8 +323,11 @@ class LivePublisher:
                 # a lidar packet counts once (published in a block, and maybe on its own too)
                 count_puts = pub is not per_packet or not blocks
                 for data in datas:
-                    if put(pub, data) and count_puts:
-                        n += 1
+                    if put(pub, data):
+                        if count_puts:
+                            n += 1
+                        if pub is per_packet:
+                            counts["zenoh_lidar_per_packet"] += 1
             if singles and blocks:
                 self._publish_items(singles)
                 n += len(singles)

@@ -5,8 +5,9 @@
 * IMU quaternions: a ring of one sample inside zenoh (no Python call per sample; the latest is
   taken when the page asks);
 * lidar packets: only a window of about one rotation every ``image_interval_s``, and only while
-  a page is open: the subscriber is declared for the window and undeclared after it, so the
-  daemon does not even send the other ~90 % of the packets to the panel.
+  a page is open: the subscriber (on the lidar blocks, ``tripod_shared.lidar_block``) is
+  declared for the window and undeclared after it, so the daemon does not even send the other
+  ~90 % of the packets to the panel.
 
 :meth:`LiveState.snapshot` turns it into the page's JSON, with the warnings in plain words.
 """
@@ -23,6 +24,7 @@ import time
 from collections import deque
 
 from tripod_shared import messages, topics
+from tripod_shared.lidar_block import LidarBlockDecoder
 from tripod_shared.velodyne import (
     DATA_PACKET_SIZE,
     PRODUCT_ID_OFFSET,
@@ -36,7 +38,6 @@ from . import range_image
 
 log = logging.getLogger(__name__)
 
-_PKT = 4 + 8  # CDR encapsulation + builtin_interfaces/Time before the 1206 data bytes
 WINDOW_MAX_S = 0.3  # a window ends after two azimuth wraps or this long [s]
 CLIENT_IDLE_S = 5.0  # no page asked for this long: no lidar windows
 DISK_WARN_MIN = 15.0  # "disk full in N min" below this
@@ -183,21 +184,24 @@ class LiveState:
         done = threading.Event()
         wraps = [0, -1]  # count, previous first-block azimuth
 
-        def on_packet(sample) -> None:
-            data = sample.payload.to_bytes()
-            p = data[_PKT : _PKT + DATA_PACKET_SIZE]
-            if len(p) != DATA_PACKET_SIZE or done.is_set():
+        decoder = LidarBlockDecoder(packet_size=DATA_PACKET_SIZE)
+
+        def on_block(sample) -> None:
+            if done.is_set():
                 return
-            got.append(p)
-            az = p[2] | (p[3] << 8)
-            if wraps[1] >= 0 and az < wraps[1] - 18000:
-                wraps[0] += 1
-                if wraps[0] >= 2:
-                    done.set()
-            wraps[1] = az
+            blk = decoder.decode(sample.payload.to_bytes())  # None: a bad block, skipped
+            for _ns, p in blk.packets() if blk is not None else ():
+                got.append(p)
+                az = p[2] | (p[3] << 8)
+                if wraps[1] >= 0 and az < wraps[1] - 18000:
+                    wraps[0] += 1
+                    if wraps[0] >= 2:
+                        done.set()
+                        return
+                wraps[1] = az
 
         sub = self.session.declare_subscriber(
-            topics.key_lidar_packets(self.opts.device_id), on_packet)
+            topics.key_lidar_blocks(self.opts.device_id), on_block)
         try:
             done.wait(WINDOW_MAX_S)
         finally:

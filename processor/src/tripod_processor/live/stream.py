@@ -1,10 +1,12 @@
 # SPDX-License-Identifier: BSD-3-Clause
 """The daemon's live Zenoh stream, cut into rotations, behind a bounded queue.
 
-A :class:`LiveStream` is a plain Zenoh subscriber on ``tripod/<device>/**`` (keys of
-``tripod_shared.topics``): it never talks back to the daemon, so it cannot slow it (the daemon
-publishes with congestion control "drop": a slow link loses its own samples only). On Zenoh's
-callback thread it only appends packets and cuts rotations where the azimuth of a packet's
+A :class:`LiveStream` is a plain Zenoh subscriber on the daemon's lidar blocks, IMU, status and
+events keys (``tripod_shared.topics``; not ``tripod/<device>/**``, which would also match the
+per-packet lidar key and make the daemon publish every packet a second time, one sample each):
+it never talks back to the daemon, so it cannot slow it (the daemon publishes with congestion
+control "drop": a slow link loses its own samples only, counted here in ``missing`` from the
+blocks' packet numbers). On Zenoh's callback thread it only decodes blocks, appends packets and cuts rotations where the azimuth of a packet's
 first block wraps; each finished rotation goes into a queue of ``queue_rotations`` entries. When
 the consumer is behind, the oldest waiting rotation is dropped (counted in
 ``rotations_dropped``, with a log line at most once a second) so what is shown stays current.
@@ -25,6 +27,7 @@ import numpy as np
 
 from tripod_shared import messages, topics
 from tripod_shared import velodyne as vl
+from tripod_shared.lidar_block import LidarBlockDecoder
 
 log = logging.getLogger(__name__)
 
@@ -55,7 +58,8 @@ class Rotation:
 @dataclass
 class StreamCounters:
     packets: int = 0
-    malformed: int = 0
+    malformed: int = 0  # samples that could not be decoded (a bad lidar block counts once)
+    missing: int = 0  # lidar packets lost between the daemon and here (gaps in block numbers)
     rotations: int = 0
     rotations_dropped: int = 0
     imu_samples: int = 0
@@ -127,14 +131,16 @@ class LiveStream:
         self._last_drop_log = 0.0
         self._drops_logged = 0
         self.last_packet_ns = 0  # host_realtime of the last packet's arrival here
-        root = topics.key_lidar_packets(device_id).rsplit("/", 2)[0]
+        self._blocks = LidarBlockDecoder(packet_size=PACKET_SIZE)
         self._leaf = {
-            "lidar/packets": self._on_packet,
             "imu/quaternion": self._on_imu,
             "status": self._on_status,
             "events": self._on_event,
         }
-        self._sub = session.declare_subscriber(f"{root}/**", self._on_sample)
+        self._subs = [session.declare_subscriber(topics.key_lidar_blocks(device_id),
+                                                 self._on_block_sample)]
+        self._subs += [session.declare_subscriber(key, self._on_sample) for key in (
+            topics.key_imu(device_id), topics.key_status(device_id), topics.key_events(device_id))]
 
     # ---- Zenoh's callback thread: short, never blocks ---------------------------------------
     def _on_sample(self, sample) -> None:
@@ -148,16 +154,22 @@ class LiveStream:
             self.counts.malformed += 1
             log.debug("malformed %s sample: %s", leaf, exc)
 
-    def _on_packet(self, data: bytes) -> None:
-        host_ns, payload = messages.decode_velodyne_packet(data)
-        if len(payload) != PACKET_SIZE:
+    def _on_block_sample(self, sample) -> None:
+        blk = self._blocks.decode(sample.payload.to_bytes())
+        if blk is None:  # truncated or inconsistent: counted, the stream goes on
             self.counts.malformed += 1
             return
-        self.counts.packets += 1
+        self.counts.missing = self._blocks.missing
+        self.counts.packets += len(blk)
         self.last_packet_ns = time.time_ns()
+        finished = []
         with self._lock:
-            done = self._cutter.feed(host_ns, payload)
-        if done is not None:
+            feed = self._cutter.feed
+            for host_ns, payload in blk.packets():
+                done = feed(host_ns, payload)
+                if done is not None:
+                    finished.append(done)
+        for done in finished:
             self._push(done)
 
     def _push(self, done: tuple[list[bytes], list[int]]) -> None:
@@ -232,10 +244,11 @@ class LiveStream:
         return out
 
     def close(self) -> None:
-        try:
-            self._sub.undeclare()
-        except Exception:  # noqa: BLE001 - closing twice, or the session is gone
-            pass
+        for sub in self._subs:
+            try:
+                sub.undeclare()
+            except Exception:  # noqa: BLE001 - closing twice, or the session is gone
+                pass
 
 
 def open_session(connect: list[str], config_file: str | None = None):

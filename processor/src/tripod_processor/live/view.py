@@ -310,7 +310,8 @@ class LiveView:
         c = self.stream.counts
         lags = np.asarray(self.lags_ns, dtype=np.float64)
         return {
-            "packets": c.packets, "malformed": c.malformed, "rotations": c.rotations,
+            "packets": c.packets, "packets_missing": c.missing, "malformed": c.malformed,
+            "rotations": c.rotations,
             "rotations_shown": self.shown, "rotations_dropped": c.rotations_dropped,
             "points_shown": self.points_shown, "imu_samples": c.imu_samples,
             "rotations_without_imu": self.no_imu,
