@@ -12,11 +12,14 @@ and the subscriber's excluded.
 
 Rows:
   * 754 and 1508 packets/s (VLP-16 single and dual return): CPU use (goal <= 5 % of a core)
-  * 1508/s with a live Zenoh subscriber (a separate process)
-  * 50,000 packets/s for 30 s with a subscriber (goal: zero loss)
+  * 1508/s with a live Zenoh subscriber (a separate process at nice 5, taking the lidar blocks
+    over TCP as a consumer on another machine would, and counting what it misses)
+  * 50,000 packets/s for 30 s with a subscriber (goal: zero loss, the subscriber's included)
   * rising rates (x1.25, 5 s each) with a subscriber until the first loss (or, when 50k lost
-    packets, falling ones x0.8 until none); the highest rate without loss is then run for
-    30 s: the zero-loss ceiling (and RSS under overload)
+    packets, falling ones x0.8 until none); the highest rate without loss is then held for
+    30 s (x0.8 and again if it does not hold, 3 tries): the zero-loss ceiling (and RSS under
+    overload). Zero loss: nothing lost by the kernel, the writer, the live-path queue or the
+    subscriber
 At the end the recordings are read back: every received packet must be there exactly once.
 Then kill -9 at 30,000 packets/s and at the ceiling, 3 runs each: what the recovered file
 (``tripod-daemon recover``, then read by the plain ``mcap`` reader) lacks of what was sent
