@@ -12,14 +12,16 @@ and the subscriber's excluded.
 
 Rows:
   * 754 and 1508 packets/s (VLP-16 single and dual return): CPU use (goal <= 5 % of a core)
-  * 1508/s with a live Zenoh subscriber (a separate process at nice 5, taking the lidar blocks
-    over TCP as a consumer on another machine would, and counting what it misses)
+  * 1508/s with a live Zenoh subscriber (a separate process at nice 5, as the panel on the
+    device, taking the lidar blocks with zenoh's defaults, and counting what it misses)
   * 50,000 packets/s for 30 s with a subscriber (goal: zero loss, the subscriber's included)
   * rising rates (x1.25, 5 s each) with a subscriber until the first loss (or, when 50k lost
     packets, falling ones x0.8 until none); the highest rate without loss is then held for
     30 s (x0.8 and again if it does not hold, 3 tries): the zero-loss ceiling (and RSS under
     overload). Zero loss: nothing lost by the kernel, the writer, the live-path queue or the
     subscriber
+  * for information, 50,000/s for 10 s with the subscriber taking every byte over TCP (zenoh's
+    shared memory off), as a consumer on another machine would, on this machine's CPUs
 At the end the recordings are read back: every received packet must be there exactly once.
 Then kill -9 at 30,000 packets/s and at the ceiling, 3 runs each: what the recovered file
 (``tripod-daemon recover``, then read by the plain ``mcap`` reader) lacks of what was sent
@@ -169,13 +171,15 @@ class Subscriber:
     the panel's unit runs on the device (``deploy/systemd/tripod-panel.service``), as a user's
     consumer would take the stream: the lidar blocks (``topics.key_lidar_blocks``, decoded by
     ``tripod_shared.lidar_block.LidarBlockDecoder``, which counts the packets it missed from
-    the blocks' packet numbers); it checks the sender's packet numbers too. ``per_packet``:
-    the per-packet key instead (one sample, one Python callback per packet), for comparison."""
+    the blocks' packet numbers); it checks the sender's packet numbers too. Zenoh's defaults,
+    so on this machine zenoh hands it the blocks through shared memory, as it does for the panel
+    on the device. ``mode``: "blocks" (that), "blocks-tcp" (shared memory off: every byte over
+    TCP, as to a consumer on another machine, but on this machine's CPUs), "packets" (the
+    per-packet key: one sample, one Python callback per packet, for comparison)."""
 
-    def __init__(self, zport: int, seconds: float, per_packet: bool = False):
+    def __init__(self, zport: int, seconds: float, mode: str = "blocks"):
         self.proc = subprocess.Popen(
-            [sys.executable, __file__, "--subscriber", str(zport), str(seconds),
-             "packets" if per_packet else "blocks"],
+            [sys.executable, __file__, "--run-subscriber", str(zport), str(seconds), mode],
             stdout=subprocess.PIPE, text=True, preexec_fn=lambda: os.nice(5))
         assert self.proc.stdout.readline().strip() == "subscribed"
 
@@ -193,9 +197,8 @@ def subscriber_main(zport: int, seconds: float, mode: str) -> int:
     conf.insert_json5("mode", '"peer"')
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("connect/endpoints", f'["tcp/127.0.0.1:{zport}"]')
-    # as a consumer on another machine: every byte over TCP (zenoh would otherwise hand a
-    # local peer the blocks through shared memory, a path a remote consumer does not have)
-    conf.insert_json5("transport/shared_memory/enabled", "false")
+    if mode == "blocks-tcp":  # as a consumer on another machine: every byte over TCP
+        conf.insert_json5("transport/shared_memory/enabled", "false")
     dec = LidarBlockDecoder()
     st = {"packets": 0, "seq_missing": 0, "next": None}
 
@@ -218,7 +221,7 @@ def subscriber_main(zport: int, seconds: float, mode: str) -> int:
         seen(q, q, 1)
 
     with zenoh.open(conf) as z:
-        if mode == "blocks":
+        if mode != "packets":
             z.declare_subscriber(topics.key_lidar_blocks(), on_block)
         else:
             z.declare_subscriber(topics.key_lidar_packets(), on_packet)
@@ -233,8 +236,8 @@ def subscriber_main(zport: int, seconds: float, mode: str) -> int:
 
 
 def run_case(d: DaemonProcess, sender: str, seq: int, rate: float, seconds: float,
-             subscriber: bool = False, per_packet: bool = False):
-    sub = Subscriber(d.zport, seconds + 6, per_packet) if subscriber else None
+             subscriber: bool = False, mode: str = "blocks"):
+    sub = Subscriber(d.zport, seconds + 6, mode) if subscriber else None
     if sub:
         time.sleep(1.5)
     before = d.status()["counts"]
@@ -329,7 +332,7 @@ def kill_line(k: dict) -> str:
 
 
 def main() -> int:
-    if len(sys.argv) == 5 and sys.argv[1] == "--subscriber":
+    if len(sys.argv) == 5 and sys.argv[1] == "--run-subscriber":
         return subscriber_main(int(sys.argv[2]), float(sys.argv[3]), sys.argv[4])
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="short runs (smoke test)")
@@ -338,11 +341,15 @@ def main() -> int:
     ap.add_argument("--kill-runs", type=int, default=3, help="kill -9 runs per rate (0: none)")
     ap.add_argument("--kill-only", type=float, metavar="RATE",
                     help="only the kill -9 runs, at this rate")
-    ap.add_argument("--per-packet-subscriber", action="store_true",
-                    help="the subscriber takes the per-packet key (lidar/packets), one sample "
-                         "per packet, instead of the blocks (for comparison)")
+    ap.add_argument("--subscriber", choices=("blocks", "blocks-tcp", "packets"),
+                    default="blocks", dest="sub_mode",
+                    help="how the live subscriber takes the stream: the lidar blocks with "
+                         "zenoh's defaults (shared memory on this machine), the blocks with "
+                         "every byte over TCP, or one sample per packet (lidar/packets)")
+    ap.add_argument("--no-tcp-row", action="store_true",
+                    help="skip the informational 50k/s row with a TCP-only subscriber")
     a = ap.parse_args()
-    pp = a.per_packet_subscriber
+    pp = a.sub_mode
     if a.kill_only:
         with tempfile.TemporaryDirectory() as tmp:
             sender = build_sender(Path(tmp))
@@ -409,6 +416,11 @@ def main() -> int:
                         best *= 0.8
                 if not held:
                     best = None
+            if pp == "blocks" and not a.no_tcp_row:
+                # for information: the same stream with every byte over TCP, as a consumer on
+                # another machine takes it, but on this machine's 2 CPUs
+                r, seq = run_case(d, sender, seq, 50_000.0, low_s, True, "blocks-tcp")
+                rows.append(("50k/s + TCP-only sub", r))
             counts = d.status()["counts"]
             peak_rss = d.rss_mib()[1]
         finally:
@@ -453,7 +465,11 @@ def main() -> int:
           "kernel (socket buffer full, SO_RXQ_OVFL); writer: received but dropped at the "
           "recorder's memory budget; zenoh: dropped at the live-path queue; sub.lost: received "
           "by the daemon but not by the Zenoh subscriber process (a separate process at nice 5 "
-          f"taking {'one sample per packet (lidar/packets)' if pp else 'the lidar blocks'}); "
+          "taking " + {"blocks": "the lidar blocks, zenoh's defaults: shared memory on this "
+                       "machine", "blocks-tcp": "the lidar blocks, every byte over TCP",
+                       "packets": "one sample per packet (lidar/packets)"}[pp] + "); "
+          "the TCP-only row's subscriber takes every byte over TCP (no shared memory), as "
+          "a consumer on another machine would, but on this machine's CPUs; "
           "sub µs: the subscriber process's CPU time per packet it got (from subscribing to the "
           "end); load: 1-min load average at the end of the row")
     if a.no_search:
