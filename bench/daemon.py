@@ -180,13 +180,14 @@ class Subscriber:
     def __init__(self, zport: int, seconds: float, mode: str = "blocks"):
         self.proc = subprocess.Popen(
             [sys.executable, __file__, "--run-subscriber", str(zport), str(seconds), mode],
-            stdout=subprocess.PIPE, text=True, preexec_fn=lambda: os.nice(5))
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+            preexec_fn=lambda: os.nice(5))
         assert self.proc.stdout.readline().strip() == "subscribed"
 
     def close(self) -> dict:
         """{"packets": received, "missing": counted by the decoder (blocks only), "seq_missing":
         gaps in the sender's numbers, "rejected": blocks, "cpu_s": the process's CPU time while subscribed}"""
-        out, _ = self.proc.communicate(timeout=120)
+        out, _ = self.proc.communicate("", timeout=120)  # EOF: finish once the stream is quiet
         return json.loads(out.strip().splitlines()[-1])
 
 
@@ -200,7 +201,7 @@ def subscriber_main(zport: int, seconds: float, mode: str) -> int:
     if mode == "blocks-tcp":  # as a consumer on another machine: every byte over TCP
         conf.insert_json5("transport/shared_memory/enabled", "false")
     dec = LidarBlockDecoder()
-    st = {"packets": 0, "seq_missing": 0, "next": None}
+    st = {"packets": 0, "seq_missing": 0, "next": None, "last": 0.0}
 
     def seen(first: int, last: int, n: int) -> None:
         # sender's numbers first..last of n packets, in order: the gaps are what we missed
@@ -209,6 +210,7 @@ def subscriber_main(zport: int, seconds: float, mode: str) -> int:
         st["seq_missing"] += (last - first + 1) - n
         st["next"] = last + 1
         st["packets"] += n
+        st["last"] = time.monotonic()
 
     def on_block(sample):
         blk = dec.decode(sample.payload.to_bytes())
@@ -227,7 +229,14 @@ def subscriber_main(zport: int, seconds: float, mode: str) -> int:
             z.declare_subscriber(topics.key_lidar_packets(), on_packet)
         t0 = os.times()
         print("subscribed", flush=True)
-        time.sleep(seconds)
+        # until the bench closes our stdin (the daemon has caught up), then until 1 s without
+        # a sample (what is on its way still comes); ``seconds`` at most
+        end = time.monotonic() + seconds
+        done = threading.Event()
+        threading.Thread(target=lambda: (sys.stdin.read(), done.set()), daemon=True).start()
+        done.wait(seconds)
+        while time.monotonic() < end and time.monotonic() - st["last"] < 1.0:
+            time.sleep(0.1)
         t = os.times()
     print(json.dumps({"packets": st["packets"], "missing": dec.missing,
                       "seq_missing": st["seq_missing"], "rejected": dec.rejected_total,
@@ -237,7 +246,7 @@ def subscriber_main(zport: int, seconds: float, mode: str) -> int:
 
 def run_case(d: DaemonProcess, sender: str, seq: int, rate: float, seconds: float,
              subscriber: bool = False, mode: str = "blocks"):
-    sub = Subscriber(d.zport, seconds + 6, mode) if subscriber else None
+    sub = Subscriber(d.zport, seconds + 20, mode) if subscriber else None
     if sub:
         time.sleep(1.5)
     before = d.status()["counts"]
