@@ -186,7 +186,8 @@ class Subscriber:
 
     def close(self) -> dict:
         """{"packets": received, "missing": counted by the decoder (blocks only), "seq_missing":
-        gaps in the sender's numbers, "rejected": blocks, "cpu_s": the process's CPU time while subscribed}"""
+        gaps in the sender's numbers, "rejected": blocks, "cpu_s": the process's CPU time
+        while subscribed}"""
         out, _ = self.proc.communicate("", timeout=120)  # EOF: finish once the stream is quiet
         return json.loads(out.strip().splitlines()[-1])
 
