@@ -15,8 +15,9 @@ live lidar stream: its data packets go out in blocks (``lidar/blocks``, layout i
 not per packet (a Python subscriber spends 3-5 µs per sample: 16-23 % of a core at 50,000
 packets/s, before doing anything with the data). Each block carries the number of its first
 packet among all the data packets this live path was given (those dropped at our queue
-included), so a subscriber counts exactly what it lost. The per-packet key (``lidar/packets``, one CDR message per sample) is published
-only while zenoh reports a subscriber matching it: no cost when nobody wants it.
+included), so a subscriber counts exactly what it lost. The per-packet key (``lidar/packets``,
+one CDR message per sample) is published only while zenoh reports a subscriber matching it: no
+cost when nobody wants it.
 
 Security (see the README's security section): the session is built with the config's TLS
 (mutual when ``tls.client_ca`` is set) and user/password authentication, and with zenoh access

@@ -8,8 +8,9 @@ it never talks back to the daemon, so it cannot slow it (the daemon publishes wi
 control "drop": a slow link loses its own samples only, counted here in ``missing`` from the
 blocks' packet numbers). On Zenoh's callback thread it only decodes blocks, appends packets
 and cuts rotations where the azimuth of a packet's first block wraps; each finished rotation
-goes into a queue of ``queue_rotations`` entries. When the consumer is behind, the oldest waiting rotation is dropped (counted in
-``rotations_dropped``, with a log line at most once a second) so what is shown stays current.
+goes into a queue of ``queue_rotations`` entries. When the consumer is behind, the oldest
+waiting rotation is dropped (counted in ``rotations_dropped``, with a log line at most once a
+second) so what is shown stays current.
 IMU quaternions are kept in a short ring; status and events (JSON) are kept / queued as they are.
 """
 
