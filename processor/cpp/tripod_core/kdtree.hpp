@@ -271,7 +271,7 @@ private:
     };
 
     /// Subtrees of at least this many points are built as OpenMP tasks.
-    static constexpr int kTaskPoints = 2048;
+    static constexpr int kTaskPoints = 512;
 
     /// Node count of a subtree of m points: every node of more than leaf_size_ points splits at
     /// its median (a leaf of equal points leaves its subtree's other numbers unused), so a

@@ -311,7 +311,7 @@ void finish_result(const Problem& P, RegistrationResult& res, std::vector<int> c
     // Conditioning of the free components, rotations scaled by the source's extent to metres.
     // Judged on the surfaces (point-to-plane information) whatever the method: point-to-point
     // and GICP also "see" in-plane sample positions, which do not constrain a real surface.
-    TRIPOD_PHASE("finish: S plane problem+cond");
+    TRIPOD_PHASE("finish: plane info+condition");
     Problem plane(src, tgt, opt, Method::kPointToPlane, P.num_threads);
     Normal geo = linearize(plane, T, corr, true);
     if (geo.count > 0) nl.H = geo.H;

@@ -23,6 +23,36 @@ constexpr int64_t kMask = (int64_t{1} << kBits) - 1;
 inline bool finite3(const float* p) {
     return std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]);
 }
+
+/// static_cast<int64_t>(std::floor(x)) for |x| < 2^63, without a libm call.
+inline int64_t floor_i64(double x) {
+    const int64_t i = static_cast<int64_t>(x);
+    return i - (x < static_cast<double>(i));
+}
+
+struct Keyed {
+    uint64_t key;
+    int64_t row;
+};
+constexpr int kDigitBits = 11, kDigits = 1 << kDigitBits;
+
+// Sort buffers kept by the calling thread between calls (up to kKeepKeyed entries each): fresh
+// pages cost a page fault each on first touch, serialised in the kernel, whatever the threads.
+constexpr int64_t kKeepKeyed = int64_t{1} << 21;
+thread_local std::vector<Keyed> tl_keyed_a, tl_keyed_b;
+
+Keyed* scratch(std::vector<Keyed>& buf, int64_t n) {
+    if (static_cast<int64_t>(buf.size()) < n) {
+        std::vector<Keyed>().swap(buf);
+        buf.resize(n);
+    }
+    return buf.data();
+}
+
+/// Gives back a buffer above kKeepKeyed entries (a one-off huge cloud).
+void trim(std::vector<Keyed>& buf) {
+    if (static_cast<int64_t>(buf.size()) > kKeepKeyed) std::vector<Keyed>().swap(buf);
+}
 }  // namespace
 
 PointsXYZ voxel_downsample(const Eigen::Ref<const PointsXYZ>& points, double voxel_size,
@@ -96,21 +126,20 @@ PointsXYZ voxel_downsample(const Eigen::Ref<const PointsXYZ>& points, double vox
     }
     const uint64_t kInvalid = static_cast<uint64_t>(extent[0] * extent[1] * extent[2]);
 
-    // 1. key every point; 2. stable LSD radix sort by key, 11-bit digits, skipping digits no
-    // key differs in (the order inside a voxel stays the point order, which keeps the sums
-    // deterministic); 3. run boundaries. One parallel region, blocks per thread.
-    struct Keyed {
-        uint64_t key;
-        int64_t row;
-    };
-    constexpr int kDigitBits = 11, kDigits = 1 << kDigitBits;
-    std::unique_ptr<Keyed[]> keyed(new Keyed[n]), tmp(new Keyed[n]);  // no zero-fill
+    // 1. key the points of each thread's block (a contiguous range of rows); 2. each thread
+    // sorts its own block by key (stable LSD radix sort, 11-bit digits, skipping digits no key
+    // differs in), in its own part of the buffers: the data stay with the thread (cache lines
+    // moving between cores cost more than the sort itself); 3. each block's runs of equal keys;
+    // 4. the runs merged by key into voxels; 5. each voxel's centroid, summed over its runs in
+    // block order, i.e. in point order: the same sums, bit for bit, on any thread count.
+    Keyed* A = scratch(tl_keyed_a, n);
+    Keyed* B = scratch(tl_keyed_b, n);
     std::vector<uint64_t> key_or(nt, 0), key_and(nt, ~uint64_t{0});
     std::vector<int64_t> hist(static_cast<size_t>(nt) * kDigits);
-    std::vector<int64_t> run_count(nt + 1, 0);
-    std::vector<int64_t> starts;
-    Keyed* sorted = nullptr;
-    int64_t valid = 0;
+    std::vector<std::vector<int64_t>> runs(nt);  // per block: run starts, then the block's end
+    std::vector<int64_t> block_end(nt + 1, 0);
+    const Keyed* sorted = nullptr;
+    int team = 1;
 #pragma omp parallel num_threads(nt)
     {
         const int T = omp_get_num_threads(), t = omp_get_thread_num();
@@ -124,90 +153,95 @@ PointsXYZ voxel_downsample(const Eigen::Ref<const PointsXYZ>& points, double vox
             if (finite3(p)) {
                 int64_t dense = 0;
                 for (int k = 0; k < 3; ++k) {
-                    int64_t idx = static_cast<int64_t>(std::floor((p[k] - origin[k]) / voxel_size)) +
-                                  offset - i0[k];
+                    int64_t idx = floor_i64((p[k] - origin[k]) / voxel_size) + offset - i0[k];
                     idx = std::clamp<int64_t>(idx, 0, extent[k] - 1);  // rounding at the bounds
                     dense = dense * extent[k] + idx;
                 }
                 key = static_cast<uint64_t>(dense);
             }
-            keyed[i] = {key, i};
+            A[i] = {key, i};
             kor |= key;
             kand &= key;
         }
         key_or[t] = kor;
         key_and[t] = kand;
 #pragma omp barrier
+        // the same digits for every block, so that every sorted block ends up in the same buffer
         uint64_t all_or = 0, all_and = ~uint64_t{0};
         for (int u = 0; u < T; ++u) all_or |= key_or[u], all_and &= key_and[u];
         const uint64_t diff = all_or & ~all_and;  // the bits some keys differ in
-        Keyed *src = keyed.get(), *dst = tmp.get();
+        Keyed *src = A, *dst = B;
         int64_t* h = hist.data() + static_cast<size_t>(t) * kDigits;
         for (int shift = 0; shift < 64; shift += kDigitBits) {
             if (((diff >> shift) & (kDigits - 1)) == 0) continue;
             std::fill(h, h + kDigits, 0);
             for (int64_t i = b0; i < b1; ++i) ++h[(src[i].key >> shift) & (kDigits - 1)];
-#pragma omp barrier
-#pragma omp single
-            {
-                int64_t sum = 0;  // offsets: digit-major, then block order (stable)
-                for (int d = 0; d < kDigits; ++d)
-                    for (int u = 0; u < T; ++u) {
-                        int64_t& c = hist[static_cast<size_t>(u) * kDigits + d];
-                        const int64_t k = c;
-                        c = sum;
-                        sum += k;
-                    }
-            }  // implicit barrier
+            int64_t sum = b0;
+            for (int d = 0; d < kDigits; ++d) {
+                const int64_t k = h[d];
+                h[d] = sum;
+                sum += k;
+            }
             for (int64_t i = b0; i < b1; ++i) dst[h[(src[i].key >> shift) & (kDigits - 1)]++] = src[i];
             std::swap(src, dst);
-#pragma omp barrier
         }
-        // the finite points: those before the first invalid key
-#pragma omp single
-        {
+        std::vector<int64_t>& r = runs[t];
+        r.reserve((b1 - b0) / 4 + 2);
+        for (int64_t i = b0; i < b1 && src[i].key != kInvalid; ++i)
+            if (i == b0 || src[i].key != src[i - 1].key) r.push_back(i);
+        int64_t e = b0;  // the block's end of finite points
+        while (e < b1 && src[e].key != kInvalid) ++e;
+        r.push_back(e);
+        if (t == 0) {
             sorted = src;
-            int64_t lo_i = 0, hi_i = n;  // first index with key == kInvalid
-            while (lo_i < hi_i) {
-                const int64_t mid = lo_i + (hi_i - lo_i) / 2;
-                if (src[mid].key == kInvalid) hi_i = mid; else lo_i = mid + 1;
-            }
-            valid = lo_i;
+            team = T;
         }
-        // run boundaries: counted per block, then written at the block's offset
-        const int64_t v0 = valid * t / T, v1 = valid * (t + 1) / T;
-        int64_t c = 0;
-        for (int64_t i = v0; i < v1; ++i) c += i == 0 || src[i].key != src[i - 1].key;
-        run_count[t + 1] = c;
-#pragma omp barrier
-#pragma omp single
-        {
-            for (int u = 0; u < T; ++u) run_count[u + 1] += run_count[u];
-            starts.resize(run_count[T] + 1);
-            starts[run_count[T]] = valid;
-        }
-        int64_t w = run_count[t];
-        for (int64_t i = v0; i < v1; ++i)
-            if (i == 0 || src[i].key != src[i - 1].key) starts[w++] = i;
     }
 
-    // 4. centroids (parallel over voxels)
-    const int64_t m = static_cast<int64_t>(starts.size()) - 1;
-    PointsXYZ out(std::max<int64_t>(m, 0), 3);
-#pragma omp parallel for num_threads(nt) schedule(dynamic, 256)
+    // 4. merge the blocks' runs by key (a voxel: one run from each block that has its key)
+    std::vector<int64_t> vox_runs;  // per voxel: T run indices (-1: none in that block)
+    {
+        size_t total = 0;
+        for (int u = 0; u < team; ++u) total += runs[u].size();
+        vox_runs.reserve(total * team);
+        std::vector<size_t> at(team, 0);
+        for (;;) {
+            uint64_t k = ~uint64_t{0};
+            for (int u = 0; u < team; ++u)
+                if (at[u] + 1 < runs[u].size()) k = std::min(k, sorted[runs[u][at[u]]].key);
+            if (k == ~uint64_t{0}) break;
+            for (int u = 0; u < team; ++u) {
+                const bool has = at[u] + 1 < runs[u].size() && sorted[runs[u][at[u]]].key == k;
+                vox_runs.push_back(has ? static_cast<int64_t>(at[u]++) : -1);
+            }
+        }
+    }
+
+    // 5. centroids (parallel over voxels)
+    const int64_t m = static_cast<int64_t>(vox_runs.size()) / team;
+    PointsXYZ out(m, 3);
+#pragma omp parallel for num_threads(nt) schedule(static)
     for (int64_t v = 0; v < m; ++v) {
         double sx = 0, sy = 0, sz = 0;
-        for (int64_t k = starts[v]; k < starts[v + 1]; ++k) {
-            const float* p = xyz + stride * sorted[k].row;
-            sx += p[0];
-            sy += p[1];
-            sz += p[2];
+        int64_t c = 0;
+        for (int u = 0; u < team; ++u) {
+            const int64_t r = vox_runs[v * team + u];
+            if (r < 0) continue;
+            const int64_t k0 = runs[u][r], k1 = runs[u][r + 1];
+            for (int64_t k = k0; k < k1; ++k) {
+                const float* p = xyz + stride * sorted[k].row;
+                sx += p[0];
+                sy += p[1];
+                sz += p[2];
+            }
+            c += k1 - k0;
         }
-        const double c = static_cast<double>(starts[v + 1] - starts[v]);
         out(v, 0) = static_cast<float>(sx / c);
         out(v, 1) = static_cast<float>(sy / c);
         out(v, 2) = static_cast<float>(sz / c);
     }
+    trim(tl_keyed_a);
+    trim(tl_keyed_b);
     return out;
 }
 
