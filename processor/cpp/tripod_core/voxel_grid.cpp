@@ -35,6 +35,7 @@ struct Keyed {
     int64_t row;
 };
 constexpr int kDigitBits = 11, kDigits = 1 << kDigitBits;
+constexpr int kMaxTeam = 64;  // threads at most
 
 // Sort buffers kept by the calling thread between calls (up to kKeepKeyed entries each): fresh
 // pages cost a page fault each on first touch, serialised in the kernel, whatever the threads.
@@ -67,7 +68,8 @@ PointsXYZ voxel_downsample(const Eigen::Ref<const PointsXYZ>& points, double vox
     // Every pass below splits [0, n) into one contiguous block per thread (all work is O(n),
     // evenly spread); per-block results are combined in block order, so the output is the
     // same whatever the thread count.
-    const int nt = static_cast<int>(std::max<int64_t>(1, std::min<int64_t>(num_threads, n / 4096)));
+    const int nt = static_cast<int>(
+        std::max<int64_t>(1, std::min<int64_t>({num_threads, n / 4096, kMaxTeam})));
 
     // 0. lattice origin: either 0 (index offset by kOffset) or Open3D's min_bound - size / 2
     std::vector<double> bounds(6 * nt);  // per thread: lo xyz, hi xyz
@@ -130,15 +132,14 @@ PointsXYZ voxel_downsample(const Eigen::Ref<const PointsXYZ>& points, double vox
     // sorts its own block by key (stable LSD radix sort, 11-bit digits, skipping digits no key
     // differs in), in its own part of the buffers: the data stay with the thread (cache lines
     // moving between cores cost more than the sort itself); 3. each block's runs of equal keys;
-    // 4. the runs merged by key into voxels; 5. each voxel's centroid, summed over its runs in
-    // block order, i.e. in point order: the same sums, bit for bit, on any thread count.
+    // 4. the runs merged by key into voxels and 5. each voxel's centroid, summed over its runs
+    // in block order, i.e. in point order: the same sums, bit for bit, on any thread count.
     Keyed* A = scratch(tl_keyed_a, n);
     Keyed* B = scratch(tl_keyed_b, n);
     std::vector<uint64_t> key_or(nt, 0), key_and(nt, ~uint64_t{0});
     std::vector<int64_t> hist(static_cast<size_t>(nt) * kDigits);
     std::vector<std::vector<int64_t>> runs(nt);  // per block: run starts, then the block's end
-    std::vector<int64_t> block_end(nt + 1, 0);
-    const Keyed* sorted = nullptr;
+    std::vector<std::vector<float>> centroids(nt);  // per thread: x, y, z of its voxels
     int team = 1;
 #pragma omp parallel num_threads(nt)
     {
@@ -192,54 +193,65 @@ PointsXYZ voxel_downsample(const Eigen::Ref<const PointsXYZ>& points, double vox
         int64_t e = b0;  // the block's end of finite points
         while (e < b1 && src[e].key != kInvalid) ++e;
         r.push_back(e);
-        if (t == 0) {
-            sorted = src;
-            team = T;
+        // 4. merge the blocks' runs by key and 5. sum each voxel's centroid, every thread for
+        // its own share of the keys (split at block 0's runs): a voxel's runs are summed in
+        // block order, i.e. in point order
+#pragma omp barrier
+        auto run_key = [&](int u, size_t j) { return src[runs[u][j]].key; };
+        const size_t n0 = runs[0].size() - 1;  // block 0's voxels
+        const uint64_t k_lo = t == 0 ? 0 : (n0 ? run_key(0, n0 * t / T) : kInvalid);
+        const uint64_t k_hi = t + 1 == T ? kInvalid : (n0 ? run_key(0, n0 * (t + 1) / T) : kInvalid);
+        size_t at[kMaxTeam], stop[kMaxTeam];
+        for (int u = 0; u < T; ++u) {
+            const size_t nu = runs[u].size() - 1;
+            size_t lo = 0, hi = nu;  // first run with key >= k_lo
+            while (lo < hi) {
+                const size_t mid = (lo + hi) / 2;
+                if (run_key(u, mid) < k_lo) lo = mid + 1; else hi = mid;
+            }
+            at[u] = lo;
+            hi = nu;  // first run with key >= k_hi
+            while (lo < hi) {
+                const size_t mid = (lo + hi) / 2;
+                if (run_key(u, mid) < k_hi) lo = mid + 1; else hi = mid;
+            }
+            stop[u] = lo;
         }
-    }
-
-    // 4. merge the blocks' runs by key (a voxel: one run from each block that has its key)
-    std::vector<int64_t> vox_runs;  // per voxel: T run indices (-1: none in that block)
-    {
-        size_t total = 0;
-        for (int u = 0; u < team; ++u) total += runs[u].size();
-        vox_runs.reserve(total * team);
-        std::vector<size_t> at(team, 0);
+        std::vector<float>& c_out = centroids[t];
+        c_out.clear();
         for (;;) {
-            uint64_t k = ~uint64_t{0};
-            for (int u = 0; u < team; ++u)
-                if (at[u] + 1 < runs[u].size()) k = std::min(k, sorted[runs[u][at[u]]].key);
-            if (k == ~uint64_t{0}) break;
-            for (int u = 0; u < team; ++u) {
-                const bool has = at[u] + 1 < runs[u].size() && sorted[runs[u][at[u]]].key == k;
-                vox_runs.push_back(has ? static_cast<int64_t>(at[u]++) : -1);
+            uint64_t k = kInvalid;
+            for (int u = 0; u < T; ++u)
+                if (at[u] < stop[u]) k = std::min(k, run_key(u, at[u]));
+            if (k == kInvalid) break;
+            double sx = 0, sy = 0, sz = 0;
+            int64_t c = 0;
+            for (int u = 0; u < T; ++u) {
+                if (at[u] == stop[u] || run_key(u, at[u]) != k) continue;
+                const int64_t k0 = runs[u][at[u]], k1 = runs[u][at[u] + 1];
+                ++at[u];
+                for (int64_t q = k0; q < k1; ++q) {
+                    const float* p = xyz + stride * src[q].row;
+                    sx += p[0];
+                    sy += p[1];
+                    sz += p[2];
+                }
+                c += k1 - k0;
             }
+            const double cnt = static_cast<double>(c);
+            c_out.push_back(static_cast<float>(sx / cnt));
+            c_out.push_back(static_cast<float>(sy / cnt));
+            c_out.push_back(static_cast<float>(sz / cnt));
         }
+        if (t == 0) team = T;
     }
 
-    // 5. centroids (parallel over voxels)
-    const int64_t m = static_cast<int64_t>(vox_runs.size()) / team;
+    // the shares one after the other
+    int64_t m = 0;
+    for (int u = 0; u < team; ++u) m += static_cast<int64_t>(centroids[u].size()) / 3;
     PointsXYZ out(m, 3);
-#pragma omp parallel for num_threads(nt) schedule(static)
-    for (int64_t v = 0; v < m; ++v) {
-        double sx = 0, sy = 0, sz = 0;
-        int64_t c = 0;
-        for (int u = 0; u < team; ++u) {
-            const int64_t r = vox_runs[v * team + u];
-            if (r < 0) continue;
-            const int64_t k0 = runs[u][r], k1 = runs[u][r + 1];
-            for (int64_t k = k0; k < k1; ++k) {
-                const float* p = xyz + stride * sorted[k].row;
-                sx += p[0];
-                sy += p[1];
-                sz += p[2];
-            }
-            c += k1 - k0;
-        }
-        out(v, 0) = static_cast<float>(sx / c);
-        out(v, 1) = static_cast<float>(sy / c);
-        out(v, 2) = static_cast<float>(sz / c);
-    }
+    float* o = out.data();
+    for (int u = 0; u < team; ++u) o = std::copy(centroids[u].begin(), centroids[u].end(), o);
     trim(tl_keyed_a);
     trim(tl_keyed_b);
     return out;
