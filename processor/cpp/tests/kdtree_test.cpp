@@ -143,6 +143,33 @@ TEST(KdTree, NearestFromAnyHintIsTheNearest) {
     }
 }
 
+// A tree built on several threads (subtrees as tasks) is the same tree: same order, same
+// groups, same answers, also with runs of equal points (leaves that end a subtree early).
+TEST(KdTree, BuildIsIndependentOfThreadCount) {
+    PointsXYZ dup = test::box_room(30000, 0.01, 12);
+    for (int i = 0; i < 6000; ++i) dup.row(10000 + i) = dup.row(10000);  // one point 6001 times
+    for (const PointsXYZ& cloud : {test::box_room(60000, 0.01, 13), dup}) {
+        const KdTree<3> one(cloud.data(), cloud.rows(), 20, 1);
+        for (int threads : {2, 4}) {
+            const KdTree<3> many(cloud.data(), cloud.rows(), 20, threads);
+            ASSERT_EQ(one.order(), many.order());
+            ASSERT_EQ(one.groups(32), many.groups(32));
+            std::vector<int> ia(20), ib(20);
+            std::vector<float> da(20), db(20);
+            for (int i = 0; i < cloud.rows(); i += 37) {
+                const float* q = cloud.row(i).data();
+                ASSERT_EQ(one.knn(q, 20, ia.data(), da.data()), many.knn(q, 20, ib.data(), db.data()));
+                ASSERT_EQ(ia, ib);
+                ASSERT_EQ(da, db);
+                const float p[3] = {q[0] + 0.03f, q[1] - 0.02f, q[2] + 0.01f};
+                float d1 = 0, d2 = 0;
+                ASSERT_EQ(one.nearest_from(p, 0.01f, i, &d1), many.nearest_from(p, 0.01f, i, &d2));
+                ASSERT_EQ(d1, d2);
+            }
+        }
+    }
+}
+
 TEST(KdTree, EmptyTreeFindsNothing) {
     const KdTree<3> tree(nullptr, 0);
     const float q[3] = {0, 0, 0};

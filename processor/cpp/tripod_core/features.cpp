@@ -50,7 +50,7 @@ std::vector<int64_t> finite_rows(const PointsXYZ& points) {
 
 LocalGeometry estimate_local_geometry(const PointsXYZ& points, const Neighborhood& nb,
                                       const Eigen::Vector3d& viewpoint, int num_threads) {
-    const KdTree<3> tree(points.data(), points.rows());
+    const KdTree<3> tree(points.data(), points.rows(), 20, num_threads);
     return estimate_local_geometry(points, tree, nb, viewpoint, num_threads, false);
 }
 
@@ -112,7 +112,7 @@ std::vector<int64_t> statistical_outlier_removal(const PointsXYZ& points, int k_
     const int64_t n = points.rows();
     std::vector<int64_t> kept;
     if (n == 0) return kept;
-    const KdTree<3> tree(points.data(), n);
+    const KdTree<3> tree(points.data(), n, 20, num_threads);
     std::vector<double> mean_dist(n, 0.0);
 #pragma omp parallel num_threads(threads(num_threads))
     {
@@ -222,7 +222,7 @@ PointsXYZ mls_smooth(const PointsXYZ& points, double radius, int num_threads,
     const int64_t n = points.rows();
     PointsXYZ out = points;
     if (n == 0) return out;
-    const KdTree<3> tree(points.data(), n);
+    const KdTree<3> tree(points.data(), n, 20, num_threads);
     if (fit_voxel == 0) {
         // a surface per point, evaluated at the point's own projection
 #pragma omp parallel num_threads(threads(num_threads))
@@ -253,7 +253,7 @@ PointsXYZ mls_smooth(const PointsXYZ& points, double radius, int num_threads,
             surf[a] = fit_mls(points, tree, anchors.row(a).transpose().cast<double>(), radius,
                               idx, dist, w);
     }
-    const KdTree<3> anchor_tree(anchors.data(), na);
+    const KdTree<3> anchor_tree(anchors.data(), na, 20, num_threads);
 #pragma omp parallel for num_threads(threads(num_threads)) schedule(static)
     for (int64_t i = 0; i < n; ++i) {
         int j = -1;
@@ -314,7 +314,7 @@ MatrixX33f compute_fpfh(const PointsXYZ& points, const MatrixX3d& normals, doubl
     constexpr int kBins = 11;
     MatrixX33f spfh = MatrixX33f::Zero(n, 33), fpfh = MatrixX33f::Zero(n, 33);
     if (n == 0) return fpfh;
-    const KdTree<3> tree(points.data(), n);
+    const KdTree<3> tree(points.data(), n, 20, num_threads);
     std::vector<std::vector<int>> nbrs(n);
     std::vector<std::vector<float>> nbr_dist(n);
     const int nt = threads(num_threads);

@@ -329,7 +329,7 @@ private:
 /// Fitness and inlier RMSE of T on the full clouds (pairs within sqrt(thr2)).
 void score_on_clouds(const PointsXYZ& src, const PointsXYZ& tgt, const Eigen::Isometry3d& T,
                      double thr2, int nt, GlobalResult& res) {
-    const KdTree<3> tt(tgt.data(), tgt.rows());
+    const KdTree<3> tt(tgt.data(), tgt.rows(), 20, nt);
     int64_t inl = 0;
     double sq = 0;
     const Eigen::Matrix3f R = T.linear().cast<float>();

@@ -8,12 +8,15 @@
 // holds its ball (ICP's later iterations, where points barely move, scan a leaf or two).
 #pragma once
 
+#include <omp.h>
+
 #include <Eigen/Core>
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
 #include <limits>
+#include <map>
 #include <numeric>
 #include <vector>
 
@@ -26,29 +29,46 @@ public:
     using Row = Eigen::Matrix<float, Dim, 1>;
 
     /// Build over `n` rows of `Dim` floats at `data` (row-major), all finite.
-    /// @param data      n x Dim row-major floats (copied)
-    /// @param n         number of rows
-    /// @param leaf_size points per leaf (>= 1)
-    KdTree(const float* data, int64_t n, int leaf_size = 20) : leaf_size_(std::max(1, leaf_size)) {
+    /// @param data        n x Dim row-major floats (copied)
+    /// @param n           number of rows
+    /// @param leaf_size   points per leaf (>= 1)
+    /// @param num_threads build threads (subtrees as OpenMP tasks; <= 0: all). The tree is the
+    ///                    same whatever the count: a subtree's node numbers follow from its size.
+    KdTree(const float* data, int64_t n, int leaf_size = 20, int num_threads = 1)
+        : leaf_size_(std::max(1, leaf_size)) {
+        const int nt = num_threads > 0 ? num_threads : omp_get_max_threads();
+        const bool parallel = nt > 1 && n >= 2 * kTaskPoints;
         order_.resize(n);
-        std::iota(order_.begin(), order_.end(), 0);
         pts_.resize(static_cast<size_t>(n) * Dim);
         src_ = data;
-        nodes_.reserve(2 * (n / leaf_size_ + 1));
-        boxes_.reserve(nodes_.capacity() * 2 * Dim);
-        cells_.reserve(nodes_.capacity() * 2 * Dim);
-        parent_.reserve(nodes_.capacity());
         leaf_node_.resize(n);
-        if (n > 0) {
-            Row lo = Row::Constant(-std::numeric_limits<float>::infinity()), hi = -lo;
-            build(0, static_cast<int>(n), lo, hi, -1);
-        }
         pos_.resize(n);
-        for (int64_t i = 0; i < n; ++i) {
-            std::copy(data + order_[i] * Dim, data + order_[i] * Dim + Dim, pts_.data() + i * Dim);
-            pos_[order_[i]] = static_cast<int>(i);
+        if (n > 0) {
+            count_nodes(static_cast<int>(n));
+            const size_t total = static_cast<size_t>(subtree_nodes(static_cast<int>(n)));
+            nodes_.resize(total);
+            boxes_.resize(total * 2 * Dim);
+            cells_.resize(total * 2 * Dim);
+            parent_.resize(total);
+            const Row lo = Row::Constant(-std::numeric_limits<float>::infinity()), hi = -lo;
+            if (parallel) {
+#pragma omp parallel num_threads(nt)
+                {
+#pragma omp for schedule(static)
+                    for (int64_t i = 0; i < n; ++i) order_[i] = i;
+#pragma omp single
+                    build(0, 0, static_cast<int>(n), lo, hi, -1, true);
+#pragma omp for schedule(static)
+                    for (int64_t i = 0; i < n; ++i) copy_row(i);
+                }
+            } else {
+                std::iota(order_.begin(), order_.end(), 0);
+                build(0, 0, static_cast<int>(n), lo, hi, -1, false);
+                for (int64_t i = 0; i < n; ++i) copy_row(i);
+            }
         }
         src_ = nullptr;
+        subtree_nodes_m_.clear();
     }
 
     int64_t size() const { return static_cast<int64_t>(order_.size()); }
@@ -250,25 +270,51 @@ private:
         int left, right;
     };
 
-    int make_leaf(int id, int begin, int end) {
-        for (int i = begin; i < end; ++i) leaf_node_[i] = id;
-        return id;
+    /// Subtrees of at least this many points are built as OpenMP tasks.
+    static constexpr int kTaskPoints = 512;
+
+    /// Node count of a subtree of m points: every node of more than leaf_size_ points splits at
+    /// its median (a leaf of equal points leaves its subtree's other numbers unused), so a
+    /// subtree's size, and so each node's number in depth-first order, follows from m alone.
+    /// Only two sizes occur per level: memoised for those from the root's.
+    void count_nodes(int m) {
+        if (subtree_nodes_m_.count(m)) return;
+        if (m <= leaf_size_) {
+            subtree_nodes_m_[m] = 1;
+            return;
+        }
+        count_nodes(m / 2);
+        count_nodes(m - m / 2);
+        subtree_nodes_m_[m] = 1 + subtree_nodes_m_[m / 2] + subtree_nodes_m_[m - m / 2];
+    }
+    int subtree_nodes(int m) const { return subtree_nodes_m_.find(m)->second; }
+
+    void copy_row(int64_t i) {
+        std::copy(src_ + order_[i] * Dim, src_ + order_[i] * Dim + Dim, pts_.data() + i * Dim);
+        pos_[order_[i]] = static_cast<int>(i);
     }
 
-    int build(int begin, int end, const Row& cell_lo, const Row& cell_hi, int parent) {
-        const int id = static_cast<int>(nodes_.size());
-        nodes_.push_back({begin, end, -1, 0.f, -1, -1});
-        parent_.push_back(parent);
-        cells_.insert(cells_.end(), cell_lo.data(), cell_lo.data() + Dim);
-        cells_.insert(cells_.end(), cell_hi.data(), cell_hi.data() + Dim);
+    void make_leaf(int id, int begin, int end) {
+        for (int i = begin; i < end; ++i) leaf_node_[i] = id;
+    }
+
+    /// Build node `id` over tree positions [begin, end) and its subtree (nodes id, id + 1, ...).
+    void build(int id, int begin, int end, const Row& cell_lo, const Row& cell_hi, int parent,
+               bool tasks) {
+        nodes_[id] = {begin, end, -1, 0.f, -1, -1};
+        parent_[id] = parent;
+        float* cell = cells_.data() + static_cast<size_t>(id) * 2 * Dim;
+        std::copy(cell_lo.data(), cell_lo.data() + Dim, cell);
+        std::copy(cell_hi.data(), cell_hi.data() + Dim, cell + Dim);
         Row lo = Row::Constant(std::numeric_limits<float>::infinity()), hi = -lo;
         for (int i = begin; i < end; ++i) {
             Eigen::Map<const Row> p(src_ + order_[i] * Dim);
             lo = lo.cwiseMin(p);
             hi = hi.cwiseMax(p);
         }
-        boxes_.insert(boxes_.end(), lo.data(), lo.data() + Dim);
-        boxes_.insert(boxes_.end(), hi.data(), hi.data() + Dim);
+        float* box = boxes_.data() + static_cast<size_t>(id) * 2 * Dim;
+        std::copy(lo.data(), lo.data() + Dim, box);
+        std::copy(hi.data(), hi.data() + Dim, box + Dim);
         if (end - begin <= leaf_size_) return make_leaf(id, begin, end);
         int axis;
         const float extent = (hi - lo).maxCoeff(&axis);
@@ -283,13 +329,21 @@ private:
         Row left_hi = cell_hi, right_lo = cell_lo;
         left_hi[axis] = split;
         right_lo[axis] = split;
-        const int l = build(begin, mid, cell_lo, left_hi, id);
-        const int r = build(mid, end, right_lo, cell_hi, id);
+        const int l = id + 1, r = id + 1 + subtree_nodes(mid - begin);
         nodes_[id].axis = axis;
         nodes_[id].split = split;
         nodes_[id].left = l;
         nodes_[id].right = r;
-        return id;
+        if (tasks && end - begin >= 2 * kTaskPoints) {
+            const Row clo = cell_lo;
+#pragma omp task default(shared) firstprivate(l, begin, mid, clo, left_hi, id)
+            build(l, begin, mid, clo, left_hi, id, true);
+            build(r, mid, end, right_lo, cell_hi, id, true);
+#pragma omp taskwait
+        } else {
+            build(l, begin, mid, cell_lo, left_hi, id, false);
+            build(r, mid, end, right_lo, cell_hi, id, false);
+        }
     }
 
     /// Squared distance from q to node `id`'s bounding box (0 inside). Never above the
@@ -461,6 +515,7 @@ private:
 
     int leaf_size_;
     const float* src_ = nullptr;  // only during build
+    std::map<int, int> subtree_nodes_m_;  // only during build: points -> subtree node count
     std::vector<int64_t> order_;  // tree position -> caller's row
     std::vector<int> pos_;        // caller's row -> tree position
     std::vector<float> pts_;      // rows in tree order

@@ -16,8 +16,10 @@
 #include <cmath>
 #include <limits>
 #include <memory>
+#include <optional>
 #include <stdexcept>
 
+#include "tripod_core/phase_timer.hpp"
 #include "tripod_core/registration_internal.hpp"
 #include "tripod_core/registration_voxels.hpp"
 
@@ -309,6 +311,7 @@ void finish_result(const Problem& P, RegistrationResult& res, std::vector<int> c
     // Conditioning of the free components, rotations scaled by the source's extent to metres.
     // Judged on the surfaces (point-to-plane information) whatever the method: point-to-point
     // and GICP also "see" in-plane sample positions, which do not constrain a real surface.
+    TRIPOD_PHASE("finish: plane info+condition");
     Problem plane(src, tgt, opt, Method::kPointToPlane, P.num_threads);
     Normal geo = linearize(plane, T, corr, true);
     if (geo.count > 0) nl.H = geo.H;
@@ -388,7 +391,10 @@ std::shared_ptr<PreparedCloud> prepare_cloud(const PointsXYZ& points, const Neig
                                              const Eigen::Vector3d& viewpoint, double point_sigma,
                                              int num_threads) {
     if (!(point_sigma > 0)) throw std::invalid_argument("point_sigma must be > 0");
+    TRIPOD_PHASE("prepare: total");
     auto pc = std::make_shared<PreparedCloud>();
+    std::optional<prof::Scope> sc;
+    sc.emplace("prepare: S finite+copy");
     const std::vector<int64_t> rows = finite_rows(points);
     pc->num_dropped = points.rows() - static_cast<int64_t>(rows.size());
     if (static_cast<int64_t>(rows.size()) == points.rows()) {
@@ -397,7 +403,11 @@ std::shared_ptr<PreparedCloud> prepare_cloud(const PointsXYZ& points, const Neig
         pc->points.resize(static_cast<Eigen::Index>(rows.size()), 3);
         for (size_t i = 0; i < rows.size(); ++i) pc->points.row(i) = points.row(rows[i]);
     }
-    pc->tree = std::make_unique<KdTree<3>>(pc->points.data(), pc->points.rows());
+    sc.reset();
+    sc.emplace("prepare: S kdtree");
+    pc->tree = std::make_unique<KdTree<3>>(pc->points.data(), pc->points.rows(), 20, num_threads);
+    sc.reset();
+    sc.emplace("prepare: P geometry");
     if (!(nb.radius > 0)) {
         if (nb.k_neighbors <= 0)
             throw std::invalid_argument("neighbourhood needs k_neighbors > 0 or radius > 0");
@@ -428,12 +438,17 @@ std::shared_ptr<PreparedCloud> prepare_cloud(const PointsXYZ& points, const Neig
 
 RegistrationResult register_local(const PreparedCloud& src, const PreparedCloud& tgt,
                                   const Eigen::Matrix4d& T_init, const RegistrationOptions& opt) {
+    TRIPOD_PHASE("register: total");
+    std::optional<prof::Scope> sc;
+    sc.emplace("register: S validate+problem");
     validate(src, tgt, T_init, opt);
     RegistrationResult res;
     Eigen::Isometry3d T(T_init);
     if (opt.has_rotation_prior && !(opt.rotation_prior_sigma > 0)) T.linear() = opt.R_prior;
     Problem P(src, tgt, opt, opt.method, opt.num_threads);
     std::vector<int> corr;
+    sc.reset();
+    sc.emplace("register: stages");
     res.status = "max_iterations";
     const size_t stages = opt.max_correspondence_distances.size();
     for (size_t stage = 0; stage < stages; ++stage) {
@@ -451,6 +466,8 @@ RegistrationResult register_local(const PreparedCloud& src, const PreparedCloud&
     Method model = opt.method;
     if (model == Method::kLM) model = Method::kPointToPlane;
     if (model == Method::kVGICP) model = Method::kGICP;
+    sc.reset();
+    sc.emplace("register: finish");
     Problem F(src, tgt, opt, model, opt.num_threads);
     detail::finish_result(F, res, std::move(corr));
     if (res.status != "too_few_correspondences" && res.condition < 1e-4) {

@@ -14,6 +14,7 @@
 // Only the lower triangle is summed; the upper one is filled once at the end.
 #include <omp.h>
 
+#include "tripod_core/phase_timer.hpp"
 #include "tripod_core/registration_internal.hpp"
 #include "tripod_core/registration_voxels.hpp"
 
@@ -115,6 +116,7 @@ Normal linearize_model(const Problem& P, const Eigen::Isometry3d& T, std::vector
     const GaussianVoxels* vox = P.voxels;
     const int64_t n = src.points.rows();
     const bool find = associate_sq_dist > 0;
+    TRIPOD_PHASE(find ? "linearize: P assoc+lin" : (with_jacobian ? "linearize: P lin" : "linearize: P eval"));
     // the previous iteration's matches (if any) warm-start the nearest-neighbour searches
     if (corr.size() != static_cast<size_t>(n)) corr.assign(n, -1);
     const bool store_M = kGicp && mahalanobis && with_jacobian;
@@ -133,12 +135,14 @@ Normal linearize_model(const Problem& P, const Eigen::Isometry3d& T, std::vector
     const double a = tgt.cov_scale + src.cov_scale;
     const double min_cos = P.opt.min_normal_cos;
     const int64_t m = static_cast<int64_t>(P.rows.size());
-    // Fixed chunks handed out dynamically (a descheduled thread on a busy machine does not hold
-    // the others up), each with its own partial sum, added in chunk order afterwards.
-    constexpr int64_t kChunk = 512;
+    // Fixed chunks, each with its own partial sum, added in chunk order afterwards (the same
+    // sums on any thread count). Each thread takes the same contiguous run of chunks at every
+    // call (static schedule): the correspondences and weights it writes stay in its own cache
+    // from one iteration to the next (lines moving between cores cost more than the work).
+    constexpr int64_t kChunk = 128;
     const int64_t num_chunks = (m + kChunk - 1) / kChunk;
     std::vector<Normal> parts(num_chunks);
-#pragma omp parallel for num_threads(threads(P.num_threads)) schedule(dynamic, 1)
+#pragma omp parallel for num_threads(threads(P.num_threads)) schedule(static)
     for (int64_t chunk = 0; chunk < num_chunks; ++chunk) {
         Normal acc;
         GicpSums gicp;
@@ -245,6 +249,7 @@ Normal linearize_model(const Problem& P, const Eigen::Isometry3d& T, std::vector
 Problem::Problem(const PreparedCloud& s, const PreparedCloud& t, const RegistrationOptions& o,
                  Method m, int nt)
     : src(s), tgt(t), opt(o), method(m), num_threads(threads(nt)) {
+    TRIPOD_PHASE("problem: S rows");
     const bool need_normal = o.oriented && is_plane_family(m);
     std::vector<int64_t> all;
     all.reserve(s.points.rows());
@@ -266,7 +271,7 @@ void associate(const Problem& P, const Eigen::Isometry3d& T, double max_sq_dist,
     const Eigen::Matrix3f R = T.linear().cast<float>();
     const Eigen::Vector3f t = T.translation().cast<float>();
     const int64_t m = static_cast<int64_t>(P.rows.size());
-#pragma omp parallel for num_threads(P.num_threads) schedule(dynamic, 512)
+#pragma omp parallel for num_threads(P.num_threads) schedule(static)
     for (int64_t k = 0; k < m; ++k) {
         const int64_t i = P.rows[k];
         const Eigen::Vector3f p = R * P.src.points.row(i).transpose() + t;

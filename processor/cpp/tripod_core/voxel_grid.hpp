@@ -22,13 +22,13 @@ enum class VoxelAlign {
 /// Non-finite points are dropped. The output is ordered by voxel index (lexicographic in x, y, z),
 /// so the result is deterministic whatever the thread count. Centroids are summed in double in
 /// point order (as Open3D does), then rounded to float.
-/// @param points      N x 3 input [m]
+/// @param points      N x 3 input [m] (a PointsXYZ, or a Map of one: no copy)
 /// @param voxel_size  edge length [m], > 0
 /// @param num_threads 0 = all available
 /// @param align       lattice alignment (see VoxelAlign)
 /// @return M x 3 centroids, M <= N
 /// @throws std::invalid_argument if voxel_size <= 0 or the cloud spans more than 2^21 voxels
-PointsXYZ voxel_downsample(const PointsXYZ& points, double voxel_size, int num_threads = 0,
-                           VoxelAlign align = VoxelAlign::kOrigin);
+PointsXYZ voxel_downsample(const Eigen::Ref<const PointsXYZ>& points, double voxel_size,
+                           int num_threads = 0, VoxelAlign align = VoxelAlign::kOrigin);
 
 }  // namespace tripod

@@ -37,7 +37,9 @@ TRIPOD_BINDING(preprocess) {
     m.def(
         "voxel_downsample",
         [](CloudIn points, double voxel_size, int num_threads, bool align_min_bound) {
-            tripod::PointsXYZ in = to_eigen(points);
+            // read in place (the GIL is released, the caller's array is held by `points`)
+            const Eigen::Map<const tripod::PointsXYZ> in(points.data(),
+                                                         static_cast<Eigen::Index>(points.shape(0)), 3);
             tripod::PointsXYZ out;
             {
                 nb::gil_scoped_release release;
