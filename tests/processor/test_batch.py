@@ -269,13 +269,18 @@ def test_loopback_cluster_same_poses_with_a_worker_killed(survey, local_batch, l
         # kill the first worker process seen running a reconstruction (once)
         deadline = time.monotonic() + 300
         while time.monotonic() < deadline and not killed:
-            for p in psutil.process_iter(["pid", "cmdline"]):
-                cmd = " ".join(p.info["cmdline"] or [])
+            # psutil.pids() + own Process objects: process_iter's cached objects (and their
+            # .info) are shared with any other thread of this process iterating at the same time
+            for pid in psutil.pids():
+                try:
+                    cmd = " ".join(psutil.Process(pid).cmdline())
+                except psutil.Error:
+                    continue
                 if cmd.startswith("ray::reconstruct_recording"):
                     time.sleep(1.0)  # mid-task
                     try:
-                        os.kill(p.info["pid"], signal.SIGKILL)
-                        killed.append(p.info["pid"])
+                        os.kill(pid, signal.SIGKILL)
+                        killed.append(pid)
                     except ProcessLookupError:
                         continue
                     return
