@@ -68,7 +68,7 @@ class RayEngine:
         self._puts: dict[int, tuple[Any, Any]] = {}
 
     @classmethod
-    def attached(cls, cpus_per_task: int = 1, max_retries: int = 2) -> "RayEngine":
+    def attached(cls, cpus_per_task: int = 1, max_retries: int = 2) -> RayEngine:
         """The Ray this process is already part of (inside a ``tripod batch`` task)."""
         import ray
 
@@ -139,8 +139,8 @@ def start_ray(workers: int, address: str | None, cpus_per_task: int = 1,
         raise EngineError("Ray is not installed (pip install 'ray>=2')") from None
 
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-    kw = dict(include_dashboard=False, logging_level=logging.WARNING, log_to_driver=False,
-              configure_logging=True)
+    kw = {"include_dashboard": False, "logging_level": logging.WARNING, "log_to_driver": False,
+          "configure_logging": True}
     try:
         if address:
             ray.init(address=address, **kw)

@@ -46,6 +46,7 @@ class ReconstructResult:
     notes: list[str] = field(default_factory=list)
     time_offset_info: dict = field(default_factory=dict)
     calibration: dict = field(default_factory=dict)  # effective calibration (calibration.json)
+    engine: str = "in-process"  # where fragments and registrations ran (.engine)
 
     @property
     def station_t_ns(self) -> np.ndarray:
@@ -192,7 +193,8 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
 
     res = ReconstructResult(out, rec, seg, frags, slam, ext, orient.time_offset_ns, delta,
                             times, notes=notes, time_offset_info=info,
-                            calibration=effective_calibration(ext, orient, pc, calib))
+                            calibration=effective_calibration(ext, orient, pc, calib),
+                            engine=eng.name if eng is not None else "in-process")
 
     # 8. outputs
     with _Stage(times, "outputs", None, quiet):
@@ -468,6 +470,7 @@ def summary(res: ReconstructResult) -> dict:
         "recording_s": res.recording.duration_s,
         "processing_s": res.processing_s,
         "processing_cpu_s": res.processing_cpu_s,
+        "engine": res.engine,
         "stage_s": {k: v for k, v in res.stage_s.items() if k != "_cpu"},
         "stage_cpu_s": res.stage_s.get("_cpu", {}),
         "lidar_packets": len(res.recording.lidar),
