@@ -15,6 +15,7 @@ waiting for them gives its CPU back meanwhile).
 from __future__ import annotations
 
 import os
+import resource
 import shutil
 import socket
 import time
@@ -65,9 +66,12 @@ def reconstruct_recording(job: dict) -> dict:
         res = reconstruct(inputs[0] if len(inputs) == 1 else inputs, out, cfg,
                           imu_log=job["imu"], quiet=True, engine=engine,
                           engine_min_stations=job.get("split_large", 0))
-        summ = summary(res)
-        manifest.write_manifest(out, fingerprint, job["config_sha256"], _small(summ))
-        return {**base, "status": "done", "error": "", "summary": _small(summ),
+        # the worker's peak RSS so far [MB] (a worker runs tasks one after another: at least
+        # this recording's peak)
+        summ = {**_small(summary(res)),
+                "worker_peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+        manifest.write_manifest(out, fingerprint, job["config_sha256"], summ)
+        return {**base, "status": "done", "error": "", "summary": summ,
                 "wall_s": time.perf_counter() - t0}
     except (RecordingError, OSError, ValueError) as exc:
         err = _one_line(exc)
