@@ -237,54 +237,66 @@ def growth(args, con) -> None:
             "step_cpu": r["stage_cpu_s"], "step_wall": r["stage_s"],
             "load": (l0, os.getloadavg()[0])})
 
-    t = Table(title=f"cost growth: {args.building} building, merge of the first recordings "
-                    "(one process each, 1 thread); CPU s = user + system", header_style="bold")
-    for c in ("recordings", "stations", "reconstruct CPU s (Σ) / per station",
-              "reconstruct worker peak RSS MB", "merge CPU s / per station", "merge wall s",
-              "merge peak RSS MB / per station", *[f"{k} CPU (wall) s" for k in MERGE_STEPS],
-              "load 1 min before/after"):
+    t = Table(title=f"cost growth: {args.building} building, the first recordings merged "
+                    "(one process each, 1 thread); CPU = user + system", header_style="bold")
+    for c in ("recordings", "stations", "reconstruct CPU s Σ (/station)",
+              "reconstruct worker peak RSS MB", "merge CPU s (/station)", "merge wall s",
+              "merge peak RSS MB (/station)", "load 1 min before/after"):
         t.add_column(c, justify="right")
     for x in rows:
         st = x["stations"]
-        t.add_row(str(x["recordings"]), str(st), f"{x['rec_cpu']:.0f} / {x['rec_cpu'] / st:.2f}",
-                  f"{x['rec_rss']:.0f}", f"{x['cpu']:.0f} / {x['cpu'] / st:.2f}",
-                  f"{x['wall']:.0f}", f"{x['rss']:.0f} / {x['rss'] / st:.1f}",
-                  *[f"{x['step_cpu'].get(k, 0.0):.1f} ({x['step_wall'].get(k, 0.0):.0f})"
-                    for k in MERGE_STEPS],
+        t.add_row(str(x["recordings"]), str(st), f"{x['rec_cpu']:.0f} ({x['rec_cpu'] / st:.2f})",
+                  f"{x['rec_rss']:.0f}", f"{x['cpu']:.0f} ({x['cpu'] / st:.2f})",
+                  f"{x['wall']:.0f}", f"{x['rss']:.0f} ({x['rss'] / st:.1f})",
                   f"{x['load'][0]:.1f} / {x['load'][1]:.1f}")
     con.print(t)
     if len(rows) < 2:
         return
-    # extrapolation: cost ~ N^b per step, b from the two largest sizes
+    # per step: CPU (wall) at each size; growth exponent b (cost ~ N^b) between the two largest
+    # sizes and the CPU extrapolated with it; memory extrapolated linearly (a fixed base)
     a, b = rows[-2], rows[-1]
     target = args.extrapolate
-    ratio = math.log(b["stations"] / a["stations"])
+    lr = math.log(b["stations"] / a["stations"])
 
-    def extra(ca: float, cb: float) -> tuple[float, float]:
-        if ca <= 0 or cb <= 0:
-            return float("nan"), cb
-        e = math.log(cb / ca) / ratio
-        return e, cb * (target / b["stations"]) ** e
+    def power(ca: float, cb: float) -> tuple[str, float]:
+        if cb <= 0:
+            return "-", 0.0
+        # a step that did nothing at the smaller size (one recording: no pair): assumed to
+        # grow with the pairs of recordings, N^2
+        e = math.log(cb / ca) / lr if ca > 0 else 2.0
+        return f"{e:.2f}" + ("" if ca > 0 else " (assumed)"), cb * (target / b["stations"]) ** e
 
-    e = Table(title=f"extrapolation to {target:,} stations (cost ∝ N^b, b between "
-                    f"{a['stations']} and {b['stations']} stations)", header_style="bold")
-    for c in ("step", "b", f"CPU s at {target:,}", "CPU h"):
+    e = Table(title=f"per step: CPU s (wall s) at each size, growth exponent b between "
+                    f"{a['stations']} and {b['stations']} stations, CPU extrapolated to "
+                    f"{target:,} stations", header_style="bold")
+    e.add_column("step")
+    for x in rows:
+        e.add_column(f"{x['stations']} st.", justify="right")
+    for c in ("b", f"CPU h at {target:,}"):
         e.add_column(c, justify="right")
     # the reconstruction: independent per recording, linear in stations by construction
     rec_x = b["rec_cpu"] / b["stations"] * target
-    e.add_row("reconstruct (per recording, Σ)", "1 (independent)", f"{rec_x:.0f}",
-              f"{rec_x / 3600:.1f}")
+    e.add_row("reconstruct (Σ recordings)", *[f"{x['rec_cpu']:.0f} ({x['rec_wall']:.0f})"
+                                              for x in rows],
+              "1 (independent)", f"{rec_x / 3600:.1f}")
     worst = ("reconstruct", rec_x)
+    total = 0.0
     for k in MERGE_STEPS:
-        ex, cx = extra(a["step_cpu"].get(k, 0.0), b["step_cpu"].get(k, 0.0))
-        e.add_row(f"merge: {k}", f"{ex:.2f}", f"{cx:.0f}", f"{cx / 3600:.1f}")
+        ex, cx = power(a["step_cpu"].get(k, 0.0), b["step_cpu"].get(k, 0.0))
+        total += cx
+        e.add_row(f"merge: {k}", *[f"{x['step_cpu'].get(k, 0.0):.1f} "
+                                   f"({x['step_wall'].get(k, 0.0):.0f})" for x in rows],
+                  ex, f"{cx / 3600:.1f}")
         if cx > worst[1]:
             worst = (f"merge: {k}", cx)
-    em, mx = extra(a["rss"], b["rss"])
-    e.add_row("merge peak RSS", f"{em:.2f}", f"{mx / 1024:.0f} GB", "")
+    slope = (b["rss"] - a["rss"]) / max(b["stations"] - a["stations"], 1)
+    rss_x = b["rss"] + slope * (target - b["stations"])
+    e.add_row("merge peak RSS MB", *[f"{x['rss']:.0f}" for x in rows],
+              f"+{slope:.1f} MB/station", f"{rss_x / 1024:.0f} GB")
     con.print(e)
-    con.print(f"bounding step in time at {target:,} stations: {worst[0]}; merge memory "
-              f"~{mx / 1024:.0f} GB in one process")
+    con.print(f"at {target:,} stations: reconstruction {rec_x / 3600:.1f} CPU h (spread over "
+              f"workers), merge {total / 3600:.1f} CPU h in one process, bounded in time by "
+              f"{worst[0]}; merge memory ~{rss_x / 1024:.0f} GB in one process")
     con.print(f"load average after: {os.getloadavg()}")
 
 
