@@ -11,7 +11,9 @@
    merged (``--merge``), scored against the truth: station ATE over every station (the merged
    frame aligned once), links between recordings found / true / false
    (:func:`~tripod_processor.reconstruction.evaluation.evaluate_merge`);
-3. **cost growth** (``--growth``, instead of 2) — the building's recordings reconstructed, then
+3. **one recording spread** (``--scaleout N``) — an N-station room reconstructed in process
+   and with its fragments and registrations as Ray tasks on ``--workers`` CPUs;
+4. **cost growth** (``--growth``, instead of 2) — the building's recordings reconstructed, then
    merged for ~50, ~100, ~200 stations and all, each merge in its own process: CPU, wall and
    peak RSS per size and per step, extrapolated to 10,000 stations.
 
@@ -19,6 +21,8 @@
     .venv/bin/python bench/batch.py --building none       # throughput only (the wall-clock figure)
     .venv/bin/python bench/batch.py --recordings 0 --building small   # the tests' small building
     .venv/bin/python bench/batch.py --recordings 0 --building full --growth  # cost growth
+    .venv/bin/python bench/batch.py --recordings 0 --building none --scaleout 8  # one recording
+
 Captures and outputs are cached under --work (default /tmp/tripod-bench-batch); the building's
 reconstructions are re-used when up to date (``--force`` to redo them).
 """
@@ -159,6 +163,56 @@ def building(args, con) -> None:
     con.print(t)
     for f in ev["false_link_list"][:10]:
         con.print(f"false link: {f}")
+
+
+def scaleout(args, con) -> None:
+    """One recording's heavy steps (fragments, odometry pairs, loop candidates) in process
+    against Ray tasks on a local instance of ``--workers`` CPUs: wall and driver CPU per stage,
+    station poses compared byte for byte (``tripod reconstruct`` against ``--workers N``)."""
+    from rich.table import Table
+
+    from tripod_shared.config_io import load_config
+    from tripod_processor.reconstruction.config import ReconstructConfig
+    from tripod_processor.reconstruction.engine import ray_engine
+    from tripod_processor.reconstruction.pipeline import reconstruct
+
+    from tripod_processor.reconstruction.placement import load_extrinsic_file
+
+    (cap,) = captures(args.work, 1, args.scaleout)
+    q, lever = load_extrinsic_file(cap / "gt" / "calibration.json")  # no calibration stage
+    cfg = load_config(ReconstructConfig, overrides={
+        "num_threads": 1, "output.write_mcap": False, "output.report": False,
+        "placement.extrinsic.q_imu_lidar": q, "placement.extrinsic.lever_arm_m": lever})
+    steps = ("fragments", "odometry", "slam")
+    runs = []
+    for name in ("in process", f"Ray, {args.workers} workers"):
+        load0 = os.getloadavg()[0]
+        t0 = time.perf_counter()
+        eng = ray_engine(args.workers, None, 1) if name.startswith("Ray") else None
+        t_eng = time.perf_counter() - t0
+        try:
+            res = reconstruct(cap, args.work / f"scaleout-{args.scaleout}-{len(runs)}", cfg,
+                              quiet=True, engine=eng)
+        finally:
+            if eng is not None:
+                eng.close()
+        runs.append((name, res, t_eng, time.perf_counter() - t0, load0, os.getloadavg()[0]))
+    t = Table(title=f"one recording, {args.scaleout} stations (room): heavy steps in process vs "
+                    f"Ray tasks, {os.cpu_count()} CPUs", header_style="bold")
+    for c in ("engine", *[f"{k} wall s" for k in steps], "3 steps wall s", "Ray start s",
+              "total wall s", "driver CPU s (3 steps)", "load 1 min before/after"):
+        t.add_column(c, justify="right")
+    for name, res, t_eng, wall, l0, l1 in runs:
+        w = [res.stage_s.get(k, 0.0) for k in steps]
+        cpu = sum(res.stage_s["_cpu"].get(k, 0.0) for k in steps)
+        t.add_row(name, *[f"{x:.1f}" for x in w], f"{sum(w):.1f}", f"{t_eng:.1f}",
+                  f"{wall:.1f}", f"{cpu:.1f}", f"{l0:.1f} / {l1:.1f}")
+    con.print(t)
+    a, b = (sum(r[1].stage_s.get(k, 0.0) for k in steps) for r in runs)
+    same = ((runs[0][1].outdir / "stations.tum").read_bytes()
+            == (runs[1][1].outdir / "stations.tum").read_bytes())
+    con.print(f"heavy steps {a / b:.2f}x faster on {args.workers} workers; station poses "
+              f"identical: {same}")
 
 
 _MERGE_CHILD = """
@@ -310,6 +364,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--growth", action="store_true",
                     help="instead of the building's score: cost growth of the reconstruction "
                          "and the merge for ~50, ~100, ~200 and all stations")
+    ap.add_argument("--scaleout", type=int, default=0, metavar="STATIONS",
+                    help="one recording of that many stations, in process vs Ray tasks on "
+                         "--workers (0: skip)")
     ap.add_argument("--sizes", default="50,100,200",
                     help="growth: station counts the first recordings are merged up to")
     ap.add_argument("--extrapolate", type=int, default=10_000,
@@ -326,6 +383,8 @@ def main(argv: list[str] | None = None) -> int:
     con.print(f"load average {os.getloadavg()}, {os.cpu_count()} CPUs")
     if args.recordings > 0:
         throughput(args, con)
+    if args.scaleout > 0:
+        scaleout(args, con)
     if args.building != "none":
         if args.growth:
             growth(args, con)
