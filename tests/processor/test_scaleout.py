@@ -16,7 +16,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from sim_fixtures import make_capture
 from tripod_processor.cli import main
 
@@ -74,15 +73,19 @@ def test_distributed_path_same_as_in_process_with_components_joined_by_loops(cap
     """Fragments from packet slices, odometry and loops as runs of tasks: the same fragments,
     edges and poses as in process, also when a loop joins two components (a later candidate
     between them then needs the odometry guess it did not have when sent ahead)."""
-    from tripod_shared.config_io import load_config
     from tripod_processor.reconstruction.config import ReconstructConfig
     from tripod_processor.reconstruction.fragments import Fragment
     from tripod_processor.reconstruction.inputs import read_recording
-    from tripod_processor.reconstruction.placement import (Extrinsic, ImuOrientation,
-                                                           fit_clock_map, load_extrinsic_file)
+    from tripod_processor.reconstruction.placement import (
+        Extrinsic,
+        ImuOrientation,
+        fit_clock_map,
+        load_extrinsic_file,
+    )
     from tripod_processor.reconstruction.scaleout import build_fragments, register_pairs
     from tripod_processor.reconstruction.slam import run_odometry, run_slam
     from tripod_processor.reconstruction.stations import segment_stations
+    from tripod_shared.config_io import load_config
 
     q, lever = load_extrinsic_file(capture / "gt" / "calibration.json")
     cfg = load_config(ReconstructConfig, overrides={"placement.extrinsic.q_imu_lidar": q,
