@@ -10,11 +10,19 @@
    (223 stations, ``sim.survey_building``), reconstructed by ``tripod batch`` (2 workers) and
    merged (``--merge``), scored against the truth: station ATE over every station (the merged
    frame aligned once), links between recordings found / true / false
-   (:func:`~tripod_processor.reconstruction.evaluation.evaluate_merge`).
+   (:func:`~tripod_processor.reconstruction.evaluation.evaluate_merge`);
+3. **one recording spread** (``--scaleout N``) — an N-station room reconstructed in process
+   and with its fragments and registrations as Ray tasks on ``--workers`` CPUs;
+4. **cost growth** (``--growth``, instead of 2) — the building's recordings reconstructed, then
+   merged for ~50, ~100, ~200 stations and all, each merge in its own process: CPU, wall and
+   peak RSS per size and per step, extrapolated to 10,000 stations.
 
     .venv/bin/python bench/batch.py                       # both parts
     .venv/bin/python bench/batch.py --building none       # throughput only (the wall-clock figure)
     .venv/bin/python bench/batch.py --recordings 0 --building small   # the tests' small building
+    .venv/bin/python bench/batch.py --recordings 0 --building full --growth  # cost growth
+    .venv/bin/python bench/batch.py --recordings 0 --building none --scaleout 8  # one recording
+
 Captures and outputs are cached under --work (default /tmp/tripod-bench-batch); the building's
 reconstructions are re-used when up to date (``--force`` to redo them).
 """
@@ -157,58 +165,192 @@ def building(args, con) -> None:
         con.print(f"false link: {f}")
 
 
+def scaleout(args, con) -> None:
+    """One recording's heavy steps (fragments, odometry pairs, loop candidates) in process
+    against Ray tasks on a local instance of ``--workers`` CPUs: wall and driver CPU per stage,
+    station poses compared byte for byte (``tripod reconstruct`` against ``--workers N``)."""
+    from rich.table import Table
+
+    from tripod_shared.config_io import load_config
+    from tripod_processor.reconstruction.config import ReconstructConfig
+    from tripod_processor.reconstruction.engine import ray_engine
+    from tripod_processor.reconstruction.pipeline import reconstruct
+
+    from tripod_processor.reconstruction.placement import load_extrinsic_file
+
+    (cap,) = captures(args.work, 1, args.scaleout)
+    q, lever = load_extrinsic_file(cap / "gt" / "calibration.json")  # no calibration stage
+    cfg = load_config(ReconstructConfig, overrides={
+        "num_threads": 1, "output.write_mcap": False, "output.report": False,
+        "placement.extrinsic.q_imu_lidar": q, "placement.extrinsic.lever_arm_m": lever})
+    steps = ("fragments", "odometry", "slam")
+    runs = []
+    for name in ("in process", f"Ray, {args.workers} workers"):
+        load0 = os.getloadavg()[0]
+        t0 = time.perf_counter()
+        eng = ray_engine(args.workers, None, 1) if name.startswith("Ray") else None
+        t_eng = time.perf_counter() - t0
+        try:
+            res = reconstruct(cap, args.work / f"scaleout-{args.scaleout}-{len(runs)}", cfg,
+                              quiet=True, engine=eng)
+        finally:
+            if eng is not None:
+                eng.close()
+        runs.append((name, res, t_eng, time.perf_counter() - t0, load0, os.getloadavg()[0]))
+    t = Table(title=f"one recording, {args.scaleout} stations (room): heavy steps in process vs "
+                    f"Ray tasks, {os.cpu_count()} CPUs", header_style="bold")
+    for c in ("engine", *[f"{k} wall s" for k in steps], "3 steps wall s", "Ray start s",
+              "total wall s", "driver CPU s (3 steps)", "load 1 min before/after"):
+        t.add_column(c, justify="right")
+    for name, res, t_eng, wall, l0, l1 in runs:
+        w = [res.stage_s.get(k, 0.0) for k in steps]
+        cpu = sum(res.stage_s["_cpu"].get(k, 0.0) for k in steps)
+        t.add_row(name, *[f"{x:.1f}" for x in w], f"{sum(w):.1f}", f"{t_eng:.1f}",
+                  f"{wall:.1f}", f"{cpu:.1f}", f"{l0:.1f} / {l1:.1f}")
+    con.print(t)
+    a, b = (sum(r[1].stage_s.get(k, 0.0) for k in steps) for r in runs)
+    same = ((runs[0][1].outdir / "stations.tum").read_bytes()
+            == (runs[1][1].outdir / "stations.tum").read_bytes())
+    con.print(f"heavy steps {a / b:.2f}x faster on {args.workers} workers; station poses "
+              f"identical: {same}")
+
+
 _MERGE_CHILD = """
 import json, sys
-from tripod_processor.reconstruction.merge import MergeConfig, merge_recordings, merge_summary
+from tripod_processor.reconstruction.merge import MergeConfig, merge_recordings
 dirs, out, threads = json.loads(sys.argv[1]), sys.argv[2], int(sys.argv[3])
 merge_recordings(dirs, out, MergeConfig(num_threads=threads))
 """
 
+#: the merge's steps, as its result.json names them (read and submaps: the fragments loaded)
+MERGE_STEPS = ("read", "submaps", "hypotheses", "verify", "links", "pose graph", "outputs")
+
+
+def _prefixes(recs: list[dict], sizes: tuple[int, ...]) -> list[int]:
+    """The numbers of the first recordings that reach each size in stations (and all)."""
+    acc, out, left = 0, [], list(sizes)
+    for k, o in enumerate(recs):
+        acc += o["summary"]["stations"]
+        while left and acc >= left[0]:
+            out.append(k + 1)
+            left.pop(0)
+    return sorted(set(out + [len(recs)]))
+
 
 def growth(args, con) -> None:
-    """Cost growth of the merge with the number of stations: the building's first recordings
-    up to ~50, ~100 and all stations, each merge in its own process (CPU time and peak RSS from
-    the kernel's accounting of that process); the reconstruction's CPU from the batch."""
+    """Cost growth with the number of stations: the building's recordings reconstructed
+    (``tripod batch``, re-used when up to date), then the merge of its first recordings up to
+    ~50, ~100, ~200 stations and all, each merge in its own process at nice 0 of this one: CPU
+    time (user + system) and peak RSS from the kernel's accounting of that process (wait4),
+    wall time, and each step's CPU and wall from its result.json. The reconstruction's cost is
+    per recording (independent tasks): Σ CPU from the batch and the largest worker peak RSS.
+    Ends with the extrapolation to ``--extrapolate`` stations (each step's growth exponent
+    between the two largest sizes)."""
     import json
+    import math
     import subprocess
     import sys
 
     from rich.table import Table
 
+    from tripod_processor.batch import batch_reconstruct, discover
+    from tripod_processor.sim.survey_building import simulate_survey
+
+    survey = args.survey or args.work / f"building-{args.building}"
+    dirs = simulate_survey(survey, args.building, seed=0, pan_s=5.0, nthreads=2,
+                           progress=lambda i, n: con.print(f"simulated {i}/{n}"))
+    recs_found, _ = discover(dirs)
+    cfg = building_config(dirs[0] / "gt" / "calibration.json")
     out = args.work / f"building-{args.building}-out"
-    batch = json.loads((out / "batch.json").read_text())
-    recs = [o for o in batch["recordings"] if o["status"] != "failed"]
-    sizes, acc, prefixes = (50, 100), 0, []
-    for k, o in enumerate(recs):
-        acc += o["summary"]["stations"]
-        if sizes and acc >= sizes[0]:
-            prefixes.append(k + 1)
-            sizes = tuple(x for x in sizes if x > acc)
-    prefixes = sorted(set(prefixes + [len(recs)]))
-    t = Table(title="cost growth: merge of the building's first recordings (one process each)",
-              header_style="bold")
-    for c in ("recordings", "stations", "reconstruct CPU s (Σ)", "per station", "merge CPU s",
-              "per station", "merge wall s", "merge peak RSS MB", "merge CPU by stage"):
-        t.add_column(c, justify="right")
-    for n in prefixes:
-        dirs = [o["outdir"] for o in recs[:n]]
+    load0 = os.getloadavg()
+    res = batch_reconstruct(recs_found, out, cfg, workers=args.workers, force=args.force)
+    recs = [o for o in res.outcomes if o["status"] != "failed"]
+    con.print(f"batch: {len(recs)} recordings ({res.count('skipped')} up to date), "
+              f"{res.wall_s:.0f} s wall, load {load0[0]:.1f} -> {os.getloadavg()[0]:.1f}")
+    rows = []
+    for n in _prefixes(recs, tuple(int(x) for x in args.sizes.split(","))):
         dest = args.work / f"growth-{n}"
+        l0 = os.getloadavg()[0]
         t0 = time.perf_counter()
-        proc = subprocess.Popen([sys.executable, "-c", _MERGE_CHILD, json.dumps(dirs), str(dest),
-                                 "1"])
+        proc = subprocess.Popen([sys.executable, "-c", _MERGE_CHILD,
+                                 json.dumps([o["outdir"] for o in recs[:n]]), str(dest), "1"])
         _, status, ru = os.wait4(proc.pid, 0)
         wall = time.perf_counter() - t0
         if status != 0:
             con.print(f"merge of {n} recordings failed (status {status})")
             continue
-        res = json.loads((dest / "result.json").read_text())
-        st = res["stations"]
-        rec_cpu = sum(o["summary"].get("processing_cpu_s", 0.0) for o in recs[:n])
-        cpu = ru.ru_utime + ru.ru_stime
-        t.add_row(str(n), str(st), f"{rec_cpu:.0f}", f"{rec_cpu / st:.2f}", f"{cpu:.0f}",
-                  f"{cpu / st:.2f}", f"{wall:.0f}", f"{ru.ru_maxrss / 1024:.0f}",
-                  ", ".join(f"{k} {v:.0f}" for k, v in res["stage_cpu_s"].items()))
+        r = json.loads((dest / "result.json").read_text())
+        rec = recs[:n]
+        rows.append({
+            "recordings": n, "stations": r["stations"],
+            "rec_cpu": sum(o["summary"].get("processing_cpu_s", 0.0) for o in rec),
+            "rec_wall": sum(o["summary"].get("processing_s", 0.0) for o in rec),
+            "rec_rss": max((o["summary"].get("worker_peak_rss_mb", 0.0) for o in rec),
+                           default=0.0),
+            "cpu": ru.ru_utime + ru.ru_stime, "wall": wall, "rss": ru.ru_maxrss / 1024,
+            "step_cpu": r["stage_cpu_s"], "step_wall": r["stage_s"],
+            "load": (l0, os.getloadavg()[0])})
+
+    t = Table(title=f"cost growth: {args.building} building, the first recordings merged "
+                    "(one process each, 1 thread); CPU = user + system", header_style="bold")
+    for c in ("recordings", "stations", "reconstruct CPU s Σ (/station)",
+              "reconstruct worker peak RSS MB", "merge CPU s (/station)", "merge wall s",
+              "merge peak RSS MB (/station)", "load 1 min before/after"):
+        t.add_column(c, justify="right")
+    for x in rows:
+        st = x["stations"]
+        t.add_row(str(x["recordings"]), str(st), f"{x['rec_cpu']:.0f} ({x['rec_cpu'] / st:.2f})",
+                  f"{x['rec_rss']:.0f}", f"{x['cpu']:.0f} ({x['cpu'] / st:.2f})",
+                  f"{x['wall']:.0f}", f"{x['rss']:.0f} ({x['rss'] / st:.1f})",
+                  f"{x['load'][0]:.1f} / {x['load'][1]:.1f}")
     con.print(t)
+    if len(rows) < 2:
+        return
+    # per step: CPU (wall) at each size; growth exponent b (cost ~ N^b) between the two largest
+    # sizes and the CPU extrapolated with it; memory extrapolated linearly (a fixed base)
+    a, b = rows[-2], rows[-1]
+    target = args.extrapolate
+    lr = math.log(b["stations"] / a["stations"])
+
+    def power(ca: float, cb: float) -> tuple[str, float]:
+        if cb <= 0:
+            return "-", 0.0
+        # a step that did nothing at the smaller size (one recording: no pair): assumed to
+        # grow with the pairs of recordings, N^2
+        e = math.log(cb / ca) / lr if ca > 0 else 2.0
+        return f"{e:.2f}" + ("" if ca > 0 else " (assumed)"), cb * (target / b["stations"]) ** e
+
+    e = Table(title=f"per step: CPU s (wall s) at each size, growth exponent b between "
+                    f"{a['stations']} and {b['stations']} stations, CPU extrapolated to "
+                    f"{target:,} stations", header_style="bold")
+    e.add_column("step")
+    for x in rows:
+        e.add_column(f"{x['stations']} st.", justify="right")
+    for c in ("b", f"CPU h at {target:,}"):
+        e.add_column(c, justify="right")
+    # the reconstruction: independent per recording, linear in stations by construction
+    rec_x = b["rec_cpu"] / b["stations"] * target
+    e.add_row("reconstruct (Σ recordings)", *[f"{x['rec_cpu']:.0f} ({x['rec_wall']:.0f})"
+                                              for x in rows],
+              "1 (independent)", f"{rec_x / 3600:.1f}")
+    worst = ("reconstruct", rec_x)
+    total = 0.0
+    for k in MERGE_STEPS:
+        ex, cx = power(a["step_cpu"].get(k, 0.0), b["step_cpu"].get(k, 0.0))
+        total += cx
+        e.add_row(f"merge: {k}", *[f"{x['step_cpu'].get(k, 0.0):.1f} "
+                                   f"({x['step_wall'].get(k, 0.0):.0f})" for x in rows],
+                  ex, f"{cx / 3600:.1f}")
+        if cx > worst[1]:
+            worst = (f"merge: {k}", cx)
+    slope = (b["rss"] - a["rss"]) / max(b["stations"] - a["stations"], 1)
+    rss_x = b["rss"] + slope * (target - b["stations"])
+    e.add_row("merge peak RSS MB", *[f"{x['rss']:.0f}" for x in rows],
+              f"+{slope:.1f} MB/station", f"{rss_x / 1024:.0f} GB")
+    con.print(e)
+    con.print(f"at {target:,} stations: reconstruction {rec_x / 3600:.1f} CPU h (spread over "
+              f"workers), merge {total / 3600:.1f} CPU h in one process, bounded in time by "
+              f"{worst[0]}; merge memory ~{rss_x / 1024:.0f} GB in one process")
     con.print(f"load average after: {os.getloadavg()}")
 
 
@@ -220,7 +362,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=2, help="workers of the building's batch")
     ap.add_argument("--force", action="store_true", help="reconstruct the building again")
     ap.add_argument("--growth", action="store_true",
-                    help="after the building: merge cost for ~50, ~100 and all stations")
+                    help="instead of the building's score: cost growth of the reconstruction "
+                         "and the merge for ~50, ~100, ~200 and all stations")
+    ap.add_argument("--scaleout", type=int, default=0, metavar="STATIONS",
+                    help="one recording of that many stations, in process vs Ray tasks on "
+                         "--workers (0: skip)")
+    ap.add_argument("--sizes", default="50,100,200",
+                    help="growth: station counts the first recordings are merged up to")
+    ap.add_argument("--extrapolate", type=int, default=10_000,
+                    help="stations the growth is extrapolated to")
     ap.add_argument("--survey", type=Path, default=None,
                     help="the building's captures (default WORK/building-SIZE; simulated there "
                          "when missing)")
@@ -233,10 +383,13 @@ def main(argv: list[str] | None = None) -> int:
     con.print(f"load average {os.getloadavg()}, {os.cpu_count()} CPUs")
     if args.recordings > 0:
         throughput(args, con)
+    if args.scaleout > 0:
+        scaleout(args, con)
     if args.building != "none":
-        building(args, con)
         if args.growth:
             growth(args, con)
+        else:
+            building(args, con)
     return 0
 
 

@@ -31,10 +31,12 @@ def merged_folder(outdir: str | Path, recs: list[BatchRecording]) -> Path:
 
 def batch_reconstruct(recs: list[BatchRecording], outdir: str | Path, cfg, *, workers: int = 1,
                       address: str | None = None, max_retries: int = 2, force: bool = False,
-                      on_done=None, merge=None, on_merge=None) -> BatchResult:
+                      split_large: int = 0, on_done=None, merge=None, on_merge=None
+                      ) -> BatchResult:
     """Reconstruct ``recs`` (from :func:`discover`) with the reconstruction config ``cfg``
     into ``outdir/<name>/``, then write the index. ``cfg.num_threads`` is each task's CPU
-    count on the engine.
+    count on the engine. ``split_large``: a recording of at least that many stations runs its
+    fragments and registrations as further tasks on the engine (0: never; the same outputs).
 
     ``merge``: a :class:`~..reconstruction.merge.MergeConfig` to join every finished recording
     into one model in :func:`merged_folder` (``res.merge`` holds its
@@ -47,7 +49,8 @@ def batch_reconstruct(recs: list[BatchRecording], outdir: str | Path, cfg, *, wo
     t0 = time.time_ns()
     res = run_batch(recs, outdir, cfg.model_dump(mode="json"), config_hash(dump_config(cfg)),
                     workers=workers, address=address, cpus_per_task=cpus,
-                    max_retries=max_retries, force=force, on_done=on_done)
+                    max_retries=max_retries, force=force, split_large=split_large,
+                    on_done=on_done)
     meta = {"engine": res.engine, "wall_s": res.wall_s, "engine_start_s": res.engine_start_s,
             "started_unix_ns": t0, "notes": res.notes}
     if merge is not None:

@@ -11,25 +11,17 @@ small dicts travel through Ray.
 
 from __future__ import annotations
 
-import logging
-import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..reconstruction.engine import EngineError, start_ray
 from . import manifest
 from .discovery import BatchRecording
 from .tasks import job_of, reconstruct_recording
 
-
-#: environment variables that size a local worker's thread pools (a cluster's nodes keep their
-#: own: Ray sets OMP_NUM_THREADS to a task's CPUs there)
-THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
-
-
-class EngineError(RuntimeError):
-    """Ray could not be started or reached (one-line message)."""
+__all__ = ["BatchResult", "EngineError", "plan", "run_batch"]
 
 
 @dataclass
@@ -72,45 +64,29 @@ def plan(recs: list[BatchRecording], outdir: Path, cfg_dict: dict, cfg_hash: str
     return jobs, skipped
 
 
-def _init_ray(workers: int, address: str | None, cpus_per_task: int = 1):
-    import ray
-
-    # no usage-stats upload attempt (offline machines), no dashboard, warnings only
-    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-    kw = dict(include_dashboard=False, logging_level=logging.WARNING, log_to_driver=False,
-              configure_logging=True)
-    if address:
-        ray.init(address=address, **kw)
-        return ray, f"cluster {address} ({int(ray.cluster_resources().get('CPU', 0))} CPUs)"
-    # a local worker's thread pools (OpenMP, OpenBLAS, MKL) as wide as a task's CPUs, not the
-    # machine's: N workers on N cores then really run N recordings side by side. The workers
-    # inherit the environment of the raylet this starts; the driver's is restored after.
-    saved = {k: os.environ.get(k) for k in THREAD_ENV}
-    for k in THREAD_ENV:
-        os.environ.setdefault(k, str(cpus_per_task))
-    try:
-        # results are small dicts: a small object store spares the shared machine's /dev/shm
-        ray.init(num_cpus=workers, object_store_memory=80 * 1024 * 1024, **kw)
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
-    return ray, f"local Ray, {workers} worker{'s' if workers != 1 else ''}"
+def _init_ray(workers: int, address: str | None, cpus_per_task: int = 1, split: bool = False):
+    # results are small dicts: a small object store spares the shared machine's /dev/shm; a
+    # large recording split into tasks keeps its stations' packets and fragments there (spilled
+    # to disk past that size)
+    return start_ray(workers, address, cpus_per_task, object_store_mb=256 if split else 80)
 
 
 def run_batch(recs: list[BatchRecording], outdir: Path, cfg_dict: dict, cfg_hash: str, *,
               workers: int = 1, address: str | None = None, cpus_per_task: int = 1,
-              max_retries: int = 2, force: bool = False,
+              max_retries: int = 2, force: bool = False, split_large: int = 0,
               on_done: Callable[[dict, int, int], None] | None = None) -> BatchResult:
     """Reconstruct every recording not up to date as its own Ray task.
 
+    ``split_large``: a recording of at least that many stations (0: none) runs its fragments,
+    odometry pairs and loop candidates as further tasks on the same engine
+    (:mod:`..reconstruction.scaleout`; the same outputs, byte for byte).
     ``on_done(outcome, n_finished, n_total)`` is called as each recording finishes (progress).
     """
     t0 = time.perf_counter()
     outdir.mkdir(parents=True, exist_ok=True)
     jobs, skipped = plan(recs, outdir, cfg_dict, cfg_hash, force)
+    for j in jobs:  # what a recording's own tasks need (large recordings)
+        j.update(split_large=split_large, cpus_per_task=cpus_per_task, max_retries=max_retries)
     by_name: dict[str, dict] = {o["name"]: o for o in skipped}
     total = len(recs)
     for o in skipped:
@@ -119,12 +95,7 @@ def run_batch(recs: list[BatchRecording], outdir: Path, cfg_dict: dict, cfg_hash
     res = BatchResult(outdir, [], engine="none (all up to date)")
     if jobs:
         t_engine = time.perf_counter()
-        try:
-            ray, res.engine = _init_ray(workers, address, cpus_per_task)
-        except Exception as exc:  # noqa: BLE001  Ray raises several types here
-            first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-            where = f"the Ray cluster at {address}" if address else "a local Ray instance"
-            raise EngineError(f"cannot use {where}: {first}") from None
+        ray, res.engine = _init_ray(workers, address, cpus_per_task, split_large > 0)
         res.engine_start_s = time.perf_counter() - t_engine
         try:
             task = ray.remote(num_cpus=cpus_per_task, max_retries=max_retries)(

@@ -7,12 +7,15 @@ task calls the same library function as ``tripod reconstruct``
 A recording that cannot be reconstructed returns ``status="failed"`` with a one-line error
 (it never raises, so one bad recording never stops the others); a worker process that dies is
 a system failure that Ray retries (``max_retries``), and the retried task starts from an
-empty output folder.
+empty output folder. A recording of at least ``job["split_large"]`` stations runs its
+fragments and registrations as further tasks on the same engine (nested Ray tasks; a task
+waiting for them gives its CPU back meanwhile).
 """
 
 from __future__ import annotations
 
 import os
+import resource
 import shutil
 import socket
 import time
@@ -54,11 +57,21 @@ def reconstruct_recording(job: dict) -> dict:
         fingerprint = manifest.input_fingerprint([Path(p) for p in job["files"]])
         cfg = ReconstructConfig.model_validate(job["config"])
         inputs = [Path(p) for p in job["inputs"]]
+        engine = None
+        if job.get("split_large", 0) > 0:
+            # a large recording's fragments and registrations: tasks on the batch's engine
+            from ..reconstruction.engine import RayEngine
+
+            engine = RayEngine.attached(job.get("cpus_per_task", 1), job.get("max_retries", 2))
         res = reconstruct(inputs[0] if len(inputs) == 1 else inputs, out, cfg,
-                          imu_log=job["imu"], quiet=True)
-        summ = summary(res)
-        manifest.write_manifest(out, fingerprint, job["config_sha256"], _small(summ))
-        return {**base, "status": "done", "error": "", "summary": _small(summ),
+                          imu_log=job["imu"], quiet=True, engine=engine,
+                          engine_min_stations=job.get("split_large", 0))
+        # the worker's peak RSS so far [MB] (a worker runs tasks one after another: at least
+        # this recording's peak)
+        summ = {**_small(summary(res)),
+                "worker_peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+        manifest.write_manifest(out, fingerprint, job["config_sha256"], summ)
+        return {**base, "status": "done", "error": "", "summary": summ,
                 "wall_s": time.perf_counter() - t0}
     except (RecordingError, OSError, ValueError) as exc:
         err = _one_line(exc)
@@ -69,8 +82,8 @@ def reconstruct_recording(job: dict) -> dict:
             "wall_s": time.perf_counter() - t0}
 
 
-_KEYS = ("recording_s", "processing_s", "processing_cpu_s", "stations", "disconnected_stations",
-         "odometry_edges", "loop_edges", "map_points", "ate_cm", "ate_deg", "files", "notes")
+_KEYS = ("recording_s", "processing_s", "processing_cpu_s", "engine", "stations",
+         "disconnected_stations", "odometry_edges", "loop_edges", "map_points", "ate_cm", "ate_deg", "files", "notes")
 
 
 def _small(summ: dict) -> dict:

@@ -80,6 +80,10 @@ def batch_command(
     max_retries: int = typer.Option(2, "--max-retries", min=0,
                                     help="retries of a recording whose worker process died"),
     force: bool = typer.Option(False, "--force", help="reconstruct even what is up to date"),
+    split_large: int = typer.Option(
+        100, "--split-large", min=0,
+        help="a recording of at least this many stations spreads its fragments and "
+             "registrations over the engine as tasks (0: never; the same outputs)"),
     merge: bool = typer.Option(False, "--merge",
                                help="join the recordings into one model in OUTDIR/merged: links "
                                     "between their stations, one pose graph, one map"),
@@ -97,7 +101,7 @@ def batch_command(
     from tqdm import tqdm
 
     from ..batch import batch_reconstruct, discover
-    from ..batch.runner import EngineError
+    from ..reconstruction.engine import EngineError
 
     if not inputs:
         fail("give recordings or folders to search")
@@ -144,7 +148,8 @@ def batch_command(
 
     try:
         res = batch_reconstruct(recs, output, cfg, workers=workers, address=address,
-                                max_retries=max_retries, force=force, on_done=on_done,
+                                max_retries=max_retries, force=force, split_large=split_large,
+                                on_done=on_done,
                                 merge=mcfg, on_merge=on_merge)
     except EngineError as exc:
         fail(str(exc))

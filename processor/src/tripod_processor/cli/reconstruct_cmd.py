@@ -71,6 +71,16 @@ def reconstruct_command(
                                 "station with its pose) and map.laz (intensity, station, ASPRS "
                                 "classes); = --set output.write_e57=true output.write_las=laz"),
     set_: list[str] = typer.Option(None, "--set", help="override a config key: a.b=value"),
+    address: str = typer.Option(
+        None, "--address", rich_help_panel="Engine",
+        help="run fragments, odometry pairs and loop candidates as tasks on a running Ray "
+             "cluster: auto or HOST:PORT (the same outputs; the recording stays on this machine)"),
+    workers: int = typer.Option(
+        0, "--workers", min=0, rich_help_panel="Engine",
+        help="the same on a local Ray instance of N CPUs started for the run (0: in process, "
+             "the default)"),
+    max_retries: int = typer.Option(2, "--max-retries", min=0, rich_help_panel="Engine",
+                                    help="retries of a task whose worker process died"),
     quiet: bool = typer.Option(False, "--quiet", help="no progress bars"),
     print_default_config: bool = typer.Option(False, "--print-default-config",
                                               help="print the default config and exit"),
@@ -92,11 +102,27 @@ def reconstruct_command(
     cfg = reconstruct_config(config, set_, calibration, defaults=survey_outputs)
     from ..reconstruction.pipeline import reconstruct, summary
 
+    con = Console()
+    engine = None
+    if address or workers:
+        from ..reconstruction.engine import EngineError, ray_engine
+
+        if cfg.num_threads == 0:
+            # all cores per task would oversubscribe every node: one thread (and CPU) per task
+            cfg = cfg.model_copy(update={"num_threads": 1})
+        try:
+            engine = ray_engine(workers or 1, address, cfg.num_threads, max_retries)
+        except EngineError as exc:
+            fail(str(exc))
+        if not quiet:
+            con.print(f"engine: {engine.name}, {cfg.num_threads} CPU(s) per task")
     try:
-        res = reconstruct(recording, output, cfg, imu_log=imu, quiet=quiet)
+        res = reconstruct(recording, output, cfg, imu_log=imu, quiet=quiet, engine=engine)
     except RecordingError as exc:
         fail(str(exc))
-    con = Console()
+    finally:
+        if engine is not None:
+            engine.close()
     con.print(results_table(summary(res)))
     for n in res.notes:
         con.print(f"[yellow]note:[/] {n}")

@@ -21,10 +21,11 @@ from ..io import clouds as cloud_io
 from ..preprocess import mls_smooth, voxel_downsample
 from . import outputs
 from .config import ReconstructConfig
-from .fragments import Fragment, build_fragment
+from .fragments import Fragment
 from .inputs import Recording, RecordingError, read_recording
 from .odometry import CloudCache
 from .placement import Extrinsic, ImuOrientation, fit_clock_map, pose_world_lidar
+from .scaleout import build_fragments
 from .slam import SlamResult, inv, run_odometry, run_slam
 from .stations import Segmentation, segment_stations
 
@@ -45,6 +46,7 @@ class ReconstructResult:
     notes: list[str] = field(default_factory=list)
     time_offset_info: dict = field(default_factory=dict)
     calibration: dict = field(default_factory=dict)  # effective calibration (calibration.json)
+    engine: str = "in-process"  # where fragments and registrations ran (.engine)
 
     @property
     def station_t_ns(self) -> np.ndarray:
@@ -82,10 +84,15 @@ class _Stage:
 
 
 def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
-                cfg: ReconstructConfig | None = None, *, imu_log=None, quiet: bool = False
-                ) -> ReconstructResult:
+                cfg: ReconstructConfig | None = None, *, imu_log=None, quiet: bool = False,
+                engine=None, engine_min_stations: int = 0) -> ReconstructResult:
     """Run the whole reconstruction; see the module docstring. Raises RecordingError on input
-    that cannot be reconstructed (one-line message)."""
+    that cannot be reconstructed (one-line message).
+
+    ``engine`` (:mod:`.engine`, e.g. :func:`.engine.ray_engine`): fragments, odometry pairs and
+    loop candidates run as its tasks when the recording has at least ``engine_min_stations``
+    stations; the outputs are the same bytes as in process (for the same ``num_threads``).
+    """
     cfg = cfg or ReconstructConfig()
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)
@@ -165,30 +172,29 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
     # 5. fragments (with their voxels' intensity when a survey file wants it)
     oc = cfg.output
     survey = oc.write_e57 or oc.write_las != "none"
-    frags: list[Fragment] = []
+    # the heavy independent steps (fragments, pair registrations) on the engine when given
+    eng = engine if engine is not None and len(seg.stations) >= engine_min_stations else None
     with _Stage(times, "fragments", len(seg.stations), quiet) as bar:
-        for st in seg.stations:
-            frags.append(build_fragment(rec.lidar, st, orient, ext, cfg.fragments.voxel_m,
-                                        pc.min_range_m, pc.max_range_m, threads,
-                                        with_intensity=survey))
-            bar.update(1)
+        frags = build_fragments(eng, rec.lidar, seg.stations, orient, ext, cfg.fragments.voxel_m,
+                                pc.min_range_m, pc.max_range_m, threads, survey, bar)
 
     # 6. odometry
     cache = CloudCache(cfg.odometry.point_sigma_m, threads)
     with _Stage(times, "odometry", max(len(frags) - 1, 0), quiet) as bar:
         T_odom, odom_edges, comp, odom_notes = run_odometry(frags, cfg.odometry, threads, bar,
-                                                            cache)
+                                                            cache, eng)
     notes += odom_notes
 
     # 7. loops and pose graph
     with _Stage(times, "slam", None, quiet) as bar:
         slam = run_slam(frags, T_odom, odom_edges, comp, cfg.odometry, cfg.slam, threads, bar,
-                        cache)
+                        cache, eng)
     notes += slam.notes
 
     res = ReconstructResult(out, rec, seg, frags, slam, ext, orient.time_offset_ns, delta,
                             times, notes=notes, time_offset_info=info,
-                            calibration=effective_calibration(ext, orient, pc, calib))
+                            calibration=effective_calibration(ext, orient, pc, calib),
+                            engine=eng.name if eng is not None else "in-process")
 
     # 8. outputs
     with _Stage(times, "outputs", None, quiet):
@@ -464,6 +470,7 @@ def summary(res: ReconstructResult) -> dict:
         "recording_s": res.recording.duration_s,
         "processing_s": res.processing_s,
         "processing_cpu_s": res.processing_cpu_s,
+        "engine": res.engine,
         "stage_s": {k: v for k, v in res.stage_s.items() if k != "_cpu"},
         "stage_cpu_s": res.stage_s.get("_cpu", {}),
         "lidar_packets": len(res.recording.lidar),

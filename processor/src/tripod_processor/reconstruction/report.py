@@ -262,7 +262,10 @@ def write_report(res, cfg: ReconstructConfig, s: dict) -> Path:
         f"({s['extrinsic']['source']}) |",
         f"| map points | {s['map_points']} |",
         f"| processing | {s['processing_s']:.1f} s wall, {s['processing_cpu_s']:.1f} s CPU "
-        f"({s['processing_s'] / max(s['recording_s'], 1e-9):.3f} of the recording time) |",
+        f"({s['processing_s'] / max(s['recording_s'], 1e-9):.3f} of the recording time)"
+        + ("" if s.get("engine", "in-process") == "in-process" else
+           f"; fragments and registrations as tasks on {s['engine']} (their CPU not counted)")
+        + " |",
         f"| horizontal plane fit | {med('horizontal')} |",
         f"| vertical plane fit | {med('vertical')} |", "",
         "## Map and trajectory", "", "![top-down](report_topdown.png)", "",

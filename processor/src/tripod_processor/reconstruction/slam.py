@@ -17,7 +17,8 @@ import numpy as np
 from ..registration import pose_graph as pg
 from .config import OdometryConfig, SlamConfig
 from .fragments import Fragment
-from .odometry import CloudCache, PairResult, register_fragments
+from .odometry import CloudCache, PairResult
+from .scaleout import register_pairs
 
 
 def inv(T: np.ndarray) -> np.ndarray:
@@ -53,11 +54,12 @@ def _edge(i: int, j: int, r: PairResult, kind: str) -> pg.Edge:
 
 
 def run_odometry(frags: list[Fragment], cfg: OdometryConfig, num_threads: int = 0,
-                 progress=None, cache: CloudCache | None = None
+                 progress=None, cache: CloudCache | None = None, engine=None
                  ) -> tuple[np.ndarray, list[pg.Edge], np.ndarray, list[str]]:
     """Chain consecutive registrations. Returns T_world_lidar (N,4,4), edges, component ids,
     notes. A failed pair is retried against the two stations before; if those fail too a new
-    component starts there."""
+    component starts there. Every pair (k, k-1) is independent of the others: they run first,
+    as one map on ``engine`` (:mod:`.engine`; in process by default), the retries after."""
     n = len(frags)
     cache = cache or CloudCache(cfg.point_sigma_m, num_threads)
     T = np.tile(np.eye(4), (n, 1, 1))
@@ -66,30 +68,29 @@ def run_odometry(frags: list[Fragment], cfg: OdometryConfig, num_threads: int = 
     comp = np.zeros(n, dtype=int)
     edges: list[pg.Edge] = []
     notes: list[str] = []
+    found: dict[int, tuple[int, PairResult]] = {}  # station -> (the station it joined, pair)
+    todo = list(range(1, n))
+    for back in (1, 2, 3):
+        pairs = [(k, k - back) for k in todo if k - back >= 0]
+        if not pairs:
+            break
+        res = register_pairs(engine, frags, pairs, cfg, num_threads, cache,
+                             progress=progress if back == 1 else None)
+        found.update({k: (i, r) for (k, i), r in zip(pairs, res) if r.ok})
+        todo = [k for k, _ in pairs if k not in found]
     for k in range(1, n):
-        done = False
-        for back in (1, 2, 3):
-            i = k - back
-            if i < 0:
-                break
-            r = register_fragments(frags[k].points, frags[i].points, frags[k].R_world_lidar,
-                                   frags[i].R_world_lidar, cfg, num_threads, cache=cache,
-                                   keys=(k, i))
-            if r.ok:
-                T[k] = T[i] @ r.T_target_source
-                comp[k] = comp[i]
-                edges.append(_edge(i, k, r, "odometry"))
-                if back > 1:
-                    notes.append(f"station {k}: registered to station {i} (not {k - 1})")
-                done = True
-                break
-        if not done:
+        if k in found:
+            i, r = found[k]
+            T[k] = T[i] @ r.T_target_source
+            comp[k] = comp[i]
+            edges.append(_edge(i, k, r, "odometry"))
+            if k - i > 1:
+                notes.append(f"station {k}: registered to station {i} (not {k - 1})")
+        else:
             comp[k] = comp[:k].max() + 1
             T[k] = np.eye(4)
             T[k, :3, :3] = frags[k].R_world_lidar
             notes.append(f"station {k}: no overlap with the stations before it")
-        if progress is not None:
-            progress.update(1)
     return T, edges, comp, notes
 
 
@@ -102,11 +103,12 @@ def _merge_components(comp: np.ndarray, i: int, j: int) -> None:
 
 def run_slam(frags: list[Fragment], T_odom: np.ndarray, odom_edges: list[pg.Edge],
              comp: np.ndarray, ocfg: OdometryConfig, scfg: SlamConfig, num_threads: int = 0,
-             progress=None, cache: CloudCache | None = None) -> SlamResult:
-    """Loop closures and pose-graph optimisation (see the module docstring)."""
+             progress=None, cache: CloudCache | None = None, engine=None) -> SlamResult:
+    """Loop closures and pose-graph optimisation (see the module docstring); the loop
+    candidates' registrations on ``engine`` (:mod:`.engine`; in process by default)."""
     n = len(frags)
     cache = cache or CloudCache(ocfg.point_sigma_m, num_threads)
-    comp = comp.copy()
+    comp0, comp = comp, comp.copy()
     edges = list(odom_edges)
     notes: list[str] = []
     connected = {(e.i, e.j) for e in edges}
@@ -128,11 +130,19 @@ def run_slam(frags: list[Fragment], T_odom: np.ndarray, odom_edges: list[pg.Edge
     if progress is not None:
         progress.total = len(cands)
         progress.refresh()
-    for i, j in cands:
-        guess = inv(T_odom[i]) @ T_odom[j] if comp[i] == comp[j] else None
-        r = register_fragments(frags[j].points, frags[i].points, frags[j].R_world_lidar,
-                               frags[i].R_world_lidar, ocfg, num_threads, T_guess=guess,
-                               cache=cache, keys=(j, i))
+    # on a distributed engine every candidate is registered at once, from its guess of now;
+    # a candidate whose stations a loop before it joins needs a guess it did not have: that one
+    # is registered again in order (the same results as the plain loop, which this is in process)
+    ahead = None
+    if cands and engine is not None and engine.distributed:
+        ahead = register_pairs(engine, frags, [(j, i) for i, j in cands], ocfg, num_threads,
+                               guesses=[_loop_guess(T_odom, comp, i, j) for i, j in cands])
+    for k, (i, j) in enumerate(cands):
+        guess = _loop_guess(T_odom, comp, i, j)
+        if ahead is not None and (guess is None) == (comp0[i] != comp0[j]):
+            r = ahead[k]
+        else:
+            r = register_pairs(None, frags, [(j, i)], ocfg, num_threads, cache, [guess])[0]
         if r.ok:
             edges.append(_edge(i, j, r, "loop"))
             if comp[i] != comp[j]:
@@ -170,6 +180,11 @@ def run_slam(frags: list[Fragment], T_odom: np.ndarray, odom_edges: list[pg.Edge
                      "its fragment is written alone, not merged")
     comp_out = np.where(comp == main, 0, comp + 1)
     return SlamResult(T_odom, T_opt, edges, graph, gres, comp_out, disconnected, len(cands), notes)
+
+
+def _loop_guess(T_odom: np.ndarray, comp: np.ndarray, i: int, j: int) -> np.ndarray | None:
+    """T_i_j from the odometry map when both stations are in the same component, else None."""
+    return inv(T_odom[i]) @ T_odom[j] if comp[i] == comp[j] else None
 
 
 def _chain_initial(n: int, edges: list[pg.Edge], T_odom: np.ndarray,

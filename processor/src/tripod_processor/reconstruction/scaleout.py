@@ -1,0 +1,109 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""A reconstruction's heavy independent steps on an :mod:`.engine`: fragment building (one
+call per station) and fragment-pair registrations (odometry pairs, loop candidates).
+
+In process (the default engine) these are the plain loops of before: one
+:func:`~.fragments.build_fragment` per station, one
+:func:`~.odometry.register_fragments` per pair, sharing the run's :class:`~.odometry.CloudCache`.
+On Ray, a fragment task gets only its station's packets (a slice of the recording); every
+fragment's points are put once in the object store, and a registration task takes a run of
+consecutive pairs with references to the fragments they need (a task prepares each of its
+fragments once, in its own cache). Registration depends only on the two clouds, their IMU
+attitudes and the config (the cache only saves work), so both engines give the same bytes
+when ``num_threads`` is the same.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .config import OdometryConfig
+from .engine import InProcess, chunks
+from .fragments import Fragment, build_fragment
+from .inputs import LidarPackets
+from .odometry import CloudCache, PairResult, register_fragments
+from .placement import Extrinsic, ImuOrientation
+from .stations import Station
+
+_IN_PROCESS = InProcess()
+
+
+def _fragment_task(payload: np.ndarray, lidar_ns: np.ndarray, return_mode: str,
+                   station: Station, orient: ImuOrientation, ext: Extrinsic, voxel_m: float,
+                   min_range: float, max_range: float, num_threads: int,
+                   with_intensity: bool) -> Fragment:
+    """One station's fragment from its own packets (``payload``, ``lidar_ns``: the station's
+    slice; ``station`` with its original packet indices)."""
+    n = len(lidar_ns)
+    lidar = LidarPackets(np.zeros(n, np.int64), lidar_ns, payload, return_mode)
+    local = Station(station.index, station.start_ns, station.end_ns, 0, n, station.label)
+    frag = build_fragment(lidar, local, orient, ext, voxel_m, min_range, max_range, num_threads,
+                          with_intensity=with_intensity)
+    frag.station = station
+    return frag
+
+
+def build_fragments(engine, lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
+                    ext: Extrinsic, voxel_m: float, min_range: float, max_range: float,
+                    num_threads: int = 0, with_intensity: bool = False, progress=None
+                    ) -> list[Fragment]:
+    """:func:`~.fragments.build_fragment` for every station, in station order. ``progress``: a
+    bar (``update(1)`` per station)."""
+    step = (lambda _k: progress.update(1)) if progress is not None else None
+    engine = engine or _IN_PROCESS
+    if not engine.distributed:
+        def one(st: Station) -> Fragment:
+            return build_fragment(lidar, st, orient, ext, voxel_m, min_range, max_range,
+                                  num_threads, with_intensity=with_intensity)
+
+        return engine.map(one, [(st,) for st in stations], step)
+    h_orient, h_ext = engine.put(orient), engine.put(ext)
+    calls = [(lidar.payload[st.packet_start:st.packet_stop],
+              lidar.lidar_ns[st.packet_start:st.packet_stop], lidar.return_mode, st, h_orient,
+              h_ext, voxel_m, min_range, max_range, num_threads, with_intensity)
+             for st in stations]
+    return engine.map(_fragment_task, calls, step)
+
+
+def _register_run(pairs: list[tuple], cfg: OdometryConfig, num_threads: int,
+                  *points: np.ndarray) -> list[PairResult]:
+    """Register a run of pairs in one task, one cache: ``pairs`` are (source, target,
+    R_world_source, R_world_target, T_guess) with source and target positions in ``points``."""
+    cache = CloudCache(cfg.point_sigma_m, num_threads)
+    return [register_fragments(points[s], points[t], R_s, R_t, cfg, num_threads, T_guess=g,
+                               cache=cache, keys=(s, t)) for s, t, R_s, R_t, g in pairs]
+
+
+def register_pairs(engine, frags: list[Fragment], pairs: list[tuple[int, int]],
+                   cfg: OdometryConfig, num_threads: int = 0, cache: CloudCache | None = None,
+                   guesses: list[np.ndarray | None] | None = None, progress=None
+                   ) -> list[PairResult]:
+    """``register_fragments(frags[j] onto frags[i])`` for every ``(j, i)`` in ``pairs`` (source
+    j, target i; ``guesses[k]``: T_i_j to try first, or None), results in the order of
+    ``pairs``. In process: ``cache`` (keys: station indices) is shared with the run's other
+    steps. ``progress``: a bar (``update(n)`` as n pairs finish)."""
+    guesses = guesses if guesses is not None else [None] * len(pairs)
+    engine = engine or _IN_PROCESS
+    if not engine.distributed:
+        cache = cache or CloudCache(cfg.point_sigma_m, num_threads)
+
+        def one(j: int, i: int, g) -> PairResult:
+            return register_fragments(frags[j].points, frags[i].points, frags[j].R_world_lidar,
+                                      frags[i].R_world_lidar, cfg, num_threads, T_guess=g,
+                                      cache=cache, keys=(j, i))
+
+        step = (lambda _k: progress.update(1)) if progress is not None else None
+        return engine.map(one, [(j, i, g) for (j, i), g in zip(pairs, guesses)], step)
+    calls = []
+    runs = chunks(len(pairs), engine.slots)
+    for run in runs:
+        order: dict[int, int] = {}  # station -> position among the task's clouds
+        items = []
+        for k in run:
+            j, i = pairs[k]
+            s, t = order.setdefault(j, len(order)), order.setdefault(i, len(order))
+            items.append((s, t, frags[j].R_world_lidar, frags[i].R_world_lidar, guesses[k]))
+        calls.append((items, cfg, num_threads, *(engine.put(frags[f].points) for f in order)))
+    step = (lambda k: progress.update(len(runs[k]))) if progress is not None else None
+    results = engine.map(_register_run, calls, step)
+    return [r for run in results for r in run]
