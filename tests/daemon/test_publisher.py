@@ -210,7 +210,8 @@ with zenoh.open(conf) as z:
     sys.stdin.read()  # until the test closes our stdin
     while time.monotonic() - last[0] < 1.0:  # what is on its way still comes
         time.sleep(0.1)
-    print(json.dumps({"packets": dec.packets, "missing": dec.missing, "seqs": seqs}), flush=True)
+    print(json.dumps({"packets": dec.packets, "missing": dec.missing, "next": dec.next_index,
+                      "seqs": seqs}), flush=True)
 """
 
 
@@ -225,7 +226,7 @@ def test_slow_block_subscriber_loses_only_its_own_data_and_counts_it(tmp_path):
     port = free_tcp_port()
     cfg = loopback_config(tmp_path, zenoh={"enabled": True, "listen": [f"tcp/127.0.0.1:{port}"]})
     conf = build_zenoh_config(ZenohConfig(listen=[], connect=[f"tcp/127.0.0.1:{port}"]))
-    n, tail = 20_000, 20  # 24 MB in 4 s, then a few packets once the slow one is idle
+    n, tail = 20_000, 60  # 24 MB in 4 s, then a few packets once the slow one is idle
     key = topics.key_lidar_blocks(cfg.device_id)
     with RunningDaemon(cfg) as d, zenoh.open(conf) as zf:
         fast = BlockSubscriber(zf, key)
@@ -241,9 +242,14 @@ def test_slow_block_subscriber_loses_only_its_own_data_and_counts_it(tmp_path):
             assert d.wait_for(lambda: c["lidar_data"] == n, timeout=20)
             assert d.wait_for(lambda: len(fast.packets) == n, timeout=20), (
                 len(fast.packets), fast.decoder.missing)
-            time.sleep(2.0)  # the slow one drains what the kernel holds for it
-            send_paced(udp_sender(), d.data_addr, [make_data_packet(n + k) for k in range(tail)],
-                       100, burst=1)
+            # the slow one drains what the kernel holds for it (the daemon's send buffer grows
+            # to 4 MiB: ~3 s for it), then the tail in 3 rounds, a second apart
+            time.sleep(3.0)
+            for r in range(3):
+                time.sleep(1.0)
+                send_paced(udp_sender(), d.data_addr,
+                           [make_data_packet(n + k) for k in range(r * 20, r * 20 + 20)], 100,
+                           burst=1)
             assert d.wait_for(lambda: len(fast.packets) == n + tail, timeout=10)
             out, _ = slow.communicate("", timeout=60)
         finally:
@@ -254,7 +260,7 @@ def test_slow_block_subscriber_loses_only_its_own_data_and_counts_it(tmp_path):
     every = [make_data_packet(k) for k in range(n + tail)]
     assert [p for _ns, p in fast.packets] == every and fast.decoder.missing == 0
     # the slow one lost some, and knows exactly how many: its blocks' numbers
-    assert got["missing"] > 0 and got["packets"] + got["missing"] == n + tail
+    assert got["missing"] > 0 and got["packets"] + got["missing"] == got["next"] == n + tail
     assert got["seqs"] == sorted(set(got["seqs"])) and got["seqs"][-1] == n + tail - 1
     assert c["zenoh_dropped"] == 0 and c["record_dropped"] == 0
     assert [p for _ns, p in RecordingReader(d.daemon.recorder.files[0]).lidar_packets()] == every

@@ -129,7 +129,7 @@ def test_decoder_counts_missing_packets_and_restarts():
 
     for first, n in ((0, 5), (5, 5), (20, 3), (23, 1)):  # 10..19 lost
         assert dec.decode(blk(first, n)) is not None
-    assert (dec.packets, dec.missing, dec.blocks) == (14, 10, 4)
+    assert (dec.packets, dec.missing, dec.blocks, dec.next_index) == (14, 10, 4, 24)
     dec.decode(blk(0, 2))  # the daemon restarted: not a loss
     dec.decode(blk(4, 2))  # 2, 3 lost
     assert (dec.missing, dec.restarts) == (12, 1)

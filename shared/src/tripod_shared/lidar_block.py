@@ -199,5 +199,11 @@ class LidarBlockDecoder:
         return blk
 
     @property
+    def next_index(self) -> int | None:
+        """The number the next packet should have (None before the first block): ``packets +
+        missing`` equals it since the first block, less that block's ``first_index``."""
+        return self._next
+
+    @property
     def rejected_total(self) -> int:
         return sum(self.rejected.values())
