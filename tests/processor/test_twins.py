@@ -127,3 +127,24 @@ def test_merge_leaves_a_symmetric_pair_unjoined(tmp_path, symmetric):
             T_a_b = np.linalg.inv(res.T_world_station[0][0]) @ res.T_world_station[1][k]
             ang, dist = _err(T_a_b, T_true_a)
             assert ang < 0.3 and dist < 0.03, (k, ang, dist)
+
+
+def test_cycle_check_unjoins_the_pair_that_breaks_cycles():
+    """Four recordings, every pair joined; one pair's hypothesis is the 180 deg twin: it is the
+    one in the most broken cycles of three, and the only one unjoined. With three recordings
+    (each pair in the one broken cycle) the lowest-scoring pair goes."""
+    from tripod_processor.reconstruction.merge import MergeConfig, PairOutcome, drop_inconsistent
+
+    rng = np.random.default_rng(0)
+    T = [pose(yaw_deg=rng.uniform(-180, 180), xyz=rng.uniform(-5, 5, 3)) for _ in range(4)]
+    acc = {(a, b): np.linalg.inv(T[a]) @ T[b] for a in range(4) for b in range(a + 1, 4)}
+    twin = pose(yaw_deg=180.0, xyz=(6.0, 4.0, 0.0))
+    acc[(1, 3)] = twin @ acc[(1, 3)]
+    cfg = MergeConfig()
+    outcomes = {ab: PairOutcome(*ab, [], "global", 5) for ab in acc}
+    assert drop_inconsistent(acc, outcomes, cfg) == [(1, 3)]
+    consistent = {ab: H for ab, H in acc.items() if ab != (1, 3)}
+    assert drop_inconsistent(consistent, outcomes, cfg) == []
+    three = {ab: acc[ab] for ab in ((0, 1), (0, 3), (1, 3))}
+    outcomes[(0, 3)].links = 2  # the weakest of the broken cycle
+    assert drop_inconsistent(three, outcomes, cfg) == [(0, 3)]

@@ -94,6 +94,11 @@ class MergeConfig(StrictModel):
     #: weight of the free-space violation against the fitness in a link's score (fitness -
     #: weight x violation; a hypothesis scores the mean over its ``probe_links`` best candidates)
     free_space_weight: float = Field(default=10.0, ge=0)
+    #: unjoin pairs whose hypotheses break cycles of three joined recordings (the composition
+    #: off the identity by more than ``cycle_m`` [m] or ``cycle_deg`` [deg])
+    cycle_check: bool = True
+    cycle_m: float = Field(default=0.5, gt=0)
+    cycle_deg: float = Field(default=3.0, gt=0)
     num_threads: int = Field(default=0, ge=0)
 
 
@@ -485,6 +490,42 @@ def resolve_twins(recs, cache, coarse, maps, A: int, B: int, H: np.ndarray, src:
     return win[1], win[2], info
 
 
+def drop_inconsistent(accepted: dict, outcomes: dict, cfg: MergeConfig) -> list:
+    """Pairs to unjoin so that every cycle of three joined recordings composes to the identity
+    (within ``cycle_m`` and ``cycle_deg``): greedily, the pair in the most broken cycles, on a
+    tie the lowest-scoring one (its twin check's winning score, else its link count)."""
+    acc = dict(accepted)
+    nodes = sorted({r for ab in acc for r in ab})
+
+    def H(a, b):
+        return acc[(a, b)] if (a, b) in acc else inv(acc[(b, a)]) if (b, a) in acc else None
+
+    def score(ab):
+        po = outcomes.get(ab)
+        if po is None:
+            return 0.0
+        sc = po.twin.get("scores", {}).get(po.twin.get("winner", ""), None)
+        return float(sc) if sc is not None else float(po.links)
+
+    dropped = []
+    while True:
+        broken: dict[tuple[int, int], int] = {}
+        for i, a in enumerate(nodes):
+            for j, b in enumerate(nodes[i + 1:], i + 1):
+                for c in nodes[j + 1:]:
+                    hab, hbc, hac = H(a, b), H(b, c), H(a, c)
+                    if hab is None or hbc is None or hac is None:
+                        continue
+                    if not _close(hab @ hbc, hac, cfg.cycle_m, cfg.cycle_deg):
+                        for ab in ((a, b), (b, c), (a, c)):
+                            broken[ab] = broken.get(ab, 0) + 1
+        if not broken:
+            return dropped
+        worst = max(broken, key=lambda ab: (broken[ab], -score(ab)))
+        dropped.append(worst)
+        del acc[worst]
+
+
 # ---- the merge ----------------------------------------------------------------------------------
 @dataclass
 class PairOutcome:
@@ -616,6 +657,18 @@ def merge_recordings(outdirs: list, outdir: str | os.PathLike, cfg: MergeConfig 
         pairs.append(po)
         if progress is not None:
             progress("pairs", n_done + 1, len(todo))
+
+    # 2b. cycle consistency: three joined recordings must compose to the identity; the pair in
+    #     the most broken cycles (the weakest on a tie) is unjoined until none is left
+    if cfg.cycle_check:
+        for (A, B) in drop_inconsistent(accepted, {(p.A, p.B): p for p in pairs}, cfg):
+            del accepted[(A, B)]
+            links = [lk for lk in links if (lk.A, lk.B) != (A, B)]
+            po = next(p for p in pairs if (p.A, p.B) == (A, B))
+            po.accepted, po.links = "", 0
+            po.twin["cycle"] = "inconsistent"
+            notes.append(f"{recs[A].name} - {recs[B].name}: joined by a hypothesis that breaks "
+                         f"cycles with other recordings: left unjoined")
 
     # 3. components (union of joined recordings) and one pose graph each
     comp_raw = _components(nrec, accepted)
@@ -865,11 +918,14 @@ def merge_report(mres: MergeResult, summ: dict) -> str:
            "| a | b | hypotheses | accepted | links | twins |", "|---|---|---|---|---|---|"]
     for p in mres.pairs:
         tried = "; ".join(f"{s}: {n}, {v} ok" for s, n, v in p.tried) or "none"
-        tw = "–"
-        if p.twin:
-            tw = (", ".join(f"{k}°: {v:.2f}" for k, v in p.twin["scores"].items())
-                  + f"; ratio {p.twin['ratio']:.2f}"
-                  + (" **ambiguous**" if p.twin["ambiguous"] else ""))
+        tw = []
+        if "scores" in p.twin:
+            tw.append(", ".join(f"{k}°: {v:.2f}" for k, v in p.twin["scores"].items())
+                      + f"; ratio {p.twin['ratio']:.2f}"
+                      + (" **ambiguous**" if p.twin["ambiguous"] else ""))
+        if p.twin.get("cycle"):
+            tw.append("**breaks cycles**")
+        tw = "; ".join(tw) or "–"
         ln.append(f"| {recs[p.A].name} | {recs[p.B].name} | {tried} | {p.accepted or '–'} | "
                   f"{p.links} | {tw} |")
     cpu = summ["stage_cpu_s"]
