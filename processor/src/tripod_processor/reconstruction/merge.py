@@ -24,6 +24,16 @@ Steps, for every pair of recordings (A, B):
    ``min_links`` verified links is dropped (the recordings are not joined by it); the accepted
    one is then searched for every link (up to ``max_links_per_station`` per station and other
    recording);
+2a. **turned twins**: a point-symmetric space (a rectangular hall with a grid of columns) fits
+   its 180-deg-turned placement about as well, and the links of that twin verify too. So the
+   accepted hypothesis is scored against its twins (turned 180, 90 and 270 deg about gravity,
+   each found by a global registration restricted to that yaw, refined on the maps and verified
+   the same way; score: the mean over the ``probe_links`` best candidate pairs of fitness -
+   ``free_space_weight`` x free-space violation, 0 for a pair that does not verify): the best
+   wins, and when the runner-up scores more than ``max_twin_ratio`` of it the pair is
+   *ambiguous* and does not join the recordings (they may still join through other pairs);
+2b. **cycle consistency**: three joined recordings' hypotheses must compose to the identity;
+   the pair in the most broken cycles (the weakest on a tie) is unjoined until none is broken;
 3. **one pose graph** per group of joined recordings: every station a node (starting where the
    links put its recording), the recordings' own edges (their ``pose_graph.g2o``), the links
    (robust, rejectable like loops), IMU gravity priors; links the graph rejects are dropped;
@@ -386,7 +396,8 @@ def heightmap_hypothesis(map_A: np.ndarray, map_B: np.ndarray, labels_A, labels_
         return None
     try:
         h = register_by_heightmaps(map_B, map_A, source_labels=labels_B, target_labels=labels_A,
-                                   candidates=12, verify=3, num_threads=cfg.num_threads)
+                                   candidates=12, verify=3, num_threads=cfg.num_threads,
+                                   twins=False)  # the merge checks the twins of its own
     except ValueError:
         return None  # too little structure to level or match
     return ("heightmap", h.T_target_source, float(h.structure_fitness))
