@@ -404,13 +404,13 @@ def heightmap_hypothesis(map_A: np.ndarray, map_B: np.ndarray, labels_A, labels_
 
 
 # ---- links of a hypothesis, and its turned twins ---------------------------------------------
-def all_links(recs, cache, coarse, A: int, B: int, H: np.ndarray, src: str, cfg: MergeConfig
-              ) -> tuple[list[Link], list[float]]:
-    """Every candidate station pair of ``H`` registered: (verified links, quality of each
-    candidate in order (best predicted overlap first): fitness - ``free_space_weight`` x
-    violation when verified, else 0)."""
+def all_links(recs, cache, coarse, A: int, B: int, H: np.ndarray, src: str, cfg: MergeConfig,
+              limit: int | None = None) -> tuple[list[Link], list[float]]:
+    """Every candidate station pair of ``H`` registered (the ``limit`` best only, when given):
+    (verified links, quality of each candidate in order (best predicted overlap first):
+    fitness - ``free_space_weight`` x violation when verified, else 0)."""
     found, quality = [], []
-    for ov, a, b in candidate_pairs(recs, coarse, A, B, H, cfg):
+    for ov, a, b in candidate_pairs(recs, coarse, A, B, H, cfg)[:limit]:
         ok, T, info, fit, rmse, viol = verify_link(recs, cache, coarse, A, a, B, b, H, cfg)
         quality.append(fit - cfg.free_space_weight * viol if ok else 0.0)
         if ok:
@@ -458,11 +458,12 @@ def resolve_twins(recs, cache, coarse, maps, A: int, B: int, H: np.ndarray, src:
     """The accepted hypothesis ``H`` (its links ``found``, candidate ``quality``) against its
     turned twins: for each turn of :data:`TWIN_TURNS_DEG`, the gravity-constrained global
     registration of the two maps restricted to yaws within 30 deg of H's turned by it; a twin
-    distinct from H is verified like H (its ``probe_links`` best candidates from the global
-    guess; when one verifies, refined by its best link and its candidates registered again)
-    and scored by :func:`hypothesis_score`. Returns (T_A_B, links, info): the best-scoring
-    hypothesis and its links; ``info["ambiguous"]`` when the runner-up scores more than
-    ``max_twin_ratio`` of the winner (or the winner scores <= 0)."""
+    distinct from H is refined by ICP on the maps and verified like H (its ``probe_links`` best
+    candidates; when one verifies, refined by its best link and those candidates registered
+    again) and scored by :func:`hypothesis_score`. Returns (T_A_B, links, info): the
+    best-scoring hypothesis and its links (all searched when a twin wins);
+    ``info["ambiguous"]`` when the runner-up scores more than ``max_twin_ratio`` of the winner
+    (or the winner scores <= 0)."""
     from ..registration import pairwise as reg
 
     cands = [(0.0, H, found, hypothesis_score(quality, cfg))]
@@ -489,8 +490,9 @@ def resolve_twins(recs, cache, coarse, maps, A: int, B: int, H: np.ndarray, src:
             H2 = recs[A].T[top.a] @ top.T_a_b @ inv(recs[B].T[top.b])
             if any(_close(c[1], H2, 1.0, 20.0) for c in cands):
                 continue  # it ran back to a hypothesis already scored
-            links2, q2 = all_links(recs, cache, coarse, A, B, H2, src, cfg)
-            cands.append((turn, H2, links2, hypothesis_score(q2, cfg)))
+            # scored on its best candidates only; all its links are searched if it wins
+            _, q2 = all_links(recs, cache, coarse, A, B, H2, src, cfg, cfg.probe_links)
+            cands.append((turn, H2, None, hypothesis_score(q2, cfg)))
     order = sorted(range(len(cands)), key=lambda k: -cands[k][3])
     win = cands[order[0]]
     runner = max((cands[k][3] for k in order[1:]), default=0.0)
@@ -498,7 +500,10 @@ def resolve_twins(recs, cache, coarse, maps, A: int, B: int, H: np.ndarray, src:
     info = {"scores": {f"{c[0]:.0f}": round(c[3], 4) for c in cands},
             "winner": f"{win[0]:.0f}", "ratio": round(float(ratio), 4),
             "ambiguous": bool(ratio > cfg.max_twin_ratio)}
-    return win[1], win[2], info
+    links = win[2]
+    if links is None and not info["ambiguous"]:
+        links = all_links(recs, cache, coarse, A, B, win[1], src, cfg)[0]
+    return win[1], links or [], info
 
 
 def drop_inconsistent(accepted: dict, outcomes: dict, cfg: MergeConfig) -> list:
