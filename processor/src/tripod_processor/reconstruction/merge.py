@@ -101,6 +101,9 @@ class MergeConfig(StrictModel):
     twins: bool = True
     #: runner-up's score / the winner's above which a pair's hypothesis is ambiguous
     max_twin_ratio: float = Field(default=0.8, ge=0, le=1)
+    #: a twin whose maps fit (the restricted global registration's fitness) below this share of
+    #: the hypothesis' own is not probed (it cannot compete; saves its link registrations)
+    twin_min_map_fit: float = Field(default=0.7, ge=0, le=1)
     #: weight of the free-space violation against the fitness in a link's score (fitness -
     #: weight x violation; a hypothesis scores the mean over its ``probe_links`` best candidates)
     free_space_weight: float = Field(default=10.0, ge=0)
@@ -458,41 +461,35 @@ def resolve_twins(recs, cache, coarse, maps, A: int, B: int, H: np.ndarray, src:
     """The accepted hypothesis ``H`` (its links ``found``, candidate ``quality``) against its
     turned twins: for each turn of :data:`TWIN_TURNS_DEG`, the gravity-constrained global
     registration of the two maps restricted to yaws within 30 deg of H's turned by it; a twin
-    distinct from H is refined by ICP on the maps and verified like H (its ``probe_links`` best
-    candidates; when one verifies, refined by its best link and those candidates registered
-    again) and scored by :func:`hypothesis_score`. Returns (T_A_B, links, info): the
-    best-scoring hypothesis and its links (all searched when a twin wins);
+    whose maps fit at least ``twin_min_map_fit`` of H's own (the same restricted registration
+    about H's yaw) and distinct from H is refined by ICP on the maps, its ``probe_links`` best
+    candidates registered like H's, and scored by :func:`hypothesis_score`. Returns (T_A_B,
+    links, info): the best-scoring hypothesis and its links (a twin that wins is refined by its
+    best link and all its links searched);
     ``info["ambiguous"]`` when the runner-up scores more than ``max_twin_ratio`` of the winner
     (or the winner scores <= 0)."""
     from ..registration import pairwise as reg
 
     cands = [(0.0, H, found, hypothesis_score(quality, cfg))]
     if len(maps[A]) >= 100 and len(maps[B]) >= 100:
+        def restricted(turn: float):
+            return reg.register_global(maps[B], maps[A], voxel_size=cfg.global_voxel_m,
+                                       gravity_aligned=True, seed=0, num_threads=cfg.num_threads,
+                                       rotation_prior=_about_z(turn) @ H[:3, :3],
+                                       rotation_tolerance=np.radians(30.0))
+
+        ref = restricted(0.0)  # the hypothesis' own fit of the maps: its twins' yardstick
+        ref_fit = float(ref.fitness) if ref.success else 0.0
         for turn in TWIN_TURNS_DEG:
-            g = reg.register_global(maps[B], maps[A], voxel_size=cfg.global_voxel_m,
-                                    gravity_aligned=True, seed=0, num_threads=cfg.num_threads,
-                                    rotation_prior=_about_z(turn) @ H[:3, :3],
-                                    rotation_tolerance=np.radians(30.0))
-            if not g.success:
-                continue
+            g = restricted(turn)
+            if not g.success or g.fitness < cfg.twin_min_map_fit * ref_fit:
+                continue  # its maps fit much worse than the hypothesis': no contender
             H2 = refine_on_maps(maps[A], maps[B], g.T_target_source, cfg)
             if any(_close(c[1], H2, 1.0, 20.0) for c in cands):
                 continue
-            probes = []
-            for ov, a, b in candidate_pairs(recs, coarse, A, B, H2, cfg)[: cfg.probe_links]:
-                ok, T, info, fit, rmse, _ = verify_link(recs, cache, coarse, A, a, B, b, H2, cfg)
-                if ok:
-                    probes.append(Link(A, a, B, b, T, info, fit, rmse, ov, src))
-            if not probes:
-                cands.append((turn, H2, [], 0.0))
-                continue
-            top = max(probes, key=lambda lk: lk.fitness)
-            H2 = recs[A].T[top.a] @ top.T_a_b @ inv(recs[B].T[top.b])
-            if any(_close(c[1], H2, 1.0, 20.0) for c in cands):
-                continue  # it ran back to a hypothesis already scored
-            # scored on its best candidates only; all its links are searched if it wins
-            _, q2 = all_links(recs, cache, coarse, A, B, H2, src, cfg, cfg.probe_links)
-            cands.append((turn, H2, None, hypothesis_score(q2, cfg)))
+            # probed and scored on its best candidates; all its links searched if it wins
+            probes, q2 = all_links(recs, cache, coarse, A, B, H2, src, cfg, cfg.probe_links)
+            cands.append((turn, H2, probes, hypothesis_score(q2, cfg)))
     order = sorted(range(len(cands)), key=lambda k: -cands[k][3])
     win = cands[order[0]]
     runner = max((cands[k][3] for k in order[1:]), default=0.0)
@@ -500,10 +497,13 @@ def resolve_twins(recs, cache, coarse, maps, A: int, B: int, H: np.ndarray, src:
     info = {"scores": {f"{c[0]:.0f}": round(c[3], 4) for c in cands},
             "winner": f"{win[0]:.0f}", "ratio": round(float(ratio), 4),
             "ambiguous": bool(ratio > cfg.max_twin_ratio)}
-    links = win[2]
-    if links is None and not info["ambiguous"]:
-        links = all_links(recs, cache, coarse, A, B, win[1], src, cfg)[0]
-    return win[1], links or [], info
+    H_win, links = win[1], win[2]
+    if order[0] != 0 and not info["ambiguous"] and links:
+        # a twin won: refined by its best link, then every link searched, as for a hypothesis
+        top = max(links, key=lambda lk: lk.fitness)
+        H_win = recs[A].T[top.a] @ top.T_a_b @ inv(recs[B].T[top.b])
+        links = all_links(recs, cache, coarse, A, B, H_win, src, cfg)[0]
+    return H_win, links, info
 
 
 def drop_inconsistent(accepted: dict, outcomes: dict, cfg: MergeConfig) -> list:
