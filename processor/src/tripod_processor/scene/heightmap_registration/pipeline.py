@@ -33,8 +33,9 @@ class HeightmapMatch:
     twin_ambiguity : the best *turned twin*'s full-resolution score / the answer's (the answer
         turned by 180, 90 and 270 deg about the vertical, each re-searched, refined and
         polished like the answer; score = tight inlier share (``max_distance`` / 2) of the
-        structure, both ways, less ``free_space_weight`` x the free-space violation): 1 when a
-        twin explains the scans as well (a symmetric room), and the answer is then not unique
+        structure, both ways, less ``free_space_weight`` x the free-space violation): ~1 when a
+        twin explains the scans as well (a symmetric room), > 1 when it explains them better;
+        the answer is then not unique (it is kept: the twins only judge it; at most 10)
     success : structure_fitness >= min_fitness, free_space_violation <= max_violation,
         ambiguity <= max_ambiguity and twin_ambiguity <= max_twin_ambiguity
     seconds : wall time; stages : per-stage times [s]
@@ -95,7 +96,7 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
     max_violation : share of structure seen through by the other scan above which the answer is
         inconsistent (two different rooms of similar shape overlap well, but not in free space)
     max_twin_ambiguity : best turned twin's score / the answer's above which the answer is
-        ambiguous (``twin_ambiguity``; a twin that scores better than the answer replaces it)
+        ambiguous (``twin_ambiguity``)
     twins : check the turned twins of the answer (off: the answer as verified)
     free_space_weight : weight of that share against the structure fitness when ranking
         hypotheses (a point seen through is a contradiction, a missing overlap is only unseen)
@@ -184,16 +185,15 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
     stages["final"] = time.perf_counter() - t1
 
     # 6. the turned twins of the answer, each searched, refined and polished the same way and
-    #    scored at full resolution: one that scores better replaces the answer, one that scores
-    #    nearly as well makes it ambiguous (a symmetric room has no unique answer)
+    #    scored at full resolution: one that scores nearly as well (or better) makes the answer
+    #    ambiguous (a symmetric room has no unique answer)
     twin_amb, twin_list, who = 0.0, [], best[2]
     if twins:
         t1 = time.perf_counter()
         tight = 0.5 * max_distance
-        T, fitness, rmse, twin_amb, twin_list, swapped = _twins(
-            ls, lt, check, T, fitness, rmse, fp, fine_step_deg, coarse_step_deg, tight,
-            free_space_weight, other_weight, seed)
-        who = "twin of " + who if swapped else who
+        twin_amb, twin_list = _twins(ls, lt, check, T, fitness, rmse, fp, fine_step_deg,
+                                     coarse_step_deg, tight, free_space_weight, other_weight,
+                                     seed)
         stages["twins"] = time.perf_counter() - t1
     sfit = check.structure_fitness(T)
     viol = check.free_space_violation(T)
@@ -218,9 +218,8 @@ def _twins(ls, lt, check, T, fitness, rmse, fp: float, fine_step_deg: float,
     dense correlation over yaws within a coarse step of the answer's yaw + the turn (every
     shift), refined at the fine pixel and yaw step, lifted, polished and finished like the
     answer; all scored by :meth:`_Verifier.twin_score` (tight inlier share less the weighted
-    free-space violation, full resolution). Returns (T, fitness, rmse, twin ambiguity,
-    [(turn deg, T, score)] with the answer first as turn 0, swapped): the best-scoring pose and
-    the runner-up's score over it (distinct poses only)."""
+    free-space violation, full resolution). Returns (twin ambiguity: the best twin's score over
+    the answer's, [(turn deg, T, score)] with the answer first as turn 0)."""
     M = lt.T_level_scan @ T @ np.linalg.inv(ls.T_level_scan)
     yaw0 = float(np.arctan2(M[1, 0], M[0, 0]))
     cand = [(0.0, T, fitness, rmse, check.twin_score(T, tight, free_space_weight))]
@@ -237,15 +236,18 @@ def _twins(ls, lt, check, T, fitness, rmse, fp: float, fine_step_deg: float,
             continue
         cand.append((turn, T_alt, fit_alt, rmse_alt,
                      check.twin_score(T_alt, tight, free_space_weight)))
-    order = sorted(range(len(cand)), key=lambda k: -cand[k][4])
-    win = cand[order[0]]
-    others = [cand[k][4] for k in order[1:] if not _same_pose(cand[k][1], win[1])]
-    if win[4] <= 0:
-        amb = 1.0
+    # the answer stays (the verification ranked it); the twins only judge it: the best twin's
+    # score over the answer's, > 1 when a twin scores better (a swap to the better-scoring twin
+    # picked the wrong one more often than the right one on reconstruct's fragments)
+    own = cand[0][4]
+    best_twin = max((c[4] for c in cand[1:]), default=None)
+    if best_twin is None:
+        amb = 0.0
+    elif own <= 0:
+        amb = 1.0 if best_twin <= 0 else float("inf")
     else:
-        amb = max(0.0, others[0] / win[4]) if others else 0.0
-    return (win[1], win[2], win[3], float(amb), [(c[0], c[1], c[4]) for c in cand],
-            order[0] != 0)
+        amb = max(0.0, best_twin / own)
+    return float(min(amb, 10.0)), [(c[0], c[1], c[4]) for c in cand]
 
 
 def _register_levelled(source, target, source_up, target_up, viewpoint_source, viewpoint_target,
