@@ -183,7 +183,8 @@ def bench_heightmap_pairs(split: str = "test", quick: bool = False, with_up: boo
             tab[key][0] += good
             tab[key][1] += 1
         print(f"    {n:3d} {name:<26} overlap {ov:.2f}: {'ok  ' if good else 'FAIL'} "
-              f"{a:6.2f} deg {d * 100:6.1f} cm, flag {r.success}, {times[-1]:.1f} s", flush=True)
+              f"{a:6.2f} deg {d * 100:6.1f} cm, flag {r.success}, twin {r.twin_ambiguity:.2f}, "
+              f"{times[-1]:.1f} s", flush=True)
     cpu = time.process_time() - c0
     sec = "hm pairs" + ("" if with_up else " (no up)")
     row(sec, f"reconstruct's fragments ({split}): pairs, overlap min / median",

@@ -176,4 +176,4 @@ def test_cli_register_heightmaps_method(tmp_path, capsys):
     assert ang < 1.0 and np.linalg.norm(E[:3, 3]) < 0.05, (ang, E[:3, 3])
     assert out["method"] == "heightmaps" and (tmp_path / "r.json").is_file()
     assert out["success"] is True and out["structure_fitness"] > 0.5
-    assert {"free_space_violation", "ambiguity", "proposer"} <= out.keys()
+    assert {"free_space_violation", "ambiguity", "twin_ambiguity", "proposer"} <= out.keys()

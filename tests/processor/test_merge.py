@@ -35,7 +35,7 @@ def merged(tmp_path_factory):
     return rc, out, dirs
 
 
-@pytest.mark.timeout(600)
+@pytest.mark.timeout(900)  # the batch and the merge: ~7-10 min at load 20
 def test_small_building_merges_with_truth_accuracy_and_a_lone_component(merged):
     rc, out, dirs = merged
     assert rc == 0

@@ -51,6 +51,7 @@ def register_heightmaps_cmd(source: Path, target: Path, output: Path | None, thr
            "success": bool(r.success), "image_score": r.score,
            "structure_fitness": r.structure_fitness,
            "free_space_violation": r.free_space_violation, "ambiguity": r.ambiguity,
+           "twin_ambiguity": r.twin_ambiguity,
            "proposer": r.proposer, "hypotheses": r.hypotheses,
            "fitness": r.fitness, "inlier_rmse_m": r.inlier_rmse, "hu_distance": r.hu_distance,
            "stage_seconds": {k: round(v, 4) for k, v in r.stages.items()},
@@ -65,5 +66,5 @@ def register_heightmaps_cmd(source: Path, target: Path, output: Path | None, thr
                         "target_up": target_up}, indent=2))
     if not r.success:  # exit 1 as for a failed local or global registration
         fail("heightmap registration did not pass its check (too little verified overlap, free "
-             "space seen through, or an equally good answer elsewhere)" + unit_hint(src, tgt),
+             "space seen through, or an equally good answer elsewhere, e.g. a turned twin)" + unit_hint(src, tgt),
              code=EXIT_FAILED)

@@ -24,6 +24,16 @@ Steps, for every pair of recordings (A, B):
    ``min_links`` verified links is dropped (the recordings are not joined by it); the accepted
    one is then searched for every link (up to ``max_links_per_station`` per station and other
    recording);
+2a. **turned twins**: a point-symmetric space (a rectangular hall with a grid of columns) fits
+   its 180-deg-turned placement about as well, and the links of that twin verify too. So the
+   accepted hypothesis is scored against its twins (turned 180, 90 and 270 deg about gravity,
+   each found by a global registration restricted to that yaw, refined on the maps and verified
+   the same way; score: the mean over the ``probe_links`` best candidate pairs of fitness -
+   ``free_space_weight`` x free-space violation, 0 for a pair that does not verify): the best
+   wins, and when the runner-up scores more than ``max_twin_ratio`` of it the pair is
+   *ambiguous* and does not join the recordings (they may still join through other pairs);
+2b. **cycle consistency**: three joined recordings' hypotheses must compose to the identity;
+   the pair in the most broken cycles (the weakest on a tie) is unjoined until none is broken;
 3. **one pose graph** per group of joined recordings: every station a node (starting where the
    links put its recording), the recordings' own edges (their ``pose_graph.g2o``), the links
    (robust, rejectable like loops), IMU gravity priors; links the graph rejects are dropped;
@@ -84,6 +94,24 @@ class MergeConfig(StrictModel):
     #: other saw through (free space; a room placed inside a bigger room fits its floor and
     #: ceiling, but its walls stand in the bigger room's free space)
     max_violation: float = Field(default=0.05, ge=0, le=1)
+    #: check every accepted hypothesis against its turned twins (the hypothesis turned 180, 90
+    #: and 270 deg about gravity, each found by a global registration restricted to that yaw
+    #: and verified the same way): the best-scoring one wins, and the recordings are left
+    #: unjoined by this pair when the runner-up scores more than ``max_twin_ratio`` of it
+    twins: bool = True
+    #: runner-up's score / the winner's above which a pair's hypothesis is ambiguous
+    max_twin_ratio: float = Field(default=0.8, ge=0, le=1)
+    #: a twin whose maps fit (the restricted global registration's fitness) below this share of
+    #: the hypothesis' own is not probed (it cannot compete; saves its link registrations)
+    twin_min_map_fit: float = Field(default=0.7, ge=0, le=1)
+    #: weight of the free-space violation against the fitness in a link's score (fitness -
+    #: weight x violation; a hypothesis scores the mean over its ``probe_links`` best candidates)
+    free_space_weight: float = Field(default=10.0, ge=0)
+    #: unjoin pairs whose hypotheses break cycles of three joined recordings (the composition
+    #: off the identity by more than ``cycle_m`` [m] or ``cycle_deg`` [deg])
+    cycle_check: bool = True
+    cycle_m: float = Field(default=0.5, gt=0)
+    cycle_deg: float = Field(default=3.0, gt=0)
     num_threads: int = Field(default=0, ge=0)
 
 
@@ -301,10 +329,11 @@ class Link:
 
 def verify_link(recs, cache: CloudCache, coarse: _Coarse, A: int, a: int, B: int, b: int,
                 T_A_B: np.ndarray, mcfg: MergeConfig
-                ) -> tuple[bool, np.ndarray, np.ndarray, float, float]:
+                ) -> tuple[bool, np.ndarray, np.ndarray, float, float, float]:
     """Register station b onto station a from the hypothesis' guess; (verified, T_a_b,
-    information, fitness, rmse): fit (``min_fitness``), consistent with the guess, and free
-    space respected (``max_violation``)."""
+    information, fitness, rmse, free-space violation (1 when not computed)): fit
+    (``min_fitness``), consistent with the guess, and free space respected
+    (``max_violation``)."""
     ocfg = recs[A].config.odometry
     TA, TB = recs[A].T[a], T_A_B @ recs[B].T[b]
     guess = inv(TA) @ TB
@@ -313,7 +342,7 @@ def verify_link(recs, cache: CloudCache, coarse: _Coarse, A: int, a: int, B: int
     keys = ((B, b), (A, a))
     r = icp_refine(src, tgt, guess, ocfg, mcfg.num_threads, None, cache, keys, R_prior)
     if not r.ok or not _close(guess, r.T_target_source, mcfg.guess_radius_m, 5.0):
-        return False, r.T_target_source, r.information, r.fitness, r.rmse
+        return False, r.T_target_source, r.information, r.fitness, r.rmse, 1.0
     T, info, fit, rmse = r.T_target_source, r.information, r.fitness, r.rmse
     if ocfg.oriented_refine:
         T2, info2, fit2, rmse2 = oriented_refine(src, tgt, T, ocfg, mcfg.num_threads,
@@ -322,9 +351,9 @@ def verify_link(recs, cache: CloudCache, coarse: _Coarse, A: int, a: int, B: int
             from .odometry import _cap_information
 
             T, info, rmse = T2, _cap_information(info2, ocfg), rmse2
-    ok = (_close(guess, T, mcfg.guess_radius_m, 5.0)
-          and coarse.violation((A, a), (B, b), T) <= mcfg.max_violation)
-    return ok, T, info, fit, rmse
+    viol = coarse.violation((A, a), (B, b), T)
+    ok = _close(guess, T, mcfg.guess_radius_m, 5.0) and viol <= mcfg.max_violation
+    return ok, T, info, fit, rmse, viol
 
 
 def _close(A: np.ndarray, B: np.ndarray, m: float, deg: float) -> bool:
@@ -370,10 +399,147 @@ def heightmap_hypothesis(map_A: np.ndarray, map_B: np.ndarray, labels_A, labels_
         return None
     try:
         h = register_by_heightmaps(map_B, map_A, source_labels=labels_B, target_labels=labels_A,
-                                   candidates=12, verify=3, num_threads=cfg.num_threads)
+                                   candidates=12, verify=3, num_threads=cfg.num_threads,
+                                   twins=False)  # the merge checks the twins of its own
     except ValueError:
         return None  # too little structure to level or match
     return ("heightmap", h.T_target_source, float(h.structure_fitness))
+
+
+# ---- links of a hypothesis, and its turned twins ---------------------------------------------
+def all_links(recs, cache, coarse, A: int, B: int, H: np.ndarray, src: str, cfg: MergeConfig,
+              limit: int | None = None) -> tuple[list[Link], list[float]]:
+    """Every candidate station pair of ``H`` registered (the ``limit`` best only, when given):
+    (verified links, quality of each candidate in order (best predicted overlap first):
+    fitness - ``free_space_weight`` x violation when verified, else 0)."""
+    found, quality = [], []
+    for ov, a, b in candidate_pairs(recs, coarse, A, B, H, cfg)[:limit]:
+        ok, T, info, fit, rmse, viol = verify_link(recs, cache, coarse, A, a, B, b, H, cfg)
+        quality.append(fit - cfg.free_space_weight * viol if ok else 0.0)
+        if ok:
+            found.append(Link(A, a, B, b, T, info, fit, rmse, ov, src))
+    return found, quality
+
+
+def hypothesis_score(quality: list[float], cfg: MergeConfig) -> float:
+    """A hypothesis' score: the mean quality of its ``probe_links`` best candidates (a missing
+    or unverified candidate counts 0)."""
+    q = list(quality[: cfg.probe_links]) + [0.0] * max(0, cfg.probe_links - len(quality))
+    return float(np.mean(q))
+
+
+#: turns about gravity that give a hypothesis' twins (a rectangle's 180 deg, a square's 90/270)
+TWIN_TURNS_DEG = (180.0, 90.0, 270.0)
+
+
+def _about_z(deg: float) -> np.ndarray:
+    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def refine_on_maps(map_A: np.ndarray, map_B: np.ndarray, H: np.ndarray, cfg: MergeConfig
+                   ) -> np.ndarray:
+    """A global registration's T_A_B refined by point-to-plane ICP of map B onto map A
+    (correspondences 0.6 -> 0.3 -> 0.15 m; the global guess is only as good as its 0.3 m voxel);
+    kept as it was when ICP fails or tips it over by more than 2 deg."""
+    from ..registration import pairwise as reg
+
+    try:
+        r = reg.register(map_B, map_A, "plane", init=np.ascontiguousarray(H),
+                         voxel_size=cfg.submap_voxel_m,
+                         max_correspondence_distance=[0.6, 0.3, 0.15], max_iterations=20,
+                         num_threads=cfg.num_threads)
+    except ValueError:
+        return H
+    T = r.T_target_source
+    tilt = np.degrees(np.arccos(np.clip((T[:3, :3] @ H[:3, :3].T)[2, 2], -1, 1)))
+    return T if tilt < 2.0 else H
+
+
+def resolve_twins(recs, cache, coarse, maps, A: int, B: int, H: np.ndarray, src: str,
+                  found: list[Link], quality: list[float], cfg: MergeConfig):
+    """The accepted hypothesis ``H`` (its links ``found``, candidate ``quality``) against its
+    turned twins: for each turn of :data:`TWIN_TURNS_DEG`, the gravity-constrained global
+    registration of the two maps restricted to yaws within 30 deg of H's turned by it; a twin
+    whose maps fit at least ``twin_min_map_fit`` of H's own (the same restricted registration
+    about H's yaw) and distinct from H is refined by ICP on the maps, its ``probe_links`` best
+    candidates registered like H's, and scored by :func:`hypothesis_score`. Returns (T_A_B,
+    links, info): the best-scoring hypothesis and its links (a twin that wins is refined by its
+    best link and all its links searched);
+    ``info["ambiguous"]`` when the runner-up scores more than ``max_twin_ratio`` of the winner
+    (or the winner scores <= 0)."""
+    from ..registration import pairwise as reg
+
+    cands = [(0.0, H, found, hypothesis_score(quality, cfg))]
+    if len(maps[A]) >= 100 and len(maps[B]) >= 100:
+        def restricted(turn: float):
+            return reg.register_global(maps[B], maps[A], voxel_size=cfg.global_voxel_m,
+                                       gravity_aligned=True, seed=0, num_threads=cfg.num_threads,
+                                       rotation_prior=_about_z(turn) @ H[:3, :3],
+                                       rotation_tolerance=np.radians(30.0))
+
+        ref = restricted(0.0)  # the hypothesis' own fit of the maps: its twins' yardstick
+        ref_fit = float(ref.fitness) if ref.success else 0.0
+        for turn in TWIN_TURNS_DEG:
+            g = restricted(turn)
+            if not g.success or g.fitness < cfg.twin_min_map_fit * ref_fit:
+                continue  # its maps fit much worse than the hypothesis': no contender
+            H2 = refine_on_maps(maps[A], maps[B], g.T_target_source, cfg)
+            if any(_close(c[1], H2, 1.0, 20.0) for c in cands):
+                continue
+            # probed and scored on its best candidates; all its links searched if it wins
+            probes, q2 = all_links(recs, cache, coarse, A, B, H2, src, cfg, cfg.probe_links)
+            cands.append((turn, H2, probes, hypothesis_score(q2, cfg)))
+    order = sorted(range(len(cands)), key=lambda k: -cands[k][3])
+    win = cands[order[0]]
+    runner = max((cands[k][3] for k in order[1:]), default=0.0)
+    ratio = 1.0 if win[3] <= 0 else max(0.0, runner) / win[3]
+    info = {"scores": {f"{c[0]:.0f}": round(c[3], 4) for c in cands},
+            "winner": f"{win[0]:.0f}", "ratio": round(float(ratio), 4),
+            "ambiguous": bool(ratio > cfg.max_twin_ratio)}
+    H_win, links = win[1], win[2]
+    if order[0] != 0 and not info["ambiguous"] and links:
+        # a twin won: refined by its best link, then every link searched, as for a hypothesis
+        top = max(links, key=lambda lk: lk.fitness)
+        H_win = recs[A].T[top.a] @ top.T_a_b @ inv(recs[B].T[top.b])
+        links = all_links(recs, cache, coarse, A, B, H_win, src, cfg)[0]
+    return H_win, links, info
+
+
+def drop_inconsistent(accepted: dict, outcomes: dict, cfg: MergeConfig) -> list:
+    """Pairs to unjoin so that every cycle of three joined recordings composes to the identity
+    (within ``cycle_m`` and ``cycle_deg``): greedily, the pair in the most broken cycles, on a
+    tie the lowest-scoring one (its twin check's winning score, else its link count)."""
+    acc = dict(accepted)
+    nodes = sorted({r for ab in acc for r in ab})
+
+    def H(a, b):
+        return acc[(a, b)] if (a, b) in acc else inv(acc[(b, a)]) if (b, a) in acc else None
+
+    def score(ab):
+        po = outcomes.get(ab)
+        if po is None:
+            return 0.0
+        sc = po.twin.get("scores", {}).get(po.twin.get("winner", ""), None)
+        return float(sc) if sc is not None else float(po.links)
+
+    dropped = []
+    while True:
+        broken: dict[tuple[int, int], int] = {}
+        for i, a in enumerate(nodes):
+            for j, b in enumerate(nodes[i + 1:], i + 1):
+                for c in nodes[j + 1:]:
+                    hab, hbc, hac = H(a, b), H(b, c), H(a, c)
+                    if hab is None or hbc is None or hac is None:
+                        continue
+                    if not _close(hab @ hbc, hac, cfg.cycle_m, cfg.cycle_deg):
+                        for ab in ((a, b), (b, c), (a, c)):
+                            broken[ab] = broken.get(ab, 0) + 1
+        if not broken:
+            return dropped
+        worst = max(broken, key=lambda ab: (broken[ab], -score(ab)))
+        dropped.append(worst)
+        del acc[worst]
 
 
 # ---- the merge ----------------------------------------------------------------------------------
@@ -386,6 +552,9 @@ class PairOutcome:
     tried: list[tuple[str, int, int]]  # (source, candidates, verified probes) per hypothesis
     accepted: str = ""  # the hypothesis that joined them ("" none)
     links: int = 0
+    #: the twin check: {"scores": {turn deg: score}, "winner": turn, "ratio": runner-up /
+    #: winner, "ambiguous": bool}
+    twin: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -475,7 +644,8 @@ def merge_recordings(outdirs: list, outdir: str | os.PathLike, cfg: MergeConfig 
                 cands = candidate_pairs(recs, coarse, A, B, H, cfg)
                 got = []
                 for ov, a, b in cands[: cfg.probe_links]:
-                    ok, T, info, fit, rmse = verify_link(recs, cache, coarse, A, a, B, b, H, cfg)
+                    ok, T, info, fit, rmse, _ = verify_link(recs, cache, coarse, A, a, B, b, H,
+                                                            cfg)
                     if ok:
                         got.append(Link(A, a, B, b, T, info, fit, rmse, ov, src))
             po.tried.append((src, len(cands), len(got)))
@@ -487,12 +657,15 @@ def merge_recordings(outdirs: list, outdir: str | os.PathLike, cfg: MergeConfig 
             top = max(got, key=lambda lk: lk.fitness)
             H = recs[A].T[top.a] @ top.T_a_b @ inv(recs[B].T[top.b])
             with _Timer(times, "links"):
-                cands = candidate_pairs(recs, coarse, A, B, H, cfg)
-                found = []
-                for ov, a, b in cands:
-                    ok, T, info, fit, rmse = verify_link(recs, cache, coarse, A, a, B, b, H, cfg)
-                    if ok:
-                        found.append(Link(A, a, B, b, T, info, fit, rmse, ov, src))
+                found, quality = all_links(recs, cache, coarse, A, B, H, src, cfg)
+            if len(found) >= cfg.min_links and cfg.twins:
+                # the hypothesis against its turned twins: the best wins by a clear margin, or
+                # the pair stays unjoined (a symmetric space seen from both recordings)
+                with _Timer(times, "twins"):
+                    H, found, po.twin = resolve_twins(recs, cache, coarse, maps, A, B, H, src,
+                                                      found, quality, cfg)
+                if po.twin.get("ambiguous"):
+                    found = []
             if len(found) >= cfg.min_links:
                 po.accepted, po.links = src, len(found)
                 accepted[(A, B)] = H
@@ -500,6 +673,18 @@ def merge_recordings(outdirs: list, outdir: str | os.PathLike, cfg: MergeConfig 
         pairs.append(po)
         if progress is not None:
             progress("pairs", n_done + 1, len(todo))
+
+    # 2b. cycle consistency: three joined recordings must compose to the identity; the pair in
+    #     the most broken cycles (the weakest on a tie) is unjoined until none is left
+    if cfg.cycle_check:
+        for (A, B) in drop_inconsistent(accepted, {(p.A, p.B): p for p in pairs}, cfg):
+            del accepted[(A, B)]
+            links = [lk for lk in links if (lk.A, lk.B) != (A, B)]
+            po = next(p for p in pairs if (p.A, p.B) == (A, B))
+            po.accepted, po.links = "", 0
+            po.twin["cycle"] = "inconsistent"
+            notes.append(f"{recs[A].name} - {recs[B].name}: joined by a hypothesis that breaks "
+                         f"cycles with other recordings: left unjoined")
 
     # 3. components (union of joined recordings) and one pose graph each
     comp_raw = _components(nrec, accepted)
@@ -710,7 +895,9 @@ def merge_summary(mres: MergeResult) -> dict:
         "links_kept": int(sum(lk.kept for lk in mres.links)),
         "recording_pairs_joined": int(sum(bool(p.accepted) for p in mres.pairs)),
         "recording_pairs": [{"a": recs[p.A].name, "b": recs[p.B].name, "tried": p.tried,
-                             "accepted": p.accepted, "links": p.links} for p in mres.pairs],
+                             "accepted": p.accepted, "links": p.links, "twin": p.twin}
+                            for p in mres.pairs],
+        "recording_pairs_ambiguous": int(sum(bool(p.twin.get("ambiguous")) for p in mres.pairs)),
         "map_points": int(mres.files.get("_map_points", 0)),
         "stage_s": {k: v for k, v in mres.stage_s.items() if k != "_cpu"},
         "stage_cpu_s": mres.stage_s.get("_cpu", {}),
@@ -742,11 +929,21 @@ def merge_report(mres: MergeResult, summ: dict) -> str:
         ln.append(f"| {rec.name} | {len(rec.t_ns)} | {mres.component[r]} | {nl} |")
     ln += ["", "## Recording pairs", "",
            "Hypotheses (source: candidate station pairs, verified probes); the accepted one and "
-           "its kept links.", "", "| a | b | hypotheses | accepted | links |", "|---|---|---|---|---|"]
+           "its kept links; the twin check (score of the hypothesis and of its twins turned by "
+           "180/90/270 deg; runner-up / winner; ambiguous pairs are not joined).", "",
+           "| a | b | hypotheses | accepted | links | twins |", "|---|---|---|---|---|---|"]
     for p in mres.pairs:
         tried = "; ".join(f"{s}: {n}, {v} ok" for s, n, v in p.tried) or "none"
+        tw = []
+        if "scores" in p.twin:
+            tw.append(", ".join(f"{k}°: {v:.2f}" for k, v in p.twin["scores"].items())
+                      + f"; ratio {p.twin['ratio']:.2f}"
+                      + (" **ambiguous**" if p.twin["ambiguous"] else ""))
+        if p.twin.get("cycle"):
+            tw.append("**breaks cycles**")
+        tw = "; ".join(tw) or "–"
         ln.append(f"| {recs[p.A].name} | {recs[p.B].name} | {tried} | {p.accepted or '–'} | "
-                  f"{p.links} |")
+                  f"{p.links} | {tw} |")
     cpu = summ["stage_cpu_s"]
     ln += ["", "## Stages", "", "| stage | wall s | CPU s |", "|---|---|---|"]
     ln += [f"| {k} | {v:.1f} | {cpu.get(k, 0.0):.1f} |" for k, v in summ["stage_s"].items()]

@@ -30,8 +30,14 @@ class HeightmapMatch:
     proposer : which matcher proposed the answer ("correlation", "keypoints", "shapes")
     hypotheses : number of distinct hypotheses verified
     free_space_violation : share of either scan's structure the other saw through, at the answer
-    success : structure_fitness >= min_fitness, free_space_violation <= max_violation and
-        ambiguity <= max_ambiguity
+    twin_ambiguity : the best *turned twin*'s full-resolution score / the answer's (the answer
+        turned by 180, 90 and 270 deg about the vertical, each re-searched, refined and
+        polished like the answer; score = tight inlier share (``max_distance`` / 2) of the
+        structure, both ways, less ``free_space_weight`` x the free-space violation): ~1 when a
+        twin explains the scans as well (a symmetric room), > 1 when it explains them better;
+        the answer is then not unique (it is kept: the twins only judge it; at most 10)
+    success : structure_fitness >= min_fitness, free_space_violation <= max_violation,
+        ambiguity <= max_ambiguity and twin_ambiguity <= max_twin_ambiguity
     seconds : wall time; stages : per-stage times [s]
     verified : (proposer, verification score, T_target_source, structure fitness, free-space
         violation) of every verified hypothesis, best first (score = fitness - weight x violation)
@@ -51,6 +57,8 @@ class HeightmapMatch:
     seconds: float
     stages: dict = field(default_factory=dict)
     verified: list = field(default_factory=list)
+    twin_ambiguity: float = 0.0
+    twins: list = field(default_factory=list)
 
 
 def register_by_heightmaps(source, target, *, source_labels=None, target_labels=None,
@@ -60,6 +68,7 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
                            use_keypoints: bool = True, use_shapes: bool = True,
                            max_distance: float = 0.08, min_fitness: float = 0.4,
                            max_ambiguity: float = 0.97, max_violation: float = 0.05,
+                           max_twin_ambiguity: float = 0.8, twins: bool = True,
                            other_weight: float = 2.0,
                            free_space_weight: float = 10.0, viewpoint_source=(0.0, 0.0, 0.0),
                            viewpoint_target=(0.0, 0.0, 0.0), weights=None, seed: int = 0,
@@ -86,6 +95,9 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
     max_ambiguity : runner-up / winner verification score above which the answer is not unique
     max_violation : share of structure seen through by the other scan above which the answer is
         inconsistent (two different rooms of similar shape overlap well, but not in free space)
+    max_twin_ambiguity : best turned twin's score / the answer's above which the answer is
+        ambiguous (``twin_ambiguity``)
+    twins : check the turned twins of the answer (off: the answer as verified)
     free_space_weight : weight of that share against the structure fitness when ranking
         hypotheses (a point seen through is a contradiction, a missing overlap is only unseen)
     viewpoint_source, viewpoint_target : (3,) the sensor position in each cloud's frame [m]
@@ -113,7 +125,8 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
                  feature_pixel=feature_pixel, candidates=candidates, verify=verify,
                  use_keypoints=use_keypoints, use_shapes=use_shapes, max_distance=max_distance,
                  min_fitness=min_fitness, max_ambiguity=max_ambiguity,
-                 max_violation=max_violation, other_weight=other_weight,
+                 max_violation=max_violation, max_twin_ambiguity=max_twin_ambiguity,
+                 twins=twins, other_weight=other_weight,
                  free_space_weight=free_space_weight, weights=weights, seed=seed,
                  num_threads=num_threads))
     t0 = time.perf_counter()
@@ -169,14 +182,72 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
     # 5. final polish at full density
     t1 = time.perf_counter()
     T, fitness, rmse = check.final(best[3])
-    sfit = check.structure_fitness(T)
     stages["final"] = time.perf_counter() - t1
+
+    # 6. the turned twins of the answer, each searched, refined and polished the same way and
+    #    scored at full resolution: one that scores nearly as well (or better) makes the answer
+    #    ambiguous (a symmetric room has no unique answer)
+    twin_amb, twin_list, who = 0.0, [], best[2]
+    if twins:
+        t1 = time.perf_counter()
+        tight = 0.5 * max_distance
+        twin_amb, twin_list = _twins(ls, lt, check, T, fitness, rmse, fp, fine_step_deg,
+                                     coarse_step_deg, tight, free_space_weight, other_weight,
+                                     seed)
+        stages["twins"] = time.perf_counter() - t1
+    sfit = check.structure_fitness(T)
     viol = check.free_space_violation(T)
-    ok = sfit >= min_fitness and viol <= max_violation and ambiguity <= max_ambiguity
+    ok = (sfit >= min_fitness and viol <= max_violation and ambiguity <= max_ambiguity
+          and twin_amb <= max_twin_ambiguity)
     return HeightmapMatch(T, float(best[1]), float(sfit), float(viol), float(ambiguity), fitness,
-                          rmse, _footprint_distance(ls, lt), best[2], len(checked), bool(ok),
+                          rmse, _footprint_distance(ls, lt), who, len(checked), bool(ok),
                           time.perf_counter() - t0, stages,
-                          [(c[2], c[0], c[3], c[4], c[5]) for c in checked])
+                          [(c[2], c[0], c[3], c[4], c[5]) for c in checked], float(twin_amb),
+                          twin_list)
+
+
+#: turns about the vertical that give the twins of an answer (a rectangle's 180 deg, a square's
+#: 90 and 270 deg)
+TWIN_TURNS_DEG = (180.0, 90.0, 270.0)
+
+
+def _twins(ls, lt, check, T, fitness, rmse, fp: float, fine_step_deg: float,
+           coarse_step_deg: float, tight: float, free_space_weight: float,
+           other_weight: float, seed: int):
+    """The answer ``T`` against its turned twins: for each turn of :data:`TWIN_TURNS_DEG` the
+    dense correlation over yaws within a coarse step of the answer's yaw + the turn (every
+    shift), refined at the fine pixel and yaw step, lifted, polished and finished like the
+    answer; all scored by :meth:`_Verifier.twin_score` (tight inlier share less the weighted
+    free-space violation, full resolution). Returns (twin ambiguity: the best twin's score over
+    the answer's, [(turn deg, T, score)] with the answer first as turn 0)."""
+    M = lt.T_level_scan @ T @ np.linalg.inv(ls.T_level_scan)
+    yaw0 = float(np.arctan2(M[1, 0], M[0, 0]))
+    cand = [(0.0, T, fitness, rmse, check.twin_score(T, tight, free_space_weight))]
+    offs = np.deg2rad(np.arange(-coarse_step_deg, coarse_step_deg + 1e-9, fine_step_deg))
+    for turn in TWIN_TURNS_DEG:
+        yaws = yaw0 + np.deg2rad(turn) + offs
+        found = _search(ls, lt, yaws, fp, seed=seed, other_weight=other_weight)
+        if not found:
+            continue
+        _, yaw, shift = found[0]
+        T_alt = check.polish(_lift(ls, lt, yaw, shift))
+        T_alt, fit_alt, rmse_alt = check.final(T_alt)
+        if _same_pose(T_alt, T):  # the polish ran back to the answer: no twin there
+            continue
+        cand.append((turn, T_alt, fit_alt, rmse_alt,
+                     check.twin_score(T_alt, tight, free_space_weight)))
+    # the answer stays (the verification ranked it); the twins only judge it: the best twin's
+    # score over the answer's, > 1 when a twin scores better (a swap to the better-scoring twin
+    # picked the wrong one more often than the right one on reconstruct's fragments)
+    own = cand[0][4]
+    best_twin = max((c[4] for c in cand[1:]), default=None)
+    if best_twin is None:
+        amb = 0.0
+    elif own <= 0:
+        amb = 1.0 if best_twin <= 0 else float("inf")
+    else:
+        amb = max(0.0, best_twin / own)
+    return float(min(amb, 10.0)), [(c[0], c[1], c[4]) for c in cand]
 
 
 def _register_levelled(source, target, source_up, target_up, viewpoint_source, viewpoint_target,
@@ -203,6 +274,7 @@ def _register_levelled(source, target, source_up, target_up, viewpoint_source, v
 
     r.T_target_source = back(r.T_target_source)
     r.verified = [(v[0], v[1], back(v[2]), *v[3:]) for v in r.verified]
+    r.twins = [(t[0], back(t[1]), *t[2:]) for t in r.twins]
     return r
 
 

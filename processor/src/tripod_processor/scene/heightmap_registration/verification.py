@@ -154,6 +154,13 @@ class _Verifier:
         return 0.5 * (self._on_surface(a @ T[:3, :3].T + T[:3, 3], self.surf_t, tol)
                       + self._on_surface(b @ Ti[:3, :3].T + Ti[:3, 3], self.surf_s, tol))
 
+    def twin_score(self, T, tight: float, free_space_weight: float) -> float:
+        """Score of a pose against its turned twins, at full resolution: the structure's share
+        within ``tight`` of the other's surface (both ways) less ``free_space_weight`` x the
+        free-space violation (both ways)."""
+        return (self.structure_fitness(T, tight)
+                - free_space_weight * self.free_space_violation(T))
+
     def _on_surface(self, p, surf, tol: float) -> float:
         tree, pts, nrm, nok = surf
         d, j = tree.query(p, distance_upper_bound=max(0.3, tol))
