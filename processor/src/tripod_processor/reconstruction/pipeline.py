@@ -123,7 +123,8 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
     n_windows = int((rec.lidar.lidar_ns[-1] - rec.lidar.lidar_ns[0]) / 0.5e9)
     marks = [(int(clock.to_lidar(np.array([h]))[0]), label) for h, label in rec.marks]
     with _Stage(times, "stations", n_windows, quiet) as bar:
-        seg = segment_stations(rec.lidar, orient, ext, cfg.stations, marks, progress=bar)
+        seg = segment_stations(rec.lidar, orient, ext, cfg.stations, marks, progress=bar,
+                                   num_threads=threads)
     uncalibrated = (pc.extrinsic.q_imu_lidar is None or pc.extrinsic.lever_arm_m is None)
     loose_pass = not seg.stations and uncalibrated
     if loose_pass:
@@ -131,7 +132,8 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
         # calibrate on from the IMU's cue alone (the second pass below decides)
         loose = cfg.stations.model_copy(update={"still_threshold": 1.0})
         with _Stage(times, "stations", n_windows, quiet) as bar:
-            seg = segment_stations(rec.lidar, orient, ext, loose, marks, progress=bar)
+            seg = segment_stations(rec.lidar, orient, ext, loose, marks, progress=bar,
+                                   num_threads=threads)
     notes += seg.notes
     if not seg.stations:
         raise RecordingError(f"{recording_path}: no station found (no period where the tripod "
@@ -156,7 +158,8 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
         # stations enough to calibrate on; this one sees every station sharply
         notes = [n for n in notes if n not in seg.notes]
         with _Stage(times, "stations 2", n_windows, quiet) as bar:
-            seg = segment_stations(rec.lidar, orient, ext, cfg.stations, marks, progress=bar)
+            seg = segment_stations(rec.lidar, orient, ext, cfg.stations, marks, progress=bar,
+                                   num_threads=threads)
         notes += seg.notes
         if not seg.stations:
             raise RecordingError(f"{recording_path}: no station found with the calibrated rig")

@@ -23,6 +23,7 @@ that holds two marks; a mark outside every station is reported.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -77,14 +78,37 @@ def _window_cloud(lidar: LidarPackets, a: int, b: int, orient: ImuOrientation, e
                   n_max: int, rng: np.random.Generator) -> tuple[np.ndarray, int]:
     """Points of packets [a, b) in the head-pivot frame, at most n_max (random subset), and the
     lidar time [ns] whose IMU attitude placed them."""
-    pts = decode_timed_points(lidar.payload, lidar.lidar_ns, a, b, min_range=0.5)
+    pts = _window_points(lidar, a, b)
+    return _place_window(lidar, a, pts, _window_subset(len(pts), n_max, rng), orient, ext)
+
+
+def _window_points(lidar: LidarPackets, a: int, b: int) -> np.ndarray:
+    """The decoded points of packets [a, b) (one thread: windows run side by side)."""
+    return decode_timed_points(lidar.payload, lidar.lidar_ns, a, b, min_range=0.5, num_threads=1)
+
+
+def _window_subset(n: int, n_max: int, rng: np.random.Generator
+                   ) -> tuple[np.ndarray, np.ndarray] | None:
+    """(kept indices in firing order, their positions in the random sample's order) of n points
+    when more than n_max; None when all are kept. Drawn in window order (deterministic)."""
+    if n <= n_max:
+        return None
+    sel = rng.choice(n, n_max, replace=False)  # random order: any prefix is a sample
+    o = np.argsort(sel)
+    order = np.empty(n_max, dtype=np.intp)
+    order[o] = np.arange(n_max)
+    # placed in firing order (the native placement's fast path), given back in the sample's
+    return sel[o], order
+
+
+def _place_window(lidar: LidarPackets, a: int, pts: np.ndarray, subset, orient: ImuOrientation,
+                  ext: Extrinsic) -> tuple[np.ndarray, int]:
+    """:func:`_window_cloud` after the decode and the draw."""
     if len(pts) == 0:
         return np.zeros((0, 3)), int(lidar.lidar_ns[min(a, len(lidar.lidar_ns) - 1)])
     order = None
-    if len(pts) > n_max:
-        sel = rng.choice(len(pts), n_max, replace=False)  # random order: any prefix is a sample
-        keep = np.sort(sel)  # placed in firing order (the native placement's fast path) ...
-        order = np.searchsorted(keep, sel)  # ... and given back in the sample's order
+    if subset is not None:
+        keep, order = subset
         pts = pts[keep]
     xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=1)
     # R_wi(t) (R_il x + l) = T_wl(a) · (the point placed in the lidar frame at a)
@@ -93,6 +117,54 @@ def _window_cloud(lidar: LidarPackets, a: int, b: int, orient: ImuOrientation, e
     T_a = pose_world_lidar(orient, ext, np.array([anchor]))[0]
     p = placed.astype(np.float64) @ T_a[:3, :3].T + T_a[:3, 3]
     return (p if order is None else p[order]), anchor
+
+
+def _window_shifts(lidar: LidarPackets, times: np.ndarray, win: int, gap: int,
+                   orient: ImuOrientation, ext: Extrinsic, n_points: int, n_query: int,
+                   rng: np.random.Generator, num_threads: int, progress=None
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(anchors (K,), pivot shifts D (K, 3) against the window ``gap`` before (NaN: unknown),
+    their projectors Pm (K, 3, 3)) of the windows at ``times``.
+
+    Blocks of windows: decoded, then placed and fitted on ``num_threads`` threads (the native
+    decode and placement and the k-d trees run without the GIL); the random subsets are drawn
+    in window order between the two, so the result does not depend on the threads."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    K = len(times)
+    anchors = np.zeros(K, dtype=np.int64)
+    D = np.full((K, 3), np.nan)
+    Pm = np.zeros((K, 3, 3))
+    clouds: dict[int, np.ndarray] = {}
+    ab = np.searchsorted(lidar.lidar_ns, np.stack([times, times + win], axis=1))
+    block = 16
+
+    def fit(k: int):
+        ref, c = clouds.get(k - gap), clouds[k]
+        if ref is not None and len(ref) > 50 and len(c) > 50:
+            return pivot_shift_fit(ref, c[:n_query])
+        return None
+
+    workers = max(1, num_threads or (os.cpu_count() or 1))
+    with ThreadPoolExecutor(workers) as pool:
+        for s in range(0, K, block):
+            ks = range(s, min(K, s + block))
+            pts = list(pool.map(lambda k: _window_points(lidar, int(ab[k, 0]), int(ab[k, 1])),
+                                ks))
+            subs = [_window_subset(len(p), n_points, rng) for p in pts]
+            placed = list(pool.map(lambda i: _place_window(lidar, int(ab[ks[i], 0]), pts[i],
+                                                           subs[i], orient, ext),
+                                   range(len(ks))))
+            for k, (c, anc) in zip(ks, placed):
+                clouds[k], anchors[k] = c, anc
+            for k, f in zip(ks, pool.map(fit, ks)):
+                if f is not None:
+                    D[k], Pm[k] = f
+            for j in [j for j in clouds if j <= ks[-1] - gap]:
+                del clouds[j]  # bounded memory
+            if progress is not None:
+                progress.update(len(ks))
+    return anchors, D, Pm
 
 
 def pivot_shift_fit(ref: np.ndarray, query: np.ndarray, max_angle_deg: float = 0.3
@@ -198,31 +270,17 @@ def segment_stations(lidar: LidarPackets, orient: ImuOrientation, ext: Extrinsic
                      cfg: StationConfig, marks_lidar_ns: list[tuple[int, str]] | None = None,
                      step_s: float = 0.5, window_s: float = 0.1, n_points: int = 12000,
                      n_query: int = 4000,
-                     progress=None) -> Segmentation:
-    """Find the stations of a recording (see the module docstring)."""
+                     progress=None, num_threads: int = 1) -> Segmentation:
+    """Find the stations of a recording (see the module docstring); the windows on
+    ``num_threads`` threads (0: all cores; the result does not depend on it)."""
     t0, t1 = int(lidar.lidar_ns[0]), int(lidar.lidar_ns[-1])
     step, win = int(step_s * 1e9), int(window_s * 1e9)
     times = np.arange(t0, t1 - win, step, dtype=np.int64)
     K = len(times)
     gap = max(1, int(round(cfg.still_gap_s / step_s)))
     rng = np.random.default_rng(0)
-    clouds: list[np.ndarray | None] = []
-    anchors = np.zeros(K, dtype=np.int64)
-    D = np.full((K, 3), np.nan)
-    Pm = np.zeros((K, 3, 3))
-    for k, t in enumerate(times):
-        a, b = np.searchsorted(lidar.lidar_ns, [t, t + win])
-        c, anchors[k] = _window_cloud(lidar, int(a), int(b), orient, ext, n_points, rng)
-        clouds.append(c)
-        j = k - gap
-        if j >= 0 and clouds[j] is not None and len(clouds[j]) > 50 and len(c) > 50:
-            fit = pivot_shift_fit(clouds[j], c[:n_query])
-            if fit is not None:
-                D[k], Pm[k] = fit
-        if j >= 0:
-            clouds[j] = None  # bounded memory
-        if progress is not None:
-            progress.update(1)
+    anchors, D, Pm = _window_shifts(lidar, times, win, gap, orient, ext, n_points, n_query, rng,
+                                    num_threads, progress)
     # the IMU's view: at a station the head only turns about its pan axis
     R_w = orient.rotation_at(anchors) if K else np.zeros((0, 3, 3))
     axis = _imu_pan_axis(R_w[::max(1, gap)] if K > 3 * gap else R_w)
