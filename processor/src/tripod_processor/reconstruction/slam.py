@@ -10,6 +10,7 @@ Stations no registration reaches are reported as disconnected, never merged.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -66,15 +67,21 @@ def run_odometry(frags: list[Fragment], cfg: OdometryConfig, num_threads: int = 
     comp = np.zeros(n, dtype=int)
     edges: list[pg.Edge] = []
     notes: list[str] = []
+
+    def pair(k: int, i: int, threads: int) -> PairResult:
+        return register_fragments(frags[k].points, frags[i].points, frags[k].R_world_lidar,
+                                  frags[i].R_world_lidar, cfg, threads, cache=cache, keys=(k, i))
+
+    # the consecutive pairs side by side (independent; the retries below stay in order)
+    first = dict(zip(range(1, n), _parallel_map(lambda k, t: pair(k, k - 1, t), range(1, n),
+                                                num_threads, frags, cache, cfg)))
     for k in range(1, n):
         done = False
         for back in (1, 2, 3):
             i = k - back
             if i < 0:
                 break
-            r = register_fragments(frags[k].points, frags[i].points, frags[k].R_world_lidar,
-                                   frags[i].R_world_lidar, cfg, num_threads, cache=cache,
-                                   keys=(k, i))
+            r = first.pop(k) if back == 1 else pair(k, i, num_threads)
             if r.ok:
                 T[k] = T[i] @ r.T_target_source
                 comp[k] = comp[i]
@@ -91,6 +98,26 @@ def run_odometry(frags: list[Fragment], cfg: OdometryConfig, num_threads: int = 
         if progress is not None:
             progress.update(1)
     return T, edges, comp, notes
+
+
+def _parallel_map(fn, items, num_threads: int, frags: list[Fragment] | None = None,
+                  cache: CloudCache | None = None, cfg: OdometryConfig | None = None) -> list:
+    """``[fn(x, threads) for x in items]`` on ``num_threads`` threads (0: all cores), each call
+    then with one thread (the registrations run in the native core without the GIL; their
+    results do not depend on the threads). With ``frags``, every fragment's clouds are prepared
+    in ``cache`` first (side by side too), so no two pairs prepare one fragment at once. The
+    results are those of the loop, in its order."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    items = list(items)
+    workers = min(max(1, num_threads or (os.cpu_count() or 1)), max(1, len(items)))
+    if workers == 1:
+        return [fn(x, num_threads) for x in items]
+    with ThreadPoolExecutor(workers) as pool:
+        if frags is not None and cache is not None and cfg is not None:
+            list(pool.map(lambda k: cache.prepare_all(k, frags[k].points, cfg, 1),
+                          range(len(frags))))
+        return list(pool.map(lambda x: fn(x, 1), items))
 
 
 def _merge_components(comp: np.ndarray, i: int, j: int) -> None:
@@ -128,11 +155,18 @@ def run_slam(frags: list[Fragment], T_odom: np.ndarray, odom_edges: list[pg.Edge
     if progress is not None:
         progress.total = len(cands)
         progress.refresh()
-    for i, j in cands:
+    def loop(i: int, j: int, threads: int) -> PairResult:
         guess = inv(T_odom[i]) @ T_odom[j] if comp[i] == comp[j] else None
-        r = register_fragments(frags[j].points, frags[i].points, frags[j].R_world_lidar,
-                               frags[i].R_world_lidar, ocfg, num_threads, T_guess=guess,
-                               cache=cache, keys=(j, i))
+        return register_fragments(frags[j].points, frags[i].points, frags[j].R_world_lidar,
+                                  frags[i].R_world_lidar, ocfg, threads, T_guess=guess,
+                                  cache=cache, keys=(j, i))
+
+    # with one component no loop changes another's guess: the candidates side by side
+    done = {}
+    if len(set(comp.tolist())) == 1:
+        done = dict(zip(cands, _parallel_map(lambda c, t: loop(*c, t), cands, num_threads)))
+    for i, j in cands:
+        r = done.pop((i, j)) if (i, j) in done else loop(i, j, num_threads)
         if r.ok:
             edges.append(_edge(i, j, r, "loop"))
             if comp[i] != comp[j]:
