@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..decode.timed import decode_timed_points
+from ..decode.timed import decode_xyz_time
 from .config import StationConfig
 from .inputs import LidarPackets
 from .placement import Extrinsic, ImuOrientation, place_points, pose_world_lidar
@@ -79,12 +79,13 @@ def _window_cloud(lidar: LidarPackets, a: int, b: int, orient: ImuOrientation, e
     """Points of packets [a, b) in the head-pivot frame, at most n_max (random subset), and the
     lidar time [ns] whose IMU attitude placed them."""
     pts = _window_points(lidar, a, b)
-    return _place_window(lidar, a, pts, _window_subset(len(pts), n_max, rng), orient, ext)
+    return _place_window(lidar, a, pts, _window_subset(len(pts[0]), n_max, rng), orient, ext)
 
 
-def _window_points(lidar: LidarPackets, a: int, b: int) -> np.ndarray:
-    """The decoded points of packets [a, b) (one thread: windows run side by side)."""
-    return decode_timed_points(lidar.payload, lidar.lidar_ns, a, b, min_range=0.5, num_threads=1)
+def _window_points(lidar: LidarPackets, a: int, b: int) -> tuple[np.ndarray, np.ndarray]:
+    """(xyz (N, 3) float32, time_ns (N,)) of packets [a, b) (one thread: windows run side by
+    side)."""
+    return decode_xyz_time(lidar.payload, lidar.lidar_ns, a, b, min_range=0.5, num_threads=1)[:2]
 
 
 def _window_subset(n: int, n_max: int, rng: np.random.Generator
@@ -101,19 +102,19 @@ def _window_subset(n: int, n_max: int, rng: np.random.Generator
     return sel[o], order
 
 
-def _place_window(lidar: LidarPackets, a: int, pts: np.ndarray, subset, orient: ImuOrientation,
-                  ext: Extrinsic) -> tuple[np.ndarray, int]:
+def _place_window(lidar: LidarPackets, a: int, pts: tuple[np.ndarray, np.ndarray], subset,
+                  orient: ImuOrientation, ext: Extrinsic) -> tuple[np.ndarray, int]:
     """:func:`_window_cloud` after the decode and the draw."""
-    if len(pts) == 0:
+    xyz, t_ns = pts
+    if len(xyz) == 0:
         return np.zeros((0, 3)), int(lidar.lidar_ns[min(a, len(lidar.lidar_ns) - 1)])
     order = None
     if subset is not None:
         keep, order = subset
-        pts = pts[keep]
-    xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=1)
+        xyz, t_ns = xyz[keep], t_ns[keep]
     # R_wi(t) (R_il x + l) = T_wl(a) · (the point placed in the lidar frame at a)
-    anchor = int(pts["time_ns"][len(pts) // 2])
-    placed = place_points(xyz, pts["time_ns"], orient, ext, anchor, num_threads=1)
+    anchor = int(t_ns[len(t_ns) // 2])
+    placed = place_points(xyz, t_ns, orient, ext, anchor, num_threads=1)
     T_a = pose_world_lidar(orient, ext, np.array([anchor]))[0]
     p = placed.astype(np.float64) @ T_a[:3, :3].T + T_a[:3, 3]
     return (p if order is None else p[order]), anchor
@@ -151,7 +152,7 @@ def _window_shifts(lidar: LidarPackets, times: np.ndarray, win: int, gap: int,
             ks = range(s, min(K, s + block))
             pts = list(pool.map(lambda k: _window_points(lidar, int(ab[k, 0]), int(ab[k, 1])),
                                 ks))
-            subs = [_window_subset(len(p), n_points, rng) for p in pts]
+            subs = [_window_subset(len(p[0]), n_points, rng) for p in pts]
             placed = list(pool.map(lambda i: _place_window(lidar, int(ab[ks[i], 0]), pts[i],
                                                            subs[i], orient, ext),
                                    range(len(ks))))
