@@ -193,14 +193,24 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
                             times, notes=notes, time_offset_info=info,
                             calibration=effective_calibration(ext, orient, pc, calib))
 
-    # 8. outputs
-    with _Stage(times, "outputs", None, quiet):
-        _write_outputs(res, cfg, orient)
-    if cfg.output.report:
-        from .report import write_report
+    # 8. outputs; the report's pictures of the fragments and poses meanwhile on another thread
+    # (the outputs' voxel filter and smoothing run natively, without the GIL)
+    from concurrent.futures import ThreadPoolExecutor
 
-        with _Stage(times, "report", None, quiet):
-            res.files["report"] = str(write_report(res, cfg, summary(res)))
+    with ThreadPoolExecutor(1) as bg:
+        figures = None
+        if cfg.output.report:
+            from .report import report_figures, write_report
+
+            figures = bg.submit(report_figures, res, cfg)
+        with _Stage(times, "outputs", None, quiet):
+            pending = _write_outputs(res, cfg, orient, bg)
+        if cfg.output.report:
+            with _Stage(times, "report", None, quiet):
+                res.files["report"] = str(write_report(res, cfg, summary(res),
+                                                       figures.result()))
+        for f in pending:
+            f.result()  # raises what the writer raised
     outputs.write_json(out / "result.json", summary(res))
     res.files["result"] = str(out / "result.json")
     return res
@@ -353,7 +363,11 @@ def effective_calibration(ext: Extrinsic, orient: ImuOrientation, pc, cal) -> di
     return out
 
 
-def _write_outputs(res: ReconstructResult, cfg: ReconstructConfig, orient: ImuOrientation) -> None:
+def _write_outputs(res: ReconstructResult, cfg: ReconstructConfig, orient: ImuOrientation,
+                   background=None) -> list:
+    """The run's files (see the module docstring); with ``background`` (an executor), the
+    Foxglove MCAP is written there: returns the futures to wait for."""
+    pending = []
     out, oc = res.outdir, cfg.output
     slam = res.slam
     main = [k for k in range(len(res.fragments)) if slam.component[k] == 0]
@@ -434,9 +448,14 @@ def _write_outputs(res: ReconstructResult, cfg: ReconstructConfig, orient: ImuOr
         # fragments at 5 cm in the MCAP: enough to inspect, light to load
         frags_out = [voxel_downsample(res.fragments[k].points, 0.05, cfg.num_threads)
                      for k in main]
-        outputs.write_foxglove_mcap(out / "reconstruction.mcap", merged, int(t_st[-1]),
-                                    list(t_st[main]), slam.T_optimized[main], frags_out, traj)
+        args = (out / "reconstruction.mcap", merged, int(t_st[-1]), list(t_st[main]),
+                slam.T_optimized[main], frags_out, traj)
+        if background is None:
+            outputs.write_foxglove_mcap(*args)
+        else:
+            pending.append(background.submit(outputs.write_foxglove_mcap, *args))
         res.files["mcap"] = str(out / "reconstruction.mcap")
+    return pending
 
 
 def map_up(res: ReconstructResult, main: list[int]) -> np.ndarray:
