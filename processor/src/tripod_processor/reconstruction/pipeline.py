@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -169,11 +170,16 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
     oc = cfg.output
     survey = oc.write_e57 or oc.write_las != "none"
     frags: list[Fragment] = []
-    with _Stage(times, "fragments", len(seg.stations), quiet) as bar:
-        for st in seg.stations:
-            frags.append(build_fragment(rec.lidar, st, orient, ext, cfg.fragments.voxel_m,
-                                        pc.min_range_m, pc.max_range_m, threads,
-                                        with_intensity=survey))
+    # stations side by side, one thread each (the decode, placement and voxel filter run
+    # natively without the GIL; a fragment does not depend on the threads)
+    workers = min(max(1, threads or (os.cpu_count() or 1)), max(1, len(seg.stations)))
+    inner = threads if workers == 1 else 1
+    with _Stage(times, "fragments", len(seg.stations), quiet) as bar, \
+            ThreadPoolExecutor(workers) as pool:
+        for f in pool.map(lambda st: build_fragment(
+                rec.lidar, st, orient, ext, cfg.fragments.voxel_m, pc.min_range_m,
+                pc.max_range_m, inner, with_intensity=survey), seg.stations):
+            frags.append(f)
             bar.update(1)
 
     # 6. odometry
@@ -195,8 +201,6 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
 
     # 8. outputs; the report's pictures of the fragments and poses meanwhile on another thread
     # (the outputs' voxel filter and smoothing run natively, without the GIL)
-    from concurrent.futures import ThreadPoolExecutor
-
     with ThreadPoolExecutor(1) as bg:
         figures = None
         if cfg.output.report:
