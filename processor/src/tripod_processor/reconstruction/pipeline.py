@@ -123,9 +123,10 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
     # 3. stations
     n_windows = int((rec.lidar.lidar_ns[-1] - rec.lidar.lidar_ns[0]) / 0.5e9)
     marks = [(int(clock.to_lidar(np.array([h]))[0]), label) for h, label in rec.marks]
+    windows: dict = {}  # the splitter's decoded windows, kept for its later passes
     with _Stage(times, "stations", n_windows, quiet) as bar:
         seg = segment_stations(rec.lidar, orient, ext, cfg.stations, marks, progress=bar,
-                                   num_threads=threads)
+                               num_threads=threads, reuse=windows)
     uncalibrated = (pc.extrinsic.q_imu_lidar is None or pc.extrinsic.lever_arm_m is None)
     loose_pass = not seg.stations and uncalibrated
     if loose_pass:
@@ -134,7 +135,7 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
         loose = cfg.stations.model_copy(update={"still_threshold": 1.0})
         with _Stage(times, "stations", n_windows, quiet) as bar:
             seg = segment_stations(rec.lidar, orient, ext, loose, marks, progress=bar,
-                                   num_threads=threads)
+                                   num_threads=threads, reuse=windows)
     notes += seg.notes
     if not seg.stations:
         raise RecordingError(f"{recording_path}: no station found (no period where the tripod "
@@ -160,10 +161,11 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
         notes = [n for n in notes if n not in seg.notes]
         with _Stage(times, "stations 2", n_windows, quiet) as bar:
             seg = segment_stations(rec.lidar, orient, ext, cfg.stations, marks, progress=bar,
-                                   num_threads=threads)
+                               num_threads=threads, reuse=windows)
         notes += seg.notes
         if not seg.stations:
             raise RecordingError(f"{recording_path}: no station found with the calibrated rig")
+    windows.clear()
     info: dict = {}
 
     # 5. fragments (with their voxels' intensity when a survey file wants it)

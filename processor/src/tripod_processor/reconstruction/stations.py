@@ -79,7 +79,8 @@ def _window_cloud(lidar: LidarPackets, a: int, b: int, orient: ImuOrientation, e
     """Points of packets [a, b) in the head-pivot frame, at most n_max (random subset), and the
     lidar time [ns] whose IMU attitude placed them."""
     pts = _window_points(lidar, a, b)
-    return _place_window(lidar, a, pts, _window_subset(len(pts[0]), n_max, rng), orient, ext)
+    return _place_window(lidar, a, _window_sample(pts, _window_subset(len(pts[0]), n_max, rng)),
+                         orient, ext)
 
 
 def _window_points(lidar: LidarPackets, a: int, b: int) -> tuple[np.ndarray, np.ndarray]:
@@ -102,16 +103,20 @@ def _window_subset(n: int, n_max: int, rng: np.random.Generator
     return sel[o], order
 
 
-def _place_window(lidar: LidarPackets, a: int, pts: tuple[np.ndarray, np.ndarray], subset,
-                  orient: ImuOrientation, ext: Extrinsic) -> tuple[np.ndarray, int]:
-    """:func:`_window_cloud` after the decode and the draw."""
-    xyz, t_ns = pts
+def _window_sample(pts: tuple[np.ndarray, np.ndarray], subset) -> tuple:
+    """(xyz, time_ns, order or None): the window's points reduced to the drawn subset."""
+    if subset is None:
+        return pts[0], pts[1], None
+    keep, order = subset
+    return pts[0][keep], pts[1][keep], order
+
+
+def _place_window(lidar: LidarPackets, a: int, sample: tuple, orient: ImuOrientation,
+                  ext: Extrinsic) -> tuple[np.ndarray, int]:
+    """:func:`_window_cloud` after the decode and the draw (:func:`_window_sample`)."""
+    xyz, t_ns, order = sample
     if len(xyz) == 0:
         return np.zeros((0, 3)), int(lidar.lidar_ns[min(a, len(lidar.lidar_ns) - 1)])
-    order = None
-    if subset is not None:
-        keep, order = subset
-        xyz, t_ns = xyz[keep], t_ns[keep]
     # R_wi(t) (R_il x + l) = T_wl(a) · (the point placed in the lidar frame at a)
     anchor = int(t_ns[len(t_ns) // 2])
     placed = place_points(xyz, t_ns, orient, ext, anchor, num_threads=1)
@@ -122,14 +127,19 @@ def _place_window(lidar: LidarPackets, a: int, pts: tuple[np.ndarray, np.ndarray
 
 def _window_shifts(lidar: LidarPackets, times: np.ndarray, win: int, gap: int,
                    orient: ImuOrientation, ext: Extrinsic, n_points: int, n_query: int,
-                   rng: np.random.Generator, num_threads: int, progress=None
+                   rng: np.random.Generator, num_threads: int, progress=None,
+                   reuse: dict | None = None, reuse_max_bytes: int = 512 << 20
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(anchors (K,), pivot shifts D (K, 3) against the window ``gap`` before (NaN: unknown),
     their projectors Pm (K, 3, 3)) of the windows at ``times``.
 
     Blocks of windows: decoded, then placed and fitted on ``num_threads`` threads (the native
     decode and placement and the k-d trees run without the GIL); the random subsets are drawn
-    in window order between the two, so the result does not depend on the threads."""
+    in window order between the two, so the result does not depend on the threads.
+
+    ``reuse``: a dict kept between two passes over one recording (another rig calibration): the
+    first keeps the decoded samples there (up to ``reuse_max_bytes``), the second places them
+    again instead of decoding and drawing, and leaves ``rng`` where the draws would have."""
     from concurrent.futures import ThreadPoolExecutor
 
     K = len(times)
@@ -146,15 +156,29 @@ def _window_shifts(lidar: LidarPackets, times: np.ndarray, win: int, gap: int,
             return pivot_shift_fit(ref, c[:n_query])
         return None
 
+    key = (int(times[0]) if K else 0, K, win, n_points, id(lidar))
+    cached = reuse.get("samples") if reuse is not None and reuse.get("key") == key else None
+    keep: list | None = [] if reuse is not None and cached is None else None
+    kept_bytes = 0
     workers = max(1, num_threads or (os.cpu_count() or 1))
     with ThreadPoolExecutor(workers) as pool:
         for s in range(0, K, block):
             ks = range(s, min(K, s + block))
-            pts = list(pool.map(lambda k: _window_points(lidar, int(ab[k, 0]), int(ab[k, 1])),
-                                ks))
-            subs = [_window_subset(len(p[0]), n_points, rng) for p in pts]
-            placed = list(pool.map(lambda i: _place_window(lidar, int(ab[ks[i], 0]), pts[i],
-                                                           subs[i], orient, ext),
+            if cached is not None:
+                samples = cached[s:s + len(ks)]
+            else:
+                pts = list(pool.map(lambda k: _window_points(lidar, int(ab[k, 0]),
+                                                             int(ab[k, 1])), ks))
+                samples = [_window_sample(p, _window_subset(len(p[0]), n_points, rng))
+                           for p in pts]
+                if keep is not None:
+                    keep += samples
+                    kept_bytes += sum(x.nbytes + t.nbytes + (0 if o is None else o.nbytes)
+                                      for x, t, o in samples)
+                    if kept_bytes > reuse_max_bytes:
+                        keep = None  # too long a recording to keep: the next pass decodes
+            placed = list(pool.map(lambda i: _place_window(lidar, int(ab[ks[i], 0]),
+                                                           samples[i], orient, ext),
                                    range(len(ks))))
             for k, (c, anc) in zip(ks, placed):
                 clouds[k], anchors[k] = c, anc
@@ -165,6 +189,10 @@ def _window_shifts(lidar: LidarPackets, times: np.ndarray, win: int, gap: int,
                 del clouds[j]  # bounded memory
             if progress is not None:
                 progress.update(len(ks))
+    if cached is not None:
+        rng.bit_generator.state = reuse["rng_state"]
+    elif keep is not None:
+        reuse.update(key=key, samples=keep, rng_state=rng.bit_generator.state)
     return anchors, D, Pm
 
 
@@ -271,9 +299,12 @@ def segment_stations(lidar: LidarPackets, orient: ImuOrientation, ext: Extrinsic
                      cfg: StationConfig, marks_lidar_ns: list[tuple[int, str]] | None = None,
                      step_s: float = 0.5, window_s: float = 0.1, n_points: int = 12000,
                      n_query: int = 4000,
-                     progress=None, num_threads: int = 1) -> Segmentation:
+                     progress=None, num_threads: int = 1, reuse: dict | None = None
+                     ) -> Segmentation:
     """Find the stations of a recording (see the module docstring); the windows on
-    ``num_threads`` threads (0: all cores; the result does not depend on it)."""
+    ``num_threads`` threads (0: all cores; the result does not depend on it). ``reuse``: one
+    dict passed to every pass over a recording keeps its decoded windows between them (the
+    result does not depend on it)."""
     t0, t1 = int(lidar.lidar_ns[0]), int(lidar.lidar_ns[-1])
     step, win = int(step_s * 1e9), int(window_s * 1e9)
     times = np.arange(t0, t1 - win, step, dtype=np.int64)
@@ -281,7 +312,7 @@ def segment_stations(lidar: LidarPackets, orient: ImuOrientation, ext: Extrinsic
     gap = max(1, int(round(cfg.still_gap_s / step_s)))
     rng = np.random.default_rng(0)
     anchors, D, Pm = _window_shifts(lidar, times, win, gap, orient, ext, n_points, n_query, rng,
-                                    num_threads, progress)
+                                    num_threads, progress, reuse)
     # the IMU's view: at a station the head only turns about its pan axis
     R_w = orient.rotation_at(anchors) if K else np.zeros((0, 3, 3))
     axis = _imu_pan_axis(R_w[::max(1, gap)] if K > 3 * gap else R_w)
