@@ -23,6 +23,7 @@ Seeds: test seeds (``sim.rigs.TEST_SEEDS``, from 10000) by default, development 
     .venv/bin/python bench/rigs.py --quick          # 4 captures on development seeds 0..3
     .venv/bin/python bench/rigs.py --dev -n 20 --jobs 2 --json rigs.json
     .venv/bin/python bench/rigs.py --dev --seeds 3 17 --set stations.min_station_s=2
+    .venv/bin/python bench/rigs.py --dev --seeds 0 1 2 --jobs 1 --stages   # cost, 2 cores
 Simulated captures are cached under --work (default /tmp/tripod-bench-rigs/sim) by seed and a
 hash of their config; reconstructions are redone every run.
 """
@@ -125,6 +126,8 @@ def run_one(work: str, seed: int, threads: int, sets: dict | None = None) -> dic
                    m2m_mm=10 * acc["map_to_mesh_median_cm"],
                    proc_cpu_s=res.processing_cpu_s, proc_wall_s=res.processing_s,
                    load_1min=os.getloadavg()[0],
+                   stage_wall_s={k: v for k, v in res.stage_s.items() if k != "_cpu"},
+                   stage_cpu_s=dict(res.stage_s.get("_cpu", {})),
                    **calibration_errors(result, truth, _true_offset_ms(cap, res)))
     except Exception as exc:  # a crash is a result of the benchmark too: one line, counted
         row["error"] = f"{type(exc).__name__}: {exc}".splitlines()[0][:160]
@@ -225,6 +228,39 @@ def print_report(rows: list[dict], title: str, wall_s: float, jobs: int) -> None
           "hold on an idle machine only)")
 
 
+def print_stages(rows: list[dict]) -> None:
+    """Wall / CPU seconds of each reconstruction stage per capture, and the sums."""
+    from rich.console import Console
+    from rich.table import Table
+
+    rows = [r for r in sorted(rows, key=lambda r: r["seed"]) if r.get("stage_cpu_s")]
+    names: list[str] = []
+    for r in rows:
+        names += [k for k in r["stage_cpu_s"] if k not in names]
+    t = Table(title="stages: wall / CPU [s] (CPU: all threads)")
+    for c in ["stage"] + [str(r["seed"]) for r in rows] + ["all"]:
+        t.add_column(c, justify="left" if c == "stage" else "right")
+    for k in names + ["total"]:
+        cells = []
+        for r in rows:
+            w = (sum(r["stage_wall_s"].values()) if k == "total"
+                 else r["stage_wall_s"].get(k, 0.0))
+            c = sum(r["stage_cpu_s"].values()) if k == "total" else r["stage_cpu_s"].get(k, 0.0)
+            cells.append(f"{w:.1f} / {c:.1f}")
+        W = sum(sum(r["stage_wall_s"].values()) if k == "total" else r["stage_wall_s"].get(k, 0)
+                for r in rows)
+        C = sum(sum(r["stage_cpu_s"].values()) if k == "total" else r["stage_cpu_s"].get(k, 0)
+                for r in rows)
+        t.add_row(k, *cells, f"{W:.1f} / {C:.1f}")
+    rec = sum(r["recording_s"] for r in rows)
+    t.add_row("÷ recording", *[f"{sum(r['stage_wall_s'].values()) / r['recording_s']:.3f} / "
+                               f"{sum(r['stage_cpu_s'].values()) / r['recording_s']:.3f}"
+                               for r in rows],
+              f"{sum(sum(r['stage_wall_s'].values()) for r in rows) / max(rec, 1e-9):.3f} / "
+              f"{sum(sum(r['stage_cpu_s'].values()) for r in rows) / max(rec, 1e-9):.3f}")
+    Console(width=230).print(t)
+
+
 def main(argv: list[str] | None = None) -> int:
     from tripod_processor.sim.rigs import DEV_SEEDS, TEST_SEEDS
 
@@ -244,6 +280,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="captures in parallel (processes); threads per job = CPUs / jobs")
     ap.add_argument("--work", type=Path, default=Path("/tmp/tripod-bench-rigs"))
     ap.add_argument("--json", type=Path, help="also write the rows as JSON")
+    ap.add_argument("--stages", action="store_true",
+                    help="also print each stage's wall and CPU time per capture [s]")
     args = ap.parse_args(argv)
     args.dev = args.dev or args.quick
     rng = DEV_SEEDS if args.dev else TEST_SEEDS
@@ -296,6 +334,8 @@ def main(argv: list[str] | None = None) -> int:
     extra = f", --set {' '.join(args.set)}" if args.set else ""
     print_report(rows, f"tripod reconstruct on {n} random rigs, {kind} seeds {seeds[0]}.."
                        f"{seeds[-1]}, no calibration given{extra}", wall, jobs)
+    if args.stages:
+        print_stages(rows)
     if args.json:
         args.json.write_text(json.dumps(sorted(rows, key=lambda r: r["seed"]), indent=2,
                                         default=float) + "\n")
