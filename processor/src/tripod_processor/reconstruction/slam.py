@@ -155,6 +155,7 @@ def run_slam(frags: list[Fragment], T_odom: np.ndarray, odom_edges: list[pg.Edge
     if progress is not None:
         progress.total = len(cands)
         progress.refresh()
+
     def loop(i: int, j: int, threads: int) -> PairResult:
         guess = inv(T_odom[i]) @ T_odom[j] if comp[i] == comp[j] else None
         return register_fragments(frags[j].points, frags[i].points, frags[j].R_world_lidar,
