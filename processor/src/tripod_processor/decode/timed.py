@@ -51,3 +51,40 @@ def decode_timed_points(payload: np.ndarray, lidar_ns: np.ndarray, start: int, s
     if not out:
         return np.empty(0, dtype=TIMED_POINT_DTYPE)
     return np.concatenate(out)
+
+
+def decode_xyz_time(payload: np.ndarray, lidar_ns: np.ndarray, start: int, stop: int, *,
+                    min_range: float = 0.0, max_range: float = 200.0, chunk: int = 1000,
+                    num_threads: int = 0, with_intensity: bool = False
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The points of :func:`decode_timed_points` (the same points in the same order) as plain
+    arrays, without the per-point record: the hot path of fragments and station windows.
+
+    Returns
+    -------
+    xyz : (N, 3) float32 [m], lidar frame
+    time_ns : (N,) int64, lidar time, UNIX ns
+    intensity : (N,) float32, or None unless ``with_intensity``
+    """
+    from numpy.lib import recfunctions as rfn
+
+    from .native import NativeVlp16Decoder
+
+    dec = NativeVlp16Decoder(min_range_m=float(max(min_range, 0.0)), max_range_m=float(max_range),
+                             num_threads=num_threads)
+    xyz, t, inten = [], [], []
+    for s in range(start, stop, chunk):
+        e = min(stop, s + chunk)
+        pts = dec.decode(payload[s:e], lidar_ns[s:e]).points
+        if len(pts) == 0:
+            continue
+        xyz.append(rfn.structured_to_unstructured(pts[["x", "y", "z"]]))
+        t.append(lidar_ns[s] + pts["time_offset_ns"].astype(np.int64))
+        if with_intensity:
+            inten.append(pts["intensity"].astype(np.float32))
+    if not xyz:
+        return (np.zeros((0, 3), np.float32), np.zeros(0, np.int64),
+                np.zeros(0, np.float32) if with_intensity else None)
+    one = len(xyz) == 1
+    return (xyz[0] if one else np.concatenate(xyz), t[0] if one else np.concatenate(t),
+            (inten[0] if one else np.concatenate(inten)) if with_intensity else None)

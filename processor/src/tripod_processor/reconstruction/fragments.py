@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..decode.timed import decode_timed_points
+from ..decode.timed import decode_xyz_time
 from ..preprocess import lookup_keys, voxel_downsample, voxel_keys, voxel_sums
 from .inputs import LidarPackets
 from .placement import Extrinsic, ImuOrientation, place_points, pose_world_lidar
@@ -58,16 +58,16 @@ def build_fragment(lidar: LidarPackets, station: Station, orient: ImuOrientation
     gathered, limit = 0, max_points
     for a in range(station.packet_start, station.packet_stop, chunk):
         b = min(station.packet_stop, a + chunk)
-        pts = decode_timed_points(lidar.payload, lidar.lidar_ns, a, b, min_range=min_range,
-                                  max_range=max_range, num_threads=num_threads)
-        if len(pts) == 0:
+        xyz, t_ns, inten = decode_xyz_time(lidar.payload, lidar.lidar_ns, a, b,
+                                           min_range=min_range, max_range=max_range,
+                                           num_threads=num_threads, with_intensity=with_intensity)
+        if len(xyz) == 0:
             continue
-        raw += len(pts)
-        xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=1)
-        placed = place_points(xyz, pts["time_ns"], orient, ext, station.mid_ns, num_threads)
+        raw += len(xyz)
+        placed = place_points(xyz, t_ns, orient, ext, station.mid_ns, num_threads)
         parts.append(placed)
         if with_intensity:  # per-chunk sums: a chunk revisits its voxels every rotation
-            key_parts.append(voxel_sums(voxel_keys(placed, voxel_m), pts["intensity"]))
+            key_parts.append(voxel_sums(voxel_keys(placed, voxel_m), inten))
         gathered += len(placed)
         if gathered > limit:
             parts = [voxel_downsample(np.concatenate(parts), voxel_m * 0.5, num_threads)]

@@ -196,7 +196,6 @@ def _read_mcap(path: Path) -> Recording:
 
 
 def _read_pcap(path: Path) -> Recording:
-    from ..io.events import pcap_events
     from ..io.pcap import PcapFormatError, PcapReader
 
     try:
@@ -204,8 +203,8 @@ def _read_pcap(path: Path) -> Recording:
     except PcapFormatError as exc:
         raise RecordingError(str(exc)) from None
     lidar = _LidarCollector()
-    for host_ns, kind, payload in pcap_events(reader, skipped=lidar.skipped):
-        lidar.add(host_ns, kind, payload)
+    for b in reader.payload_batches(vl.DATA_PACKET_SIZE):  # C++ record scan: no Python step
+        lidar.add_batch(b)                                  # per data packet
     lidar_packets, hour_source = _finish_lidar(lidar.host, lidar.payloads, lidar.gprmc)
     rec = Recording(str(path), lidar_packets, None, [], hour_source, reader.stats.truncated,
                     skipped=lidar.skipped)
@@ -238,6 +237,38 @@ class _LidarCollector:
                 self.gprmc.append((host_ns, g))
         else:
             self.skipped["bad_position_packet"] = self.skipped.get("bad_position_packet", 0) + 1
+
+    def add_batch(self, batch) -> None:
+        """The datagrams of an ``io.pcap.PayloadBatch``, as :meth:`add` of each would take them
+        (``io.events.lidar_kind`` by port and size, :func:`tripod_shared.velodyne.
+        check_data_packet` vectorised over the batch's 1206-byte payloads)."""
+        from ..io.events import LIDAR, POSITION, lidar_kind
+
+        data, port = batch.data, batch.data_port.astype(np.int64)
+        if len(data):
+            # 1206 bytes to the position port are position packets (skipped below); else data
+            to_pos = port == vl.POSITION_PORT
+            flags = data[:, : vl.TIMESTAMP_OFFSET].reshape(len(data), -1, vl.BLOCK_SIZE)[:, :, :2]
+            ok = ((flags[:, :, 0] == 0xFF).all(1) & (flags[:, :, 1] == 0xEE).all(1)
+                  & np.isin(data[:, vl.RETURN_MODE_OFFSET], list(vl.RETURN_MODES))
+                  & np.isin(data[:, vl.PRODUCT_ID_OFFSET],
+                            [vl.PRODUCT_VLP16, vl.PRODUCT_HDL32E]))
+            n_bad = int((~ok & ~to_pos).sum())
+            if n_bad:
+                self.skipped["bad_lidar_packet"] = self.skipped.get("bad_lidar_packet", 0) + n_bad
+            if to_pos.any():
+                self.skipped["bad_position_packet"] = (self.skipped.get("bad_position_packet", 0)
+                                                       + int(to_pos.sum()))
+            keep = ok & ~to_pos
+            if keep.any():
+                self.host.extend(batch.data_t_ns[keep].tolist())
+                self.payloads.append(np.ascontiguousarray(data[keep]).tobytes())
+        for t_ns, dst_port, payload in batch.others:
+            kind = lidar_kind(dst_port, len(payload))
+            if kind is None:
+                self.skipped["other_datagram"] = self.skipped.get("other_datagram", 0) + 1
+            elif kind in (LIDAR, POSITION):
+                self.add(t_ns, kind, payload)
 
 
 def _imu_track(t, q) -> ImuTrack | None:

@@ -69,40 +69,57 @@ class CloudCache:
         self.base_voxel = base_voxel
         self._c: dict = {}
 
-    def down(self, key, points: np.ndarray, voxel: float) -> np.ndarray:
+    def down(self, key, points: np.ndarray, voxel: float, threads: int | None = None
+             ) -> np.ndarray:
         """The fragment voxel-filtered at ``voxel`` (its own frame), float32 (N, 3)."""
         k = ("down", key, voxel)
         if k not in self._c:
             if voxel == self.base_voxel or voxel < 2 * self.base_voxel:
                 src = points
             else:
-                src = self.down(key, points, self.base_voxel)
-            self._c[k] = voxel_downsample(src, voxel, self.num_threads)
+                src = self.down(key, points, self.base_voxel, threads)
+            self._c[k] = voxel_downsample(src, voxel, self._threads(threads))
         return self._c[k]
 
-    def oriented(self, key, points: np.ndarray, voxel: float):
+    def _threads(self, threads: int | None) -> int:
+        return self.num_threads if threads is None else threads
+
+    def oriented(self, key, points: np.ndarray, voxel: float, threads: int | None = None):
         """The cloud at ``voxel`` prepared with 12-neighbour normals facing the fragment's
         sensor (its origin), for :func:`oriented_refine`."""
         from ..registration import pairwise as reg
 
         k = ("oriented", key, voxel)
         if k not in self._c:
-            self._c[k] = reg.prepare(self.down(key, points, voxel), num_neighbors=12,
-                                     point_sigma=self.point_sigma, num_threads=self.num_threads)
+            self._c[k] = reg.prepare(self.down(key, points, voxel, threads), num_neighbors=12,
+                                     point_sigma=self.point_sigma,
+                                     num_threads=self._threads(threads))
         return self._c[k]
 
-    def coarse(self, key, points: np.ndarray, voxel: float) -> np.ndarray:
+    def coarse(self, key, points: np.ndarray, voxel: float, threads: int | None = None
+               ) -> np.ndarray:
         """The cloud voxel-filtered at ``voxel`` (its own frame): the top-down seeds' input."""
-        return self.down(key, points, voxel).astype(np.float64)
+        return self.down(key, points, voxel, threads).astype(np.float64)
 
-    def get(self, key, points: np.ndarray, voxel: float):
+    def get(self, key, points: np.ndarray, voxel: float, threads: int | None = None):
         from ..registration import pairwise as reg
 
         k = (key, voxel)
         if k not in self._c:
-            self._c[k] = reg.prepare(self.down(key, points, voxel), num_neighbors=20,
-                                     point_sigma=self.point_sigma, num_threads=self.num_threads)
+            self._c[k] = reg.prepare(self.down(key, points, voxel, threads), num_neighbors=20,
+                                     point_sigma=self.point_sigma,
+                                     num_threads=self._threads(threads))
         return self._c[k]
+
+    def prepare_all(self, key, points: np.ndarray, cfg: OdometryConfig,
+                    threads: int | None = None) -> None:
+        """Everything :func:`register_fragments` takes of one fragment, ahead (the same clouds
+        as on first use: the native filters and fits do not depend on the threads)."""
+        self.coarse(key, points, cfg.voxels_m[0] * 0.5, threads)
+        for v in cfg.voxels_m:
+            self.get(key, points, v, threads)
+        if cfg.oriented_refine:
+            self.oriented(key, points, ORIENTED_VOXEL_M, threads)
 
 
 def icp_refine(source: np.ndarray, target: np.ndarray, T_init: np.ndarray,
@@ -140,8 +157,12 @@ def icp_refine(source: np.ndarray, target: np.ndarray, T_init: np.ndarray,
 
 
 # ---- final refinement: point-to-plane with oriented normals --------------------------------------
+#: the voxel [m] of :func:`oriented_refine`'s clouds
+ORIENTED_VOXEL_M = 0.06
+
+
 def oriented_refine(source: np.ndarray, target: np.ndarray, T_init: np.ndarray,
-                    cfg: OdometryConfig, num_threads: int = 0, voxel: float = 0.06,
+                    cfg: OdometryConfig, num_threads: int = 0, voxel: float = ORIENTED_VOXEL_M,
                     max_dist: float = 0.15, iterations: int = 10, max_source: int = 40_000,
                     cache: "CloudCache | None" = None, keys=("source", "target")
                     ) -> tuple[np.ndarray, np.ndarray, float, float]:

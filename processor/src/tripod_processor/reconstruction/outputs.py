@@ -111,8 +111,11 @@ def pointcloud_message(points: np.ndarray, t_ns: int, frame_id: str,
     }
 
 
-def frame_transform_message(T: np.ndarray, t_ns: int, parent: str, child: str) -> dict:
-    x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat()
+def frame_transform_message(T: np.ndarray, t_ns: int, parent: str, child: str,
+                            q_xyzw: np.ndarray | None = None) -> dict:
+    """A foxglove.FrameTransform of T (4, 4); ``q_xyzw``: its rotation's quaternion when
+    already computed (a batch of them at once is far cheaper)."""
+    x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat() if q_xyzw is None else q_xyzw
     return {
         "timestamp": _stamp(t_ns), "parent_frame_id": parent, "child_frame_id": child,
         "translation": {"x": float(T[0, 3]), "y": float(T[1, 3]), "z": float(T[2, 3])},
@@ -144,8 +147,11 @@ def write_foxglove_mcap(path: str | os.PathLike, map_points: np.ndarray, map_t_n
             msgs.append((int(t), ch_tf, frame_transform_message(T, t, "map", f"station_{k}")))
             if k < len(fragments) and len(fragments[k]):
                 msgs.append((int(t), ch_frag, pointcloud_message(fragments[k], t, f"station_{k}")))
-        for t, T in zip(*trajectory):
-            msgs.append((int(t), ch_tf, frame_transform_message(T, t, "map", "lidar")))
+        traj_t, traj_T = trajectory
+        traj_q = (Rotation.from_matrix(np.asarray(traj_T)[:, :3, :3]).as_quat()
+                  if len(traj_T) else np.zeros((0, 4)))
+        for t, T, q in zip(traj_t, traj_T, traj_q):
+            msgs.append((int(t), ch_tf, frame_transform_message(T, t, "map", "lidar", q)))
         msgs.append((int(map_t_ns), ch_map, pointcloud_message(map_points, map_t_ns, "map")))
         msgs.sort(key=lambda m: m[0])
         for seq, (t, ch, body) in enumerate(msgs):

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -129,8 +130,10 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
     # 3. stations
     n_windows = int((rec.lidar.lidar_ns[-1] - rec.lidar.lidar_ns[0]) / 0.5e9)
     marks = [(int(clock.to_lidar(np.array([h]))[0]), label) for h, label in rec.marks]
+    windows: dict = {}  # the splitter's decoded windows, kept for its later passes
     with _Stage(times, "stations", n_windows, quiet) as bar:
-        seg = segment_stations(rec.lidar, orient, ext, cfg.stations, marks, progress=bar)
+        seg = segment_stations(rec.lidar, orient, ext, cfg.stations, marks, progress=bar,
+                               num_threads=threads, reuse=windows)
     uncalibrated = (pc.extrinsic.q_imu_lidar is None or pc.extrinsic.lever_arm_m is None)
     loose_pass = not seg.stations and uncalibrated
     if loose_pass:
@@ -138,7 +141,8 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
         # calibrate on from the IMU's cue alone (the second pass below decides)
         loose = cfg.stations.model_copy(update={"still_threshold": 1.0})
         with _Stage(times, "stations", n_windows, quiet) as bar:
-            seg = segment_stations(rec.lidar, orient, ext, loose, marks, progress=bar)
+            seg = segment_stations(rec.lidar, orient, ext, loose, marks, progress=bar,
+                                   num_threads=threads, reuse=windows)
     notes += seg.notes
     if not seg.stations:
         raise RecordingError(f"{recording_path}: no station found (no period where the tripod "
@@ -163,10 +167,12 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
         # stations enough to calibrate on; this one sees every station sharply
         notes = [n for n in notes if n not in seg.notes]
         with _Stage(times, "stations 2", n_windows, quiet) as bar:
-            seg = segment_stations(rec.lidar, orient, ext, cfg.stations, marks, progress=bar)
+            seg = segment_stations(rec.lidar, orient, ext, cfg.stations, marks, progress=bar,
+                               num_threads=threads, reuse=windows)
         notes += seg.notes
         if not seg.stations:
             raise RecordingError(f"{recording_path}: no station found with the calibrated rig")
+    windows.clear()
     info: dict = {}
 
     # 5. fragments (with their voxels' intensity when a survey file wants it)
@@ -196,14 +202,22 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
                             calibration=effective_calibration(ext, orient, pc, calib),
                             engine=eng.name if eng is not None else "in-process")
 
-    # 8. outputs
-    with _Stage(times, "outputs", None, quiet):
-        _write_outputs(res, cfg, orient)
-    if cfg.output.report:
-        from .report import write_report
+    # 8. outputs; the report's pictures of the fragments and poses meanwhile on another thread
+    # (the outputs' voxel filter and smoothing run natively, without the GIL)
+    with ThreadPoolExecutor(1) as bg:
+        figures = None
+        if cfg.output.report:
+            from .report import report_figures, write_report
 
-        with _Stage(times, "report", None, quiet):
-            res.files["report"] = str(write_report(res, cfg, summary(res)))
+            figures = bg.submit(report_figures, res, cfg)
+        with _Stage(times, "outputs", None, quiet):
+            pending = _write_outputs(res, cfg, orient, bg)
+        if cfg.output.report:
+            with _Stage(times, "report", None, quiet):
+                res.files["report"] = str(write_report(res, cfg, summary(res),
+                                                       figures.result()))
+        for f in pending:
+            f.result()  # raises what the writer raised
     outputs.write_json(out / "result.json", summary(res))
     res.files["result"] = str(out / "result.json")
     return res
@@ -356,7 +370,11 @@ def effective_calibration(ext: Extrinsic, orient: ImuOrientation, pc, cal) -> di
     return out
 
 
-def _write_outputs(res: ReconstructResult, cfg: ReconstructConfig, orient: ImuOrientation) -> None:
+def _write_outputs(res: ReconstructResult, cfg: ReconstructConfig, orient: ImuOrientation,
+                   background=None) -> list:
+    """The run's files (see the module docstring); with ``background`` (an executor), the
+    Foxglove MCAP is written there: returns the futures to wait for."""
+    pending = []
     out, oc = res.outdir, cfg.output
     slam = res.slam
     main = [k for k in range(len(res.fragments)) if slam.component[k] == 0]
@@ -437,9 +455,14 @@ def _write_outputs(res: ReconstructResult, cfg: ReconstructConfig, orient: ImuOr
         # fragments at 5 cm in the MCAP: enough to inspect, light to load
         frags_out = [voxel_downsample(res.fragments[k].points, 0.05, cfg.num_threads)
                      for k in main]
-        outputs.write_foxglove_mcap(out / "reconstruction.mcap", merged, int(t_st[-1]),
-                                    list(t_st[main]), slam.T_optimized[main], frags_out, traj)
+        args = (out / "reconstruction.mcap", merged, int(t_st[-1]), list(t_st[main]),
+                slam.T_optimized[main], frags_out, traj)
+        if background is None:
+            outputs.write_foxglove_mcap(*args)
+        else:
+            pending.append(background.submit(outputs.write_foxglove_mcap, *args))
         res.files["mcap"] = str(out / "reconstruction.mcap")
+    return pending
 
 
 def map_up(res: ReconstructResult, main: list[int]) -> np.ndarray:

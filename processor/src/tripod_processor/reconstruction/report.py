@@ -208,21 +208,13 @@ def calibration_section(cal: dict) -> list[str]:
     return lines
 
 
-def write_report(res, cfg: ReconstructConfig, s: dict) -> Path:
-    """Write ``report.md`` and its PNGs into the run's output folder; return the report path.
-
-    ``res`` is the run's ``pipeline.ReconstructResult``, ``s`` its ``pipeline.summary`` (passed
-    in, so that this module does not import the pipeline that calls it)."""
+def report_figures(res, cfg: ReconstructConfig) -> dict:
+    """The report's pictures that need only the fragments and the poses (odometry, station
+    timeline, plane-fit violins), and the plane-fit statistics: the pipeline draws them while
+    it writes the outputs (another thread; pyplot is not used elsewhere meanwhile)."""
     out = res.outdir
     slam = res.slam
     main = [k for k in range(len(res.fragments)) if slam.component[k] == 0]
-    from ..io import clouds as cloud_io
-    from .outputs import read_tum
-
-    map_xyz = cloud_io.xyz(cloud_io.read_ply(out / "map.ply"))
-    _, traj_T = read_tum(out / "trajectory.tum")
-    plot_topdown(out / "report_topdown.png", map_xyz, slam.T_optimized[main], traj_T,
-                 slam.disconnected)
     plot_odometry_vs_optimized(out / "report_odometry.png", slam.T_odometry[main],
                                slam.T_optimized[main])
     seg = res.segmentation
@@ -237,7 +229,27 @@ def write_report(res, cfg: ReconstructConfig, s: dict) -> Path:
 
     errors = [plane_fit_errors(sample(f.points), f.up_in_lidar, min_inliers=60, seed=k)
               for k, f in enumerate(res.fragments)]
-    stats = plot_plane_violins(out / "report_planes.png", errors)
+    return plot_plane_violins(out / "report_planes.png", errors)
+
+
+def write_report(res, cfg: ReconstructConfig, s: dict, stats: dict | None = None) -> Path:
+    """Write ``report.md`` and its PNGs into the run's output folder; return the report path.
+
+    ``res`` is the run's ``pipeline.ReconstructResult``, ``s`` its ``pipeline.summary`` (passed
+    in, so that this module does not import the pipeline that calls it); ``stats``: what
+    :func:`report_figures` returned when it ran already (else it runs here)."""
+    out = res.outdir
+    slam = res.slam
+    main = [k for k in range(len(res.fragments)) if slam.component[k] == 0]
+    from ..io import clouds as cloud_io
+    from .outputs import read_tum
+
+    map_xyz = cloud_io.xyz(cloud_io.read_ply(out / "map.ply"))
+    _, traj_T = read_tum(out / "trajectory.tum")
+    plot_topdown(out / "report_topdown.png", map_xyz, slam.T_optimized[main], traj_T,
+                 slam.disconnected)
+    if stats is None:
+        stats = report_figures(res, cfg)
 
     def med(kind):
         v = [x["median"] for x in stats[kind]]

@@ -15,6 +15,9 @@ when ``num_threads`` is the same.
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 
 from .config import OdometryConfig
@@ -26,6 +29,25 @@ from .placement import Extrinsic, ImuOrientation
 from .stations import Station
 
 _IN_PROCESS = InProcess()
+
+
+def thread_workers(num_threads: int, n_items: int) -> int:
+    """Threads for ``n_items`` independent calls in process: ``num_threads`` (0: every core),
+    at most one per item. With more than one, each call runs on one thread (the native core
+    releases the GIL; its results do not depend on the thread count)."""
+    return min(max(1, num_threads or (os.cpu_count() or 1)), max(1, n_items))
+
+
+def _threaded_map(fn, calls: list[tuple], workers: int, step=None) -> list:
+    """``[fn(*c) for c in calls]`` on ``workers`` threads, in order; ``step(k)`` as each
+    result arrives in order."""
+    out = []
+    with ThreadPoolExecutor(workers) as pool:
+        for k, r in enumerate(pool.map(lambda c: fn(*c), calls)):
+            out.append(r)
+            if step is not None:
+                step(k)
+    return out
 
 
 def _fragment_task(payload: np.ndarray, lidar_ns: np.ndarray, return_mode: str,
@@ -52,11 +74,19 @@ def build_fragments(engine, lidar: LidarPackets, stations: list[Station], orient
     step = (lambda _k: progress.update(1)) if progress is not None else None
     engine = engine or _IN_PROCESS
     if not engine.distributed:
+        # stations side by side on threads, one thread each (decode, placement and voxel filter
+        # run natively without the GIL; a fragment does not depend on the threads)
+        workers = thread_workers(num_threads, len(stations))
+        inner = num_threads if workers == 1 else 1
+
         def one(st: Station) -> Fragment:
             return build_fragment(lidar, st, orient, ext, voxel_m, min_range, max_range,
-                                  num_threads, with_intensity=with_intensity)
+                                  inner, with_intensity=with_intensity)
 
-        return engine.map(one, [(st,) for st in stations], step)
+        calls = [(st,) for st in stations]
+        if workers == 1:
+            return engine.map(one, calls, step)
+        return _threaded_map(one, calls, workers, step)
     h_orient, h_ext = engine.put(orient), engine.put(ext)
     calls = [(lidar.payload[st.packet_start:st.packet_stop],
               lidar.lidar_ns[st.packet_start:st.packet_stop], lidar.return_mode, st, h_orient,
@@ -86,14 +116,24 @@ def register_pairs(engine, frags: list[Fragment], pairs: list[tuple[int, int]],
     engine = engine or _IN_PROCESS
     if not engine.distributed:
         cache = cache or CloudCache(cfg.point_sigma_m, num_threads)
+        workers = thread_workers(num_threads, len(pairs))
+        inner = num_threads if workers == 1 else 1
 
         def one(j: int, i: int, g) -> PairResult:
             return register_fragments(frags[j].points, frags[i].points, frags[j].R_world_lidar,
-                                      frags[i].R_world_lidar, cfg, num_threads, T_guess=g,
+                                      frags[i].R_world_lidar, cfg, inner, T_guess=g,
                                       cache=cache, keys=(j, i))
 
         step = (lambda _k: progress.update(1)) if progress is not None else None
-        return engine.map(one, [(j, i, g) for (j, i), g in zip(pairs, guesses)], step)
+        calls = [(j, i, g) for (j, i), g in zip(pairs, guesses)]
+        if workers == 1:
+            return engine.map(one, calls, step)
+        # pairs side by side: every fragment they use prepared in the shared cache first (side
+        # by side too), so no two pairs prepare one fragment at once
+        used = sorted({f for p in pairs for f in p})
+        _threaded_map(lambda f: cache.prepare_all(f, frags[f].points, cfg, 1),
+                      [(f,) for f in used], workers)
+        return _threaded_map(one, calls, workers, step)
     calls = []
     runs = chunks(len(pairs), engine.slots)
     for run in runs:

@@ -18,7 +18,7 @@ from ..registration import pose_graph as pg
 from .config import OdometryConfig, SlamConfig
 from .fragments import Fragment
 from .odometry import CloudCache, PairResult
-from .scaleout import register_pairs
+from .scaleout import register_pairs, thread_workers
 
 
 def inv(T: np.ndarray) -> np.ndarray:
@@ -130,11 +130,13 @@ def run_slam(frags: list[Fragment], T_odom: np.ndarray, odom_edges: list[pg.Edge
     if progress is not None:
         progress.total = len(cands)
         progress.refresh()
-    # on a distributed engine every candidate is registered at once, from its guess of now;
+    # on a distributed engine (or on threads in process) every candidate is registered at
+    # once, from its guess of now;
     # a candidate whose stations a loop before it joins needs a guess it did not have: that one
     # is registered again in order (the same results as the plain loop, which this is in process)
     ahead = None
-    if cands and engine is not None and engine.distributed:
+    if cands and ((engine is not None and engine.distributed)
+                  or thread_workers(num_threads, len(cands)) > 1):
         ahead = register_pairs(engine, frags, [(j, i) for i, j in cands], ocfg, num_threads,
                                guesses=[_loop_guess(T_odom, comp, i, j) for i, j in cands])
     for k, (i, j) in enumerate(cands):

@@ -23,12 +23,13 @@ that holds two marks; a mark outside every station is reported.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..decode.timed import decode_timed_points
+from ..decode.timed import decode_xyz_time
 from .config import StationConfig
 from .inputs import LidarPackets
 from .placement import Extrinsic, ImuOrientation, place_points, pose_world_lidar
@@ -77,22 +78,122 @@ def _window_cloud(lidar: LidarPackets, a: int, b: int, orient: ImuOrientation, e
                   n_max: int, rng: np.random.Generator) -> tuple[np.ndarray, int]:
     """Points of packets [a, b) in the head-pivot frame, at most n_max (random subset), and the
     lidar time [ns] whose IMU attitude placed them."""
-    pts = decode_timed_points(lidar.payload, lidar.lidar_ns, a, b, min_range=0.5)
-    if len(pts) == 0:
+    pts = _window_points(lidar, a, b)
+    return _place_window(lidar, a, _window_sample(pts, _window_subset(len(pts[0]), n_max, rng)),
+                         orient, ext)
+
+
+def _window_points(lidar: LidarPackets, a: int, b: int) -> tuple[np.ndarray, np.ndarray]:
+    """(xyz (N, 3) float32, time_ns (N,)) of packets [a, b) (one thread: windows run side by
+    side)."""
+    return decode_xyz_time(lidar.payload, lidar.lidar_ns, a, b, min_range=0.5, num_threads=1)[:2]
+
+
+def _window_subset(n: int, n_max: int, rng: np.random.Generator
+                   ) -> tuple[np.ndarray, np.ndarray] | None:
+    """(kept indices in firing order, their positions in the random sample's order) of n points
+    when more than n_max; None when all are kept. Drawn in window order (deterministic)."""
+    if n <= n_max:
+        return None
+    sel = rng.choice(n, n_max, replace=False)  # random order: any prefix is a sample
+    o = np.argsort(sel)
+    order = np.empty(n_max, dtype=np.intp)
+    order[o] = np.arange(n_max)
+    # placed in firing order (the native placement's fast path), given back in the sample's
+    return sel[o], order
+
+
+def _window_sample(pts: tuple[np.ndarray, np.ndarray], subset) -> tuple:
+    """(xyz, time_ns, order or None): the window's points reduced to the drawn subset."""
+    if subset is None:
+        return pts[0], pts[1], None
+    keep, order = subset
+    return pts[0][keep], pts[1][keep], order
+
+
+def _place_window(lidar: LidarPackets, a: int, sample: tuple, orient: ImuOrientation,
+                  ext: Extrinsic) -> tuple[np.ndarray, int]:
+    """:func:`_window_cloud` after the decode and the draw (:func:`_window_sample`)."""
+    xyz, t_ns, order = sample
+    if len(xyz) == 0:
         return np.zeros((0, 3)), int(lidar.lidar_ns[min(a, len(lidar.lidar_ns) - 1)])
-    order = None
-    if len(pts) > n_max:
-        sel = rng.choice(len(pts), n_max, replace=False)  # random order: any prefix is a sample
-        keep = np.sort(sel)  # placed in firing order (the native placement's fast path) ...
-        order = np.searchsorted(keep, sel)  # ... and given back in the sample's order
-        pts = pts[keep]
-    xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=1)
     # R_wi(t) (R_il x + l) = T_wl(a) · (the point placed in the lidar frame at a)
-    anchor = int(pts["time_ns"][len(pts) // 2])
-    placed = place_points(xyz, pts["time_ns"], orient, ext, anchor, num_threads=1)
+    anchor = int(t_ns[len(t_ns) // 2])
+    placed = place_points(xyz, t_ns, orient, ext, anchor, num_threads=1)
     T_a = pose_world_lidar(orient, ext, np.array([anchor]))[0]
     p = placed.astype(np.float64) @ T_a[:3, :3].T + T_a[:3, 3]
     return (p if order is None else p[order]), anchor
+
+
+def _window_shifts(lidar: LidarPackets, times: np.ndarray, win: int, gap: int,
+                   orient: ImuOrientation, ext: Extrinsic, n_points: int, n_query: int,
+                   rng: np.random.Generator, num_threads: int, progress=None,
+                   reuse: dict | None = None, reuse_max_bytes: int = 512 << 20
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(anchors (K,), pivot shifts D (K, 3) against the window ``gap`` before (NaN: unknown),
+    their projectors Pm (K, 3, 3)) of the windows at ``times``.
+
+    Blocks of windows: decoded, then placed and fitted on ``num_threads`` threads (the native
+    decode and placement and the k-d trees run without the GIL); the random subsets are drawn
+    in window order between the two, so the result does not depend on the threads.
+
+    ``reuse``: a dict kept between two passes over one recording (another rig calibration): the
+    first keeps the decoded samples there (up to ``reuse_max_bytes``), the second places them
+    again instead of decoding and drawing, and leaves ``rng`` where the draws would have."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    K = len(times)
+    anchors = np.zeros(K, dtype=np.int64)
+    D = np.full((K, 3), np.nan)
+    Pm = np.zeros((K, 3, 3))
+    clouds: dict[int, np.ndarray] = {}
+    ab = np.searchsorted(lidar.lidar_ns, np.stack([times, times + win], axis=1))
+    block = 16
+
+    def fit(k: int):
+        ref, c = clouds.get(k - gap), clouds[k]
+        if ref is not None and len(ref) > 50 and len(c) > 50:
+            return pivot_shift_fit(ref, c[:n_query])
+        return None
+
+    key = (int(times[0]) if K else 0, K, win, n_points, id(lidar))
+    cached = reuse.get("samples") if reuse is not None and reuse.get("key") == key else None
+    keep: list | None = [] if reuse is not None and cached is None else None
+    kept_bytes = 0
+    workers = max(1, num_threads or (os.cpu_count() or 1))
+    with ThreadPoolExecutor(workers) as pool:
+        for s in range(0, K, block):
+            ks = range(s, min(K, s + block))
+            if cached is not None:
+                samples = cached[s:s + len(ks)]
+            else:
+                pts = list(pool.map(lambda k: _window_points(lidar, int(ab[k, 0]),
+                                                             int(ab[k, 1])), ks))
+                samples = [_window_sample(p, _window_subset(len(p[0]), n_points, rng))
+                           for p in pts]
+                if keep is not None:
+                    keep += samples
+                    kept_bytes += sum(x.nbytes + t.nbytes + (0 if o is None else o.nbytes)
+                                      for x, t, o in samples)
+                    if kept_bytes > reuse_max_bytes:
+                        keep = None  # too long a recording to keep: the next pass decodes
+            placed = list(pool.map(lambda i: _place_window(lidar, int(ab[ks[i], 0]),
+                                                           samples[i], orient, ext),
+                                   range(len(ks))))
+            for k, (c, anc) in zip(ks, placed):
+                clouds[k], anchors[k] = c, anc
+            for k, f in zip(ks, pool.map(fit, ks)):
+                if f is not None:
+                    D[k], Pm[k] = f
+            for j in [j for j in clouds if j <= ks[-1] - gap]:
+                del clouds[j]  # bounded memory
+            if progress is not None:
+                progress.update(len(ks))
+    if cached is not None:
+        rng.bit_generator.state = reuse["rng_state"]
+    elif keep is not None:
+        reuse.update(key=key, samples=keep, rng_state=rng.bit_generator.state)
+    return anchors, D, Pm
 
 
 def pivot_shift_fit(ref: np.ndarray, query: np.ndarray, max_angle_deg: float = 0.3
@@ -198,31 +299,20 @@ def segment_stations(lidar: LidarPackets, orient: ImuOrientation, ext: Extrinsic
                      cfg: StationConfig, marks_lidar_ns: list[tuple[int, str]] | None = None,
                      step_s: float = 0.5, window_s: float = 0.1, n_points: int = 12000,
                      n_query: int = 4000,
-                     progress=None) -> Segmentation:
-    """Find the stations of a recording (see the module docstring)."""
+                     progress=None, num_threads: int = 1, reuse: dict | None = None
+                     ) -> Segmentation:
+    """Find the stations of a recording (see the module docstring); the windows on
+    ``num_threads`` threads (0: all cores; the result does not depend on it). ``reuse``: one
+    dict passed to every pass over a recording keeps its decoded windows between them (the
+    result does not depend on it)."""
     t0, t1 = int(lidar.lidar_ns[0]), int(lidar.lidar_ns[-1])
     step, win = int(step_s * 1e9), int(window_s * 1e9)
     times = np.arange(t0, t1 - win, step, dtype=np.int64)
     K = len(times)
     gap = max(1, int(round(cfg.still_gap_s / step_s)))
     rng = np.random.default_rng(0)
-    clouds: list[np.ndarray | None] = []
-    anchors = np.zeros(K, dtype=np.int64)
-    D = np.full((K, 3), np.nan)
-    Pm = np.zeros((K, 3, 3))
-    for k, t in enumerate(times):
-        a, b = np.searchsorted(lidar.lidar_ns, [t, t + win])
-        c, anchors[k] = _window_cloud(lidar, int(a), int(b), orient, ext, n_points, rng)
-        clouds.append(c)
-        j = k - gap
-        if j >= 0 and clouds[j] is not None and len(clouds[j]) > 50 and len(c) > 50:
-            fit = pivot_shift_fit(clouds[j], c[:n_query])
-            if fit is not None:
-                D[k], Pm[k] = fit
-        if j >= 0:
-            clouds[j] = None  # bounded memory
-        if progress is not None:
-            progress.update(1)
+    anchors, D, Pm = _window_shifts(lidar, times, win, gap, orient, ext, n_points, n_query, rng,
+                                    num_threads, progress, reuse)
     # the IMU's view: at a station the head only turns about its pan axis
     R_w = orient.rotation_at(anchors) if K else np.zeros((0, 3, 3))
     axis = _imu_pan_axis(R_w[::max(1, gap)] if K > 3 * gap else R_w)

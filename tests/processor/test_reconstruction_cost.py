@@ -1,0 +1,134 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""The cheaper and parallel paths of ``tripod reconstruct`` (issue 12's cost) give what the plain
+ones give: the pcap batch read, the plain-array decode, the station splitter on threads and
+with its second pass reusing the first one's windows, fragments and odometry side by side."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from sim_fixtures import make_rig_capture
+
+from tripod_shared import velodyne as vl
+from tripod_shared.config_io import load_config
+
+from tripod_processor.decode.timed import decode_timed_points, decode_xyz_time
+from tripod_processor.io.events import pcap_events
+from tripod_processor.io.pcap import PcapReader, PcapWriter
+from tripod_processor.reconstruction import inputs
+from tripod_processor.reconstruction.config import ReconstructConfig
+from tripod_processor.reconstruction.placement import Extrinsic, ImuOrientation, fit_clock_map
+from tripod_processor.reconstruction.stations import segment_stations
+
+
+@pytest.fixture(scope="module")
+def rig(tmp_path_factory):
+    cap = make_rig_capture(tmp_path_factory.mktemp("cost"))
+    rec = inputs.read_recording(cap)
+    return cap, rec, ImuOrientation(rec.imu, fit_clock_map(rec.lidar), 0)
+
+
+def _slow_read(path):
+    """The per-datagram read the batch read replaced (``io.events.pcap_events``)."""
+    col = inputs._LidarCollector()
+    for host_ns, kind, payload in pcap_events(PcapReader(path), skipped=col.skipped):
+        col.add(host_ns, kind, payload)
+    lid, hour = inputs._finish_lidar(col.host, col.payloads, col.gprmc)
+    return lid, hour, col.skipped
+
+
+def test_batch_pcap_read_equals_the_per_datagram_read(rig, tmp_path):
+    cap, rec, _ = rig
+    pay = rec.lidar.payload
+    # a capture with what the reader must count and skip: a broken block flag, a foreign
+    # product, a bad return mode, 1206 bytes sent to the position port, a short datagram to the
+    # data port, a datagram of another size on another port
+    bad_flag, foreign, bad_mode = pay[3].copy(), pay[4].copy(), pay[5].copy()
+    bad_flag[300] = 0x00
+    foreign[vl.PRODUCT_ID_OFFSET] = 0x99
+    bad_mode[vl.RETURN_MODE_OFFSET] = 0x01
+    path = tmp_path / "mixed.pcap"
+    with PcapWriter(path) as w:
+        for k in range(3000):
+            t = int(rec.lidar.host_ns[k])
+            if k == 3:
+                w.write_udp(t, bad_flag.tobytes(), 2368, vl.DATA_PORT)
+            elif k == 4:
+                w.write_udp(t, foreign.tobytes(), 2368, vl.DATA_PORT)
+            elif k == 5:
+                w.write_udp(t, bad_mode.tobytes(), 2368, vl.DATA_PORT)
+            elif k == 6:
+                w.write_udp(t, pay[k].tobytes(), 8308, vl.POSITION_PORT)
+            elif k == 7:
+                w.write_udp(t, b"\x00" * 100, 2368, vl.DATA_PORT)
+            elif k == 8:
+                w.write_udp(t, b"\x01" * 77, 5000, 5001)
+            else:
+                w.write_udp(t, pay[k].tobytes(), 2368, 2368 if k % 2 else 7777)
+    for p in (path, cap / "capture.pcap"):
+        fast = inputs._read_pcap(p)
+        lid, hour, skipped = _slow_read(p)
+        assert len(fast.lidar) == len(lid) > 0
+        assert np.array_equal(fast.lidar.host_ns, lid.host_ns)
+        assert np.array_equal(fast.lidar.lidar_ns, lid.lidar_ns)
+        assert np.array_equal(fast.lidar.payload, lid.payload)
+        assert fast.lidar.return_mode == lid.return_mode and fast.hour_source == hour
+        assert fast.skipped == skipped
+    assert _slow_read(path)[2] == {"bad_lidar_packet": 4, "bad_position_packet": 1,
+                                   "other_datagram": 1}
+    assert len(inputs._read_pcap(path).lidar) == 3000 - 6
+
+
+def test_plain_array_decode_equals_the_timed_points(rig):
+    _, rec, _ = rig
+    lid = rec.lidar
+    for a, b, inten in ((100, 2600, True), (7, 8, False), (50, 50, True)):
+        pts = decode_timed_points(lid.payload, lid.lidar_ns, a, b, min_range=0.5,
+                                  max_range=40.0)
+        xyz, t, i = decode_xyz_time(lid.payload, lid.lidar_ns, a, b, min_range=0.5,
+                                    max_range=40.0, with_intensity=inten)
+        assert xyz.dtype == np.float32 and xyz.shape == (len(pts), 3) and t.dtype == np.int64
+        assert np.array_equal(xyz, np.stack([pts["x"], pts["y"], pts["z"]], axis=1))
+        assert np.array_equal(t, pts["time_ns"])
+        assert (i is None) if not inten else np.array_equal(i, pts["intensity"])
+
+
+def test_station_splitter_is_the_same_on_threads_and_reusing_its_windows(rig):
+    _, rec, orient = rig
+    cfg = ReconstructConfig().stations
+    ext0 = Extrinsic.from_config(None, None)
+    ext1 = Extrinsic.from_config(None, [0.0, 0.06, 0.0])  # a "calibrated" rig for pass two
+
+    def key(seg):
+        return ([(s.start_ns, s.end_ns, s.packet_start, s.packet_stop) for s in seg.stations],
+                seg.motion_m.tobytes(), seg.still.tobytes(), seg.lever_correction_m.tobytes(),
+                seg.notes)
+
+    one = [segment_stations(rec.lidar, orient, e, cfg, num_threads=1) for e in (ext0, ext1)]
+    assert len(one[0].stations) >= 2
+    windows: dict = {}
+    two = [segment_stations(rec.lidar, orient, e, cfg, num_threads=2, reuse=windows)
+           for e in (ext0, ext1)]
+    assert windows["samples"]  # the second pass had the first one's windows to place again
+    for a, b in zip(one, two):
+        assert key(a) == key(b)
+
+
+def test_reconstruction_does_not_depend_on_the_threads(rig, tmp_path):
+    from tripod_processor.reconstruction.pipeline import reconstruct
+
+    cap, _, _ = rig
+    out = {}
+    for n in (1, 2):
+        cfg = load_config(ReconstructConfig, overrides={"num_threads": n,
+                                                        "output.report": False,
+                                                        "output.write_mcap": False})
+        out[n] = reconstruct(cap, tmp_path / f"t{n}", cfg, quiet=True)
+    a, b = out[1], out[2]
+    assert [(s.start_ns, s.end_ns) for s in a.segmentation.stations] == \
+        [(s.start_ns, s.end_ns) for s in b.segmentation.stations]
+    for fa, fb in zip(a.fragments, b.fragments, strict=True):
+        assert np.array_equal(fa.points, fb.points)
+    assert [(e.i, e.j, e.kind) for e in a.slam.edges] == [(e.i, e.j, e.kind) for e in b.slam.edges]
+    np.testing.assert_allclose(a.slam.T_odometry, b.slam.T_odometry, atol=1e-9)
+    np.testing.assert_allclose(a.slam.T_optimized, b.slam.T_optimized, atol=1e-6)
