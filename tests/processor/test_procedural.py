@@ -137,7 +137,9 @@ def test_procedural_training_smoke_and_leave_one_family_out_rows():
     from tripod_processor.scene.segmentation.train import procedural_features, train_on_families
 
     feats = procedural_features(["rooms", "hall"], per_family=1, copies=1, keep_per_copy=20_000)
-    assert all(len(f[0]) == 20_000 and f[0].shape[1] == 29 for f in feats.values())
+    from tripod_processor.scene.segmentation.features import FEATURE_NAMES
+
+    assert all(len(f[0]) == 20_000 and f[0].shape[1] == len(FEATURE_NAMES) for f in feats.values())
     again = procedural_features(["hall"], per_family=1, copies=1, keep_per_copy=20_000)
     np.testing.assert_array_equal(again["hall"][0], feats["hall"][0])  # a family's rows are its own
     m1, r1 = train_on_families(feats, ["rooms"], steps=60, batch=1024, num_threads=1)
