@@ -92,7 +92,7 @@ def bench_procedural(split: str = "test", n_per_family: int = 3, lofo: bool = Tr
     import torch
 
     from tripod_processor.scene.segmentation import Segmenter
-    from tripod_processor.scene.segmentation.features import voxel_features
+    from tripod_processor.scene.segmentation.features import FEATURE_NAMES, voxel_features
     from tripod_processor.scene.segmentation.metrics import confusion, iou
     from tripod_processor.scene.segmentation.train import (RECIPE, procedural_features,
                                                            train_on_families)
@@ -130,10 +130,11 @@ def bench_procedural(split: str = "test", n_per_family: int = 3, lofo: bool = Tr
         feats = {}
         for fam in FAMILIES:
             fn = cache / f"train_{fam}_{per}x{RECIPE['copies']}_{RECIPE['keep_per_copy']}.npz"
-            if not fn.exists():
+            z = np.load(fn) if fn.exists() else None
+            if z is None or z["F"].shape[1] != len(FEATURE_NAMES):  # none, or other features
                 F, L = procedural_features([fam], per_family=per)[fam]
                 np.savez(fn, F=F, L=L)
-            z = np.load(fn)
+                z = np.load(fn)
             feats[fam] = (z["F"], z["L"])
         lofo_total = np.zeros((4, 4), np.int64)
         for fam in families:

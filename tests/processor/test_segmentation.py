@@ -93,6 +93,46 @@ def test_planar_segments_long_wall_vs_box_in_front_of_it():
     assert nz[w][seg[w] == main].max() < 0.05  # the segment is upright
 
 
+def test_planar_segments_residual_finds_a_board_on_the_wall():
+    rng = np.random.default_rng(1)
+    # a 6 m x 2.5 m wall at y = 0 and a 1.2 x 0.9 m board 4 cm in front of it: the board's
+    # voxels straddle both and join the wall's segment, but the board lies off its plane
+    x, z = _grid(np.arange(0, 6, 0.02), np.arange(0, 2.5, 0.02))
+    keep = ~((x > 2) & (x < 3.2) & (z > 1.0) & (z < 1.9))  # the wall hidden behind the board
+    wall = np.c_[x, np.zeros_like(x), z][keep]
+    x, z = _grid(np.arange(2, 3.2, 0.02), np.arange(1.0, 1.9, 0.02))
+    board = np.c_[x, np.full_like(x, 0.04), z]
+    p = np.concatenate([wall, board]).astype(np.float32)
+    p += rng.normal(0, 0.003, p.shape).astype(np.float32)
+    _, _, seg, res = planar_segments(p, num_threads=1, residual=True)
+    w, b = slice(0, len(wall)), slice(len(wall), len(p))
+    main = np.bincount(seg[w]).argmax()
+    assert (seg[b] == main).mean() > 0.5  # the board is (mostly) in the wall's segment ...
+    assert np.median(res[w]) < 0.01  # ... but the wall is on the segment's plane
+    inner = (board[:, 0] > 2.1) & (board[:, 0] < 3.1) & (board[:, 2] > 1.1) & (board[:, 2] < 1.8)
+    assert np.median(res[b][inner]) > 0.025  # [m] and the board is off it
+    # without residual=True: the three arrays of before
+    assert len(planar_segments(p, num_threads=1)) == 3
+
+
+def test_plane_consistency_leaves_voxels_off_the_plane_alone():
+    from tripod_processor.scene.segmentation import COARSE_GATE, FINE_GATE, plane_consistent
+
+    # one segment on both grids: 8 voxels say wall, 2 doubt (other 0.6); one of them lies
+    # 3 cm off the segment's plane (a board) and keeps "other", the other is outvoted
+    probs = np.tile(np.float32([0.0, 0.0, 0.9, 0.1]), (10, 1))
+    probs[8] = probs[9] = [0.0, 0.0, 0.4, 0.6]
+    f = np.zeros((10, len(FEATURE_NAMES)), np.float32)
+    f[9, FEATURE_NAMES.index("segment_residual")] = FINE_GATE + 0.01
+    f[9, FEATURE_NAMES.index("coarse_residual")] = COARSE_GATE + 0.01
+    out = plane_consistent(probs, f, np.zeros((10, 2), np.int64))
+    assert out[8].argmax() == 2 and out[9].argmax() == 3
+    assert (out[:8].argmax(1) == 2).all()
+    # (M,) segments: the 10 cm pass only, as segment_consistent
+    np.testing.assert_array_equal(plane_consistent(probs, f, np.zeros(10, np.int64)),
+                                  segment_consistent(probs, np.zeros(10, np.int64)))
+
+
 def test_segment_consistency_outvotes_doubtful_points_only():
     # one segment: 8 points say wall, 1 doubts (other 0.6), 1 is sure it is other (0.99)
     p = np.tile(np.float32([0.0, 0.0, 0.9, 0.1]), (10, 1))

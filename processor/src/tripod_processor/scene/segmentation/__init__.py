@@ -12,11 +12,35 @@ from __future__ import annotations
 
 import numpy as np
 
-from .features import point_features, voxel_features
+from .features import FEATURE_NAMES, point_features, voxel_features
 from .model import CLASS_NAMES, DEFAULT_WEIGHTS, NUM_CLASSES, load_model
 from .segments import segment_consistent
 
-__all__ = ["segment", "Segmenter", "CLASS_NAMES", "NUM_CLASSES", "DEFAULT_WEIGHTS",
+#: a voxel this far [m] off its segment's least-squares plane (a board or radiator on a wall,
+#: whose voxels join the wall's segment) keeps its own label in the second stage
+FINE_GATE = 0.02
+COARSE_GATE = 0.03
+
+
+def plane_consistent(probabilities: np.ndarray, features: np.ndarray,
+                     segment: np.ndarray) -> np.ndarray:
+    """Second stage: the voxels of one planar segment agree, first on the 10 cm segments, then
+    on the 25 cm ones (far and grazing walls, scanned by a few sparse lines, are one plane only
+    at that scale), each leaving out the voxels that lie off the segment's plane
+    (:data:`FINE_GATE`, :data:`COARSE_GATE`: boards and radiators on walls).
+
+    probabilities : (M, 4); features : (M, F) of :func:`.features.voxel_features`;
+    segment : (M, 2) segments of the two grids, or (M,) of the 10 cm grid only (then one pass).
+    """
+    seg = np.asarray(segment)
+    if seg.ndim == 1:
+        return segment_consistent(probabilities, seg)
+    res = features[:, FEATURE_NAMES.index("segment_residual")]
+    cres = features[:, FEATURE_NAMES.index("coarse_residual")]
+    out = segment_consistent(probabilities, np.where(res > FINE_GATE, -1, seg[:, 0]))
+    return segment_consistent(out, np.where(cres > COARSE_GATE, -1, seg[:, 1]))
+
+__all__ = ["segment", "Segmenter", "plane_consistent", "CLASS_NAMES", "NUM_CLASSES", "DEFAULT_WEIGHTS",
            "point_features"]
 
 
@@ -29,7 +53,7 @@ class Segmenter:
     num_threads : CPU threads for features and inference, 0 = all
     chunk : points per inference batch
     plane_consistency : second stage, the points of one planar segment agree
-        (:func:`.segments.segment_consistent`)
+        (:func:`plane_consistent`)
     model : a torch model from :func:`.train.train` to use instead of a weight file
     """
 
@@ -66,7 +90,7 @@ class Segmenter:
                 logits = self.model(torch.from_numpy(f[s:s + self.chunk]))
                 vox[s:min(s + self.chunk, len(f))] = torch.softmax(logits, 1).numpy()
         if self.plane_consistency:
-            vox[:-1] = segment_consistent(vox[:-1], segment)
+            vox[:-1] = plane_consistent(vox[:-1], f, segment)
         return vox[point_voxel]
 
     def __call__(self, points) -> np.ndarray:

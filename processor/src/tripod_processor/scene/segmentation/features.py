@@ -26,10 +26,16 @@ FEATURE_NAMES = (
     "column_bottom", "column_top", "above_column_bottom", "below_column_top", "log_column_count",
     "segment_log_length", "segment_height_fraction", "segment_bottom", "segment_top",
     "segment_log_area", "segment_abs_nz",
+    "segment_open_fraction", "segment_free_distance",
+    "segment_residual", "coarse_residual",
+    "coarse_log_length", "coarse_height_fraction", "coarse_bottom", "coarse_top",
+    "coarse_log_area", "coarse_abs_nz", "coarse_open_fraction", "coarse_free_distance",
 )
 SMALL_VOXEL = 0.05  # [m], 3x3x3 voxels -> 15 cm neighbourhood
 LARGE_VOXEL = 0.15  # [m], 45 cm neighbourhood
 XL_VOXEL = 0.4  # [m], 1.2 m neighbourhood: a wall is planar at this scale, a pillar is not
+COARSE_SEGMENT_VOXEL = 0.25  # [m] second segmentation: sparse (far, grazing) walls are planar
+COARSE_SEGMENT_OFFSET = 0.06  # [m] at this scale
 COLUMN_CELL = 0.10  # [m]
 LABEL_VOXEL = 0.04  # [m] points in one such voxel share features and label
 
@@ -72,6 +78,17 @@ def floor_and_ceiling(z: np.ndarray, abs_nz: np.ndarray, bin_m: float = 0.05) ->
     return z_floor, max(z_ceil, z_floor + 0.5)
 
 
+def _segment_mean(segment: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Each point's mean of ``values`` over its segment (-1: its own value)."""
+    ok = segment >= 0
+    out = values.astype(np.float32).copy()
+    if ok.any():
+        s = segment[ok]
+        cnt = np.maximum(np.bincount(s), 1)
+        out[ok] = (np.bincount(s, weights=values[ok]) / cnt)[s]
+    return out
+
+
 def point_features(points, num_threads: int = 0, return_segments: bool = False):
     """Segmenter input features of every point.
 
@@ -83,8 +100,9 @@ def point_features(points, num_threads: int = 0, return_segments: bool = False):
     Returns
     -------
     (N, len(FEATURE_NAMES)) float32. Non-finite points get zeros.
-    With ``return_segments``, also the (N,) int64 planar segment of every point
-    (:func:`.segments.planar_segments`, -1 for non-finite points).
+    With ``return_segments``, also the (N, 2) int64 planar segments of every point
+    (:func:`.segments.planar_segments` on the 10 cm and the 25 cm grid, -1 for non-finite
+    points).
     """
     p = as_cloud(points)
     nt = int(num_threads)
@@ -118,16 +136,30 @@ def point_features(points, num_threads: int = 0, return_segments: bool = False):
     f[:, 21] = np.clip(cc[:, 3] - z, 0, 12)
     f[:, 22] = cc[:, 4]
     # the planar segment of the point: a wall's runs for metres, floor to ceiling (segments.py)
-    seg, seg_nz, segment = planar_segments(p, nt)
+    seg, seg_nz, segment, res = planar_segments(p, nt, residual=True)
     f[:, 23] = np.log1p(seg[:, 0])
     f[:, 24] = np.clip(seg[:, 1] / room_h, 0, 2)
     f[:, 25] = np.clip(seg[:, 2] - z_floor, -2, 12)
     f[:, 26] = np.clip(z_ceil - seg[:, 3], -2, 12)
     f[:, 27] = np.log1p(seg[:, 4])
     f[:, 28] = seg_nz
+    # is the plane as a whole the boundary of the scanned space?
+    f[:, 29], f[:, 30] = _segment_mean(segment, f[:, 16]), _segment_mean(segment, f[:, 17])
+    # the same at 25 cm: far walls scanned by a few sparse lines are planar at this scale
+    cs, cs_nz, coarse, cres = planar_segments(p, nt, voxel=COARSE_SEGMENT_VOXEL,
+                                              max_offset=COARSE_SEGMENT_OFFSET, residual=True)
+    # a board, picture or radiator joins the wall's segment but lies a few cm off its plane
+    f[:, 31], f[:, 32] = np.minimum(res, 0.5), np.minimum(cres, 0.5)
+    f[:, 33] = np.log1p(cs[:, 0])
+    f[:, 34] = np.clip(cs[:, 1] / room_h, 0, 2)
+    f[:, 35] = np.clip(cs[:, 2] - z_floor, -2, 12)
+    f[:, 36] = np.clip(z_ceil - cs[:, 3], -2, 12)
+    f[:, 37] = np.log1p(cs[:, 4])
+    f[:, 38] = cs_nz
+    f[:, 39], f[:, 40] = _segment_mean(coarse, f[:, 16]), _segment_mean(coarse, f[:, 17])
     f[~np.isfinite(f)] = 0.0
     f[~np.isfinite(p).all(1)] = 0.0
-    return (f, segment) if return_segments else f
+    return (f, np.stack([segment, coarse], 1)) if return_segments else f
 
 
 def voxel_features(points, num_threads: int = 0, return_segments: bool = False):
@@ -141,7 +173,8 @@ def voxel_features(points, num_threads: int = 0, return_segments: bool = False):
     -------
     features : (M, len(FEATURE_NAMES)) float32 of the voxel centroids
     point_voxel : (N,) int32 voxel of every point, -1 for non-finite points
-    segment : (M,) int64 planar segment of every voxel, only with ``return_segments``
+    segment : (M, 2) int64 planar segments (10 cm, 25 cm grid) of every voxel, only with
+        ``return_segments``
     """
     p = as_cloud(points)
     centroids, point_voxel, _ = voxel_assign(p, LABEL_VOXEL, num_threads)

@@ -32,7 +32,7 @@ _OFFSETS = np.array([(dx, dy, dz) for dx in (-1, 0, 1) for dy in (-1, 0, 1) for 
 
 def planar_segments(points, num_threads: int = 0, voxel: float = SEGMENT_VOXEL,
                     min_planarity: float = MIN_PLANARITY, max_angle_deg: float = MAX_ANGLE_DEG,
-                    max_offset: float = MAX_OFFSET) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                    max_offset: float = MAX_OFFSET, residual: bool = False):
     """Grow planar segments over a voxel grid and describe the segment of every point.
 
     Parameters
@@ -48,6 +48,10 @@ def planar_segments(points, num_threads: int = 0, voxel: float = SEGMENT_VOXEL,
         planar form a segment of their own voxel.
     normal_z : (N,) float32 |n_z| of the segment (area-weighted mean of its voxel normals).
     segment : (N,) int64 segment id of every point (-1 for non-finite points).
+    residual : (N,) float32, only with ``residual=True``: the point's distance [m] from the
+        least-squares plane of its segment's voxel centroids (0 for segments of fewer than 4
+        voxels). A board, picture or radiator a few cm off a wall joins the wall's segment (its
+        voxels straddle both) but sits off the wall's plane.
     Non-finite points get zeros.
     """
     p = np.ascontiguousarray(points, np.float32)
@@ -55,12 +59,14 @@ def planar_segments(points, num_threads: int = 0, voxel: float = SEGMENT_VOXEL,
     stats = np.zeros((n, 5), np.float32)
     normal_z = np.zeros(n, np.float32)
     segment = np.full(n, -1, np.int64)
+    res = np.zeros(n, np.float32)
+    empty = (stats, normal_z, segment, res) if residual else (stats, normal_z, segment)
     if n == 0:
-        return stats, normal_z, segment
+        return empty
     cen, point_voxel, counts = voxel_assign(p, voxel, num_threads)
     m = len(cen)
     if m == 0:
-        return stats, normal_z, segment
+        return empty
     ls = local_shape(cen, voxel, num_threads)
     nrm = ls[:, :3].astype(np.float64)
     l0, l1, l2 = ls[:, 3], ls[:, 4], np.maximum(ls[:, 5], 1e-12)
@@ -115,7 +121,23 @@ def planar_segments(points, num_threads: int = 0, voxel: float = SEGMENT_VOXEL,
     stats[ok] = seg[comp[point_voxel[ok]]]
     normal_z[ok] = nz[comp[point_voxel[ok]]]
     segment[ok] = comp[point_voxel[ok]]
-    return stats, normal_z, segment
+    if not residual:
+        return stats, normal_z, segment
+    # least-squares plane of every segment of >= 4 voxels from its centroids' moments
+    big = cells >= 4
+    mean = np.stack([np.bincount(comp, weights=c64[:, k]) / cells for k in range(3)], 1)
+    d = c64 - mean[comp]
+    cov = np.zeros((len(cells), 3, 3))
+    for i in range(3):
+        for j in range(i, 3):
+            cov[:, i, j] = cov[:, j, i] = np.bincount(comp, weights=d[:, i] * d[:, j]) / cells
+    _, vec = np.linalg.eigh(cov[big])
+    normal = np.zeros((len(cells), 3))
+    normal[big] = vec[:, :, 0]
+    sid = comp[point_voxel[ok]]
+    dist = np.abs(((p[ok].astype(np.float64) - mean[sid]) * normal[sid]).sum(1))
+    res[ok] = np.where(big[sid], dist, 0.0)
+    return stats, normal_z, segment, res
 
 
 def segment_consistent(probabilities: np.ndarray, segment: np.ndarray) -> np.ndarray:
