@@ -279,17 +279,30 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
     at the prior)."""
     from .calibration import self_calibrate
 
+    from .calibration import time_offset_from_turns
+
     cc = cfg.calibration
+    turn = None
+    fit_time_surf = fit_time
+    if fit_time and cc.time_offset_from_turns:
+        # the time offset first, from the head's turns (registrations, blind to the lever
+        # arm); the surfaces' fit below then holds it
+        turn = time_offset_from_turns(rec.lidar, seg.stations, orient, ext, cfg.num_threads)
+        if turn.sigma_ms <= cc.max_time_offset_sigma_ms:
+            orient = orient.with_offset(turn.offset_ns)
+            fit_time_surf = False
+        else:
+            turn = None
     try:
         cal = self_calibrate(rec.lidar, seg.stations, orient, ext, fit_lever=fit_lever,
-                             fit_time=fit_time, fit_rotation=fit_rot,
+                             fit_time=fit_time_surf, fit_rotation=fit_rot,
                              max_stations=cc.max_stations)
         if fit_rot and not cal.rotation_observable:
             # the stations hardly see the mount's tilt (a spin axis near the pan axis in a
             # small room): hand-eye's tilt is the better one; the rest again with it held
-            if fit_lever or fit_time:
+            if fit_lever or fit_time_surf:
                 cal = self_calibrate(rec.lidar, seg.stations, orient, ext, fit_lever=fit_lever,
-                                     fit_time=fit_time, fit_rotation=False,
+                                     fit_time=fit_time_surf, fit_rotation=False,
                                      max_stations=cc.max_stations)
             fit_rot = False
             notes.append("WARNING: mount tilt poorly observable from the stations' surfaces; "
@@ -306,8 +319,14 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
                          f"{np.max(cal.lever_arm_sigma_m) * 1000:.1f} mm): few surfaces seen "
                          "from opposite sides of the pan")
     off = orient.time_offset_ns
+    if turn is not None:
+        cal.time_offset_ns, cal.time_offset_sigma_ms = turn.offset_ns, turn.sigma_ms
+        cal.time_offset_observable = bool(turn.sigma_ms < 0.5)
+        cal.time_offset_method, cal.turns = "turns", turn.to_dict()
+    limit = cc.max_time_offset_sigma_ms if turn is not None else min(
+        cc.max_time_offset_sigma_ms, cc.max_surface_time_offset_sigma_ms)
     if fit_time:
-        if cal.time_offset_sigma_ms <= cc.max_time_offset_sigma_ms:
+        if cal.time_offset_sigma_ms <= limit:
             off = cal.time_offset_ns
             if not cal.time_offset_observable:
                 notes.append(f"WARNING: IMU time offset poorly observable (σ "
