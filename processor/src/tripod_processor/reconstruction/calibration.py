@@ -635,7 +635,7 @@ def time_offset_from_turns(lidar: LidarPackets, stations: list[Station], orient:
 
 def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
                       ext: Extrinsic, num_threads: int = 0, *, max_stations: int = 6,
-                           pairs_per_station: int = 6, step_s: float = 0.2,
+                           pairs_per_station: int = 8, step_s: float = 0.1,
                            window_s: float = 0.1, min_turn_deg: float = 3.0,
                            max_turn_deg: float = 20.0, min_rate_change_deg_s: float = 4.0,
                            ) -> TurnTimeOffset:
