@@ -451,7 +451,7 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
                    ext: Extrinsic, *, fit_lever: bool = True, fit_time: bool = True,
                    fit_rotation: bool = True, max_stations: int = 4,
                    points_per_station: int = 80_000, voxel_m: float = 0.25,
-                   min_separation_s: float = 0.3, iterations: int = 16,
+                   min_separation_s: float = 0.3, iterations: int = 8,
                    max_range: float = 60.0, sigma_inflation: float = 3.0,
                    ) -> SelfCalibration:
     """Lever arm, IMU time offset and mount rotation that make every station self-consistent.

@@ -244,16 +244,17 @@ def trajectory(res: ReconstructResult, orient: ImuOrientation, hz: float
 
 def _calibrate_mount(rec, seg, orient, ext, pc, threads, times, quiet, notes):
     """(extrinsic, orientation) with the mount rotation calibrated from the data (hand-eye);
-    identity, and a note, when that fails. The lever arm stays at its prior (0 when not given):
-    hand-eye's rough one, from the translations of registered sweeps, can be 25 cm off (a
-    lidar on its side in a hall), and the self-calibration does not come back from a start
-    whose doubled surfaces lie farther apart than its voxels (from 0 it converges)."""
+    identity, and a note, when that fails. When the lever arm is not given either, hand-eye's
+    rough one is the self-calibration's starting point."""
     from .calibration import calibrate_mount
 
     with _Stage(times, "mount calib", None, quiet):
         try:
             cal, calib_info = calibrate_mount(rec.lidar, seg.stations, orient, threads)
-            ext = Extrinsic(cal.R_imu_lidar, ext.lever_arm_m, "calibrated rotation")
+            ell = ext.lever_arm_m
+            if pc.extrinsic.lever_arm_m is None and np.linalg.norm(cal.lever_arm_m) < 0.3:
+                ell = cal.lever_arm_m
+            ext = Extrinsic(cal.R_imu_lidar, ell, "calibrated rotation")
             notes.append("lidar-IMU mount rotation calibrated from the data (hand-eye, "
                          f"median residual {calib_info['rotation_residual_deg_median']:.2f}°)")
         except ValueError as exc:
