@@ -83,7 +83,7 @@ def test_lidar_on_its_side_with_a_reversal_uncalibrated(side):
     cal = json.loads((out / "calibration.json").read_text())
     t_true_ms = ev.true_time_offset_ns(cap, res.recording) * 1e-6
     assert abs(cal["imu_time_offset_s"] * 1e3 - t_true_ms) < 1.0
-    assert cal["estimate"]["imu_time_offset_method"] == "turns"
+    assert cal["estimate"]["imu_time_offset_method"].startswith("turns")
     axis = np.asarray(truth["pan_axis_imu"])
     d = np.asarray(cal["lever_arm_m"]) - np.asarray(truth["lever_arm_imu_m"])
     assert np.linalg.norm(d - axis * (axis @ d)) < 0.005

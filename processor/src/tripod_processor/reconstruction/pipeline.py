@@ -286,11 +286,10 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
     fit_time_surf = fit_time
     if fit_time and cc.time_offset_from_turns:
         # the time offset first, from the head's turns (registrations, blind to the lever
-        # arm); the surfaces' fit below then holds it
+        # arm): the surfaces' fit below starts from it
         turn = time_offset_from_turns(rec.lidar, seg.stations, orient, ext, cfg.num_threads)
         if turn.sigma_ms <= cc.max_time_offset_sigma_ms:
             orient = orient.with_offset(turn.offset_ns)
-            fit_time_surf = False
         else:
             turn = None
     try:
@@ -320,9 +319,20 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
                          "from opposite sides of the pan")
     off = orient.time_offset_ns
     if turn is not None:
-        cal.time_offset_ns, cal.time_offset_sigma_ms = turn.offset_ns, turn.sigma_ms
-        cal.time_offset_observable = bool(turn.sigma_ms < 0.5)
-        cal.time_offset_method, cal.turns = "turns", turn.to_dict()
+        # the surfaces' estimate joins the turns' when it is sure and agrees (inverse-variance
+        # mean); else the turns' alone
+        s_t, s_s = turn.sigma_ms, cal.time_offset_sigma_ms
+        d_ms = (cal.time_offset_ns - turn.offset_ns) * 1e-6
+        if s_s <= cc.max_surface_time_offset_sigma_ms and abs(d_ms) < 3 * np.hypot(s_t, s_s):
+            w = s_s**2 / (s_t**2 + s_s**2)  # the turns' weight
+            cal.time_offset_ns = int(round(turn.offset_ns + (1 - w) * d_ms * 1e6))
+            cal.time_offset_sigma_ms = float(1 / np.sqrt(1 / s_t**2 + 1 / s_s**2))
+            cal.time_offset_method = "turns and surfaces"
+        else:
+            cal.time_offset_ns, cal.time_offset_sigma_ms = turn.offset_ns, s_t
+            cal.time_offset_method = "turns"
+        cal.time_offset_observable = bool(cal.time_offset_sigma_ms < 0.5)
+        cal.turns = turn.to_dict()
     limit = cc.max_time_offset_sigma_ms if turn is not None else min(
         cc.max_time_offset_sigma_ms, cc.max_surface_time_offset_sigma_ms)
     if fit_time:
