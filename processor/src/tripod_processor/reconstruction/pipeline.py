@@ -323,7 +323,7 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
         # mean); else the turns' alone
         s_t, s_s = turn.sigma_ms, cal.time_offset_sigma_ms
         d_ms = (cal.time_offset_ns - turn.offset_ns) * 1e-6
-        if s_s <= cc.max_surface_time_offset_sigma_ms and abs(d_ms) < 3 * np.hypot(s_t, s_s):
+        if s_s <= cc.max_time_offset_sigma_ms and abs(d_ms) < 3 * np.hypot(s_t, s_s):
             w = s_s**2 / (s_t**2 + s_s**2)  # the turns' weight
             cal.time_offset_ns = int(round(turn.offset_ns + (1 - w) * d_ms * 1e6))
             cal.time_offset_sigma_ms = float(1 / np.sqrt(1 / s_t**2 + 1 / s_s**2))
@@ -333,10 +333,8 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
             cal.time_offset_method = "turns"
         cal.time_offset_observable = bool(cal.time_offset_sigma_ms < 0.5)
         cal.turns = turn.to_dict()
-    limit = cc.max_time_offset_sigma_ms if turn is not None else min(
-        cc.max_time_offset_sigma_ms, cc.max_surface_time_offset_sigma_ms)
     if fit_time:
-        if cal.time_offset_sigma_ms <= limit:
+        if cal.time_offset_sigma_ms <= cc.max_time_offset_sigma_ms:
             off = cal.time_offset_ns
             if not cal.time_offset_observable:
                 notes.append(f"WARNING: IMU time offset poorly observable (σ "
