@@ -625,8 +625,8 @@ def time_offset_from_turns(lidar: LidarPackets, stations: list[Station], orient:
     offset when it moved by more than ``redo_ms``."""
     res = _turn_offset_pass(lidar, stations, orient, ext, num_threads, **kw)
     for _ in range(passes - 1):
-        if not np.isfinite(res.sigma_ms) or abs(res.offset_ns - orient.time_offset_ns) < \
-                redo_ms * 1e6:
+        # no second pass for an offset too uncertain to be used (> 1 ms) or one that hardly moved
+        if not res.sigma_ms <= 1.0 or abs(res.offset_ns - orient.time_offset_ns) < redo_ms * 1e6:
             break
         orient = orient.with_offset(res.offset_ns)
         res = _turn_offset_pass(lidar, stations, orient, ext, num_threads, **kw)
@@ -634,7 +634,7 @@ def time_offset_from_turns(lidar: LidarPackets, stations: list[Station], orient:
 
 
 def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
-                      ext: Extrinsic, num_threads: int = 0, *, max_stations: int = 6,
+                      ext: Extrinsic, num_threads: int = 0, *, max_stations: int = 4,
                            pairs_per_station: int = 8, step_s: float = 0.1,
                            window_s: float = 0.1, min_turn_deg: float = 3.0,
                            max_turn_deg: float = 20.0, min_rate_change_deg_s: float = 4.0,
