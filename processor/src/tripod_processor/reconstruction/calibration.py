@@ -314,6 +314,10 @@ class SelfCalibration:
     residual_m: float
     pairs: int
     iterations: list[dict] = field(default_factory=list)
+    #: where the time offset came from: "surfaces" (this fit) or "turns"
+    #: (:func:`time_offset_from_turns`, whose diagnostics ``turns`` holds)
+    time_offset_method: str = "surfaces"
+    turns: dict | None = None
 
     @property
     def lever_arm_across_m(self) -> float:
@@ -335,6 +339,8 @@ class SelfCalibration:
             "pan_axis_imu": self.pan_axis_imu.tolist(),
             "imu_time_offset_ms": self.time_offset_ns * 1e-6,
             "imu_time_offset_sigma_ms": self.time_offset_sigma_ms,
+            "imu_time_offset_method": self.time_offset_method,
+            **({"imu_time_offset_turns": self.turns} if self.turns else {}),
             "mount_rotation_sigma_deg": self.rotation_sigma_deg,
             "mount_rotation_change_deg": self.rotation_change_deg,
             "observable": {"lever_arm": self.lever_arm_observable,
@@ -589,3 +595,161 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
         lever_arm_observable=bool(fit_lever and np.all(l_sig < 0.003)),
         rotation_observable=bool(fit_rotation and r_sig < 0.05),
         stations=[st.index for st in use], residual_m=s_rob, pairs=n_pairs, iterations=history)
+
+
+# ---- IMU time offset from the head's turns (lidar sweeps registered against each other) ---------
+@dataclass
+class TurnTimeOffset:
+    """IMU time offset from sweep-to-sweep registrations (``time_offset_from_turns``).
+
+    offset_ns : int, added to the IMU's lidar-clock stamps; sigma_ms : 1-sigma [ms] (inf when
+    nothing was measured); pairs : registrations used; rate_change_deg_s : RMS change of the pan
+    rate between the two sweeps of a pair (what makes the offset visible)."""
+
+    offset_ns: int
+    sigma_ms: float
+    pairs: int
+    rate_change_deg_s: float
+
+    def to_dict(self) -> dict:
+        return {"imu_time_offset_ms": self.offset_ns * 1e-6, "sigma_ms": self.sigma_ms,
+                "pairs": self.pairs, "rate_change_deg_s": self.rate_change_deg_s}
+
+
+def time_offset_from_turns(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
+                           ext: Extrinsic, num_threads: int = 0, *, passes: int = 2,
+                           redo_ms: float = 0.5, **kw) -> TurnTimeOffset:
+    """The IMU time offset from the head's turns, at any pan profile (see
+    :func:`_turn_offset_pass`). The sweeps are de-skewed by the IMU at the current offset, which
+    bends them a little where the rate changes; a second pass de-skews them at the first pass's
+    offset when it moved by more than ``redo_ms``."""
+    res = _turn_offset_pass(lidar, stations, orient, ext, num_threads, **kw)
+    for _ in range(passes - 1):
+        # no second pass for an offset too uncertain to be used (> 1 ms) or one that hardly moved
+        if not res.sigma_ms <= 1.0 or abs(res.offset_ns - orient.time_offset_ns) < redo_ms * 1e6:
+            break
+        orient = orient.with_offset(res.offset_ns)
+        res = _turn_offset_pass(lidar, stations, orient, ext, num_threads, **kw)
+    return res
+
+
+def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
+                      ext: Extrinsic, num_threads: int = 0, *, max_stations: int = 4,
+                           pairs_per_station: int = 8, step_s: float = 0.1,
+                           window_s: float = 0.1, min_turn_deg: float = 3.0,
+                           max_turn_deg: float = 20.0, min_rate_change_deg_s: float = 4.0,
+                           ) -> TurnTimeOffset:
+    """One pass of the IMU time offset from the head's turns.
+
+    Two short sweeps of a station (``window_s``, de-skewed by the IMU) are registered against
+    each other: their relative rotation A is the head's true turn between the two moments. The
+    IMU predicts it from its attitudes at those moments less the offset δ; a δ error turns the
+    prediction about the pan axis by δ·(ω_j − ω_k), the change of the pan rate between the two
+    sweeps. Pairs are chosen where the rate changes most (a motor's ramps, a hand's uneven
+    speed, a pause, a reversal) and turned ``min_turn_deg``–``max_turn_deg`` (enough shared
+    view for any mount); δ is the least-squares fit of the registrations' angles about the pan
+    axis (a mount tilt error turns them about other axes), outliers trimmed, its sigma from the
+    residuals' scatter. A pan at a perfectly constant rate with no ramp gives no pair (sigma
+    inf).
+    """
+    from scipy.spatial.transform import Rotation
+
+    from ..registration import pairwise as reg
+    from .placement import pose_world_lidar
+
+    use = _pick_stations(stations, orient, max_stations)
+    b = pan_axis_in_imu(orient, use)
+    a_l = ext.R_imu_lidar.T @ b  # the pan axis in the lidar frame
+    win = int(window_s * 1e9)
+    off0 = orient.time_offset_ns
+    h_ns = 2_000_000
+
+    def rel(o: ImuOrientation, tk: int, tj: int) -> np.ndarray:
+        T = pose_world_lidar(o, ext, np.array([tk, tj], dtype=np.int64))
+        return np.linalg.inv(T[0]) @ T[1]
+
+    meas: list[tuple[int, int, np.ndarray, float]] = []  # (t_k, t_j, A measured, rate change)
+    for st in use:
+        times = np.arange(st.start_ns, st.end_ns - win, int(step_s * 1e9), dtype=np.int64)
+        if len(times) < 3:
+            continue
+        mids = times + win // 2
+        R_w = orient.rotation_at(mids)
+        rate = np.einsum("ni,ni->n", _world_rate(orient, mids, 50_000_000),
+                         np.einsum("nij,j->ni", R_w, b))  # signed pan rate [rad/s]
+        cand = []
+        for k in range(len(times) - 1):
+            ang = np.degrees(Rotation.from_matrix(
+                np.einsum("ji,njk->nik", R_w[k], R_w[k + 1:])).magnitude())
+            for j in np.flatnonzero((ang >= min_turn_deg) & (ang <= max_turn_deg)) + k + 1:
+                dr = abs(float(rate[j] - rate[k]))
+                if np.degrees(dr) >= min_rate_change_deg_s:
+                    cand.append((dr, k, int(j)))
+        cand.sort(reverse=True)
+        used: dict[int, int] = {}
+        chosen = []
+        for dr, k, j in cand:
+            if used.get(k, 0) >= 1 or used.get(j, 0) >= 1:
+                continue
+            chosen.append((k, j, dr))
+            used[k] = used.get(k, 0) + 1
+            used[j] = used.get(j, 0) + 1
+            if len(chosen) >= pairs_per_station:
+                break
+        clouds: dict[int, np.ndarray] = {}
+
+        def cloud(k: int) -> np.ndarray:
+            if k not in clouds:
+                a, bb = np.searchsorted(lidar.lidar_ns, [times[k], times[k] + win])
+                pts = decode_timed_points(lidar.payload, lidar.lidar_ns, int(a), int(bb),
+                                          min_range=0.5, max_range=40.0)
+                xyz = np.stack([pts["x"], pts["y"], pts["z"]], 1)
+                clouds[k] = (place_points(xyz, pts["time_ns"], orient, ext, int(mids[k]),
+                                          num_threads).astype(np.float64) if len(xyz) else xyz)
+            return clouds[k]
+
+        for k, j, dr in chosen:
+            ck, cj = cloud(k), cloud(j)
+            if len(ck) < 500 or len(cj) < 500:
+                continue
+            init = rel(orient, int(mids[k]), int(mids[j]))
+            try:
+                r = reg.register(cj, ck, method="gicp", init=init, voxel_size=0.1,
+                                 max_correspondence_distance=[1.0, 0.3, 0.15],
+                                 num_threads=num_threads)
+            except ValueError:
+                continue
+            A = r.T_target_source
+            slip = np.degrees(Rotation.from_matrix(init[:3, :3].T @ A[:3, :3]).magnitude())
+            if r.fitness < 0.5 or slip > 1.0:
+                continue
+            meas.append((int(mids[k]), int(mids[j]), A, float(np.degrees(dr))))
+    if len(meas) < 3:
+        return TurnTimeOffset(off0, float("inf"), len(meas), 0.0)
+    keep = np.ones(len(meas), dtype=bool)
+    off = off0
+    sig = float("inf")
+    for it in range(4):
+        o = orient.with_offset(off)
+        oh = orient.with_offset(off + h_ns)
+        r_, g_ = np.zeros(len(meas)), np.zeros(len(meas))
+        for m, (tk, tj, A, _) in enumerate(meas):
+            P = rel(o, tk, tj)[:3, :3]
+            r_[m] = a_l @ Rotation.from_matrix(P.T @ A[:3, :3]).as_rotvec()
+            g_[m] = a_l @ Rotation.from_matrix(P.T @ rel(oh, tk, tj)[:3, :3]).as_rotvec() / (
+                h_ns * 1e-9)
+        gg = float(np.sum(g_[keep] ** 2))
+        if gg <= 0:
+            break
+        d = float(np.sum(g_[keep] * r_[keep]) / gg)  # [s]
+        e = r_ - g_ * d
+        n = int(keep.sum())
+        s_res = float(np.sqrt(np.sum(e[keep] ** 2) / max(n - 1, 1)))
+        sig = s_res / np.sqrt(gg) * 1e3 if n >= 3 else float("inf")
+        off = int(round(off + np.clip(d, -0.05, 0.05) * 1e9))
+        scale = 1.4826 * float(np.median(np.abs(e[keep]))) + np.radians(0.005)
+        new_keep = np.abs(e) < 3.0 * scale
+        if new_keep.sum() >= 3:
+            keep = new_keep
+    rc = float(np.sqrt(np.mean([m[3] ** 2 for m, k in zip(meas, keep) if k])))
+    return TurnTimeOffset(off, sig, int(keep.sum()), rc)

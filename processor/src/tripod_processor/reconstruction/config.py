@@ -45,8 +45,13 @@ class CalibrationConfig(StrictModel):
     mount_rotation: bool = True
     #: stations used (those the head turns most in)
     max_stations: int = Field(default=4, ge=1)
-    #: a time offset less certain than this [ms, 1 sigma] is not applied (kept at the prior)
-    max_time_offset_sigma_ms: float = Field(default=2.0, gt=0)
+    #: a time offset less certain than this [ms, 1 sigma] is not applied (kept at the prior):
+    #: the surfaces' sigma is optimistic (a yaw error hides in walls seen head-on)
+    max_time_offset_sigma_ms: float = Field(default=0.5, gt=0)
+    #: the time offset from sweeps registered against each other across the head's rate changes
+    #: (``calibration.time_offset_from_turns``; any pan profile), joined with the stations'
+    #: surfaces' when both are sure and agree; off: from the surfaces only
+    time_offset_from_turns: bool = True
 
 
 class StationConfig(StrictModel):

@@ -299,17 +299,29 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
     at the prior)."""
     from .calibration import self_calibrate
 
+    from .calibration import time_offset_from_turns
+
     cc = cfg.calibration
+    turn = None
+    fit_time_surf = fit_time
+    if fit_time and cc.time_offset_from_turns:
+        # the time offset first, from the head's turns (registrations, blind to the lever
+        # arm): the surfaces' fit below starts from it
+        turn = time_offset_from_turns(rec.lidar, seg.stations, orient, ext, cfg.num_threads)
+        if turn.sigma_ms <= cc.max_time_offset_sigma_ms:
+            orient = orient.with_offset(turn.offset_ns)
+        else:
+            turn = None
     try:
         cal = self_calibrate(rec.lidar, seg.stations, orient, ext, fit_lever=fit_lever,
-                             fit_time=fit_time, fit_rotation=fit_rot,
+                             fit_time=fit_time_surf, fit_rotation=fit_rot,
                              max_stations=cc.max_stations)
         if fit_rot and not cal.rotation_observable:
             # the stations hardly see the mount's tilt (a spin axis near the pan axis in a
             # small room): hand-eye's tilt is the better one; the rest again with it held
-            if fit_lever or fit_time:
+            if fit_lever or fit_time_surf:
                 cal = self_calibrate(rec.lidar, seg.stations, orient, ext, fit_lever=fit_lever,
-                                     fit_time=fit_time, fit_rotation=False,
+                                     fit_time=fit_time_surf, fit_rotation=False,
                                      max_stations=cc.max_stations)
             fit_rot = False
             notes.append("WARNING: mount tilt poorly observable from the stations' surfaces; "
@@ -326,6 +338,21 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
                          f"{np.max(cal.lever_arm_sigma_m) * 1000:.1f} mm): few surfaces seen "
                          "from opposite sides of the pan")
     off = orient.time_offset_ns
+    if turn is not None:
+        # the surfaces' estimate joins the turns' when it is sure and agrees (inverse-variance
+        # mean); else the turns' alone
+        s_t, s_s = turn.sigma_ms, cal.time_offset_sigma_ms
+        d_ms = (cal.time_offset_ns - turn.offset_ns) * 1e-6
+        if s_s <= cc.max_time_offset_sigma_ms and abs(d_ms) < 3 * np.hypot(s_t, s_s):
+            w = s_s**2 / (s_t**2 + s_s**2)  # the turns' weight
+            cal.time_offset_ns = int(round(turn.offset_ns + (1 - w) * d_ms * 1e6))
+            cal.time_offset_sigma_ms = float(1 / np.sqrt(1 / s_t**2 + 1 / s_s**2))
+            cal.time_offset_method = "turns and surfaces"
+        else:
+            cal.time_offset_ns, cal.time_offset_sigma_ms = turn.offset_ns, s_t
+            cal.time_offset_method = "turns"
+        cal.time_offset_observable = bool(cal.time_offset_sigma_ms < 0.5)
+        cal.turns = turn.to_dict()
     if fit_time:
         if cal.time_offset_sigma_ms <= cc.max_time_offset_sigma_ms:
             off = cal.time_offset_ns
