@@ -109,7 +109,7 @@ class LidarConfig(StrictModel):
     accept_products: list[int] = [PRODUCT_VLP16, PRODUCT_HDL32E]  # payload[1205]
     max_batch: int = Field(512, ge=1)  # datagrams read per wake-up and socket, at most
     batch_receive: Bool = True  # recvmmsg into MCAP-record rows (Linux); false: recvmsg each
-    wake_interval_ms: float = Field(20.0, ge=0)  # sockets are drained at most this often [ms]
+    wake_interval_ms: float = Field(50.0, ge=0)  # sockets are drained at most this often [ms]
     switch_interval_ms: float = Field(0.5, gt=0)  # Python's GIL switch interval [ms]
 
 

@@ -4,7 +4,7 @@ signals and commands, and a tick (status, health, watchdog, IMU reconnect).
 
 Light on the CPU: the lidar sends a datagram every 0.66 ms (dual return); waking for each one
 costs more than handling it. So the UDP sockets are drained at most every
-``lidar.wake_interval_ms`` (20 ms): after a drain the loop waits only on the IMU port and the
+``lidar.wake_interval_ms`` (50 ms): after a drain the loop waits only on the IMU port and the
 self-pipe until the interval is over, while the kernel queues the datagrams with their receive
 stamps (SO_TIMESTAMPNS), so stamps are unchanged and nothing is lost (the receive buffer holds
 seconds). Each wake-up hands one batch to the recorder and one to the publisher. The IMU's
