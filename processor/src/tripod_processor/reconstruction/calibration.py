@@ -123,6 +123,20 @@ def _rotvec(R: np.ndarray) -> np.ndarray:
     return Rotation.from_matrix(R).as_rotvec()
 
 
+def _sweep(lidar: LidarPackets, orient: ImuOrientation, ext: Extrinsic, start_ns: int,
+           win_ns: int, num_threads: int) -> np.ndarray:
+    """The packets of [start_ns, start_ns + win_ns) (lidar time) de-skewed by the IMU to the
+    window's middle with ``ext``: (N, 3) float64 [m]."""
+    a, b = np.searchsorted(lidar.lidar_ns, [start_ns, start_ns + win_ns])
+    pts = decode_timed_points(lidar.payload, lidar.lidar_ns, int(a), int(b),
+                              min_range=0.5, max_range=40.0)
+    xyz = np.stack([pts["x"], pts["y"], pts["z"]], 1)
+    if not len(xyz):
+        return xyz
+    return place_points(xyz, pts["time_ns"], orient, ext, int(start_ns) + win_ns // 2,
+                        num_threads).astype(np.float64)
+
+
 def calibrate_mount(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
                     num_threads: int = 0, step_s: float = 0.3, window_s: float = 0.1,
                     max_pairs: int = 16, pair_turn_deg: float = 45.0,
@@ -154,13 +168,7 @@ def calibrate_mount(lidar: LidarPackets, stations: list[Station], orient: ImuOri
     def cloud(k: int) -> np.ndarray:
         # a sweep de-skewed to its middle by the IMU (with the guess of the mount)
         if k not in clouds:
-            a, b = np.searchsorted(lidar.lidar_ns, [times[k], times[k] + win])
-            pts = decode_timed_points(lidar.payload, lidar.lidar_ns, int(a), int(b),
-                                      min_range=0.5, max_range=40.0)
-            xyz = np.stack([pts["x"], pts["y"], pts["z"]], 1)
-            clouds[k] = (place_points(xyz, pts["time_ns"], orient, ext_g,
-                                      int(times[k]) + win // 2, num_threads).astype(np.float64)
-                         if len(xyz) else xyz)
+            clouds[k] = _sweep(lidar, orient, ext_g, int(times[k]), win, num_threads)
         return clouds[k]
 
     def pairs_turned(min_deg: float) -> list[tuple[int, int]]:
@@ -700,12 +708,7 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
 
         def cloud(k: int) -> np.ndarray:
             if k not in clouds:
-                a, bb = np.searchsorted(lidar.lidar_ns, [times[k], times[k] + win])
-                pts = decode_timed_points(lidar.payload, lidar.lidar_ns, int(a), int(bb),
-                                          min_range=0.5, max_range=40.0)
-                xyz = np.stack([pts["x"], pts["y"], pts["z"]], 1)
-                clouds[k] = (place_points(xyz, pts["time_ns"], orient, ext, int(mids[k]),
-                                          num_threads).astype(np.float64) if len(xyz) else xyz)
+                clouds[k] = _sweep(lidar, orient, ext, int(times[k]), win, num_threads)
             return clouds[k]
 
         for k, j, dr in chosen:
