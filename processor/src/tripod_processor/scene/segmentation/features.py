@@ -11,6 +11,8 @@ the model is trained with a few degrees of tilt so that small errors do not matt
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 
 from ... import _ext
@@ -89,6 +91,40 @@ def _segment_mean(segment: np.ndarray, values: np.ndarray) -> np.ndarray:
     return out
 
 
+def _shape_and_context(p: np.ndarray, nt: int, f: np.ndarray) -> tuple[float, float]:
+    """Columns 0-22 of ``f`` (local shape at three scales, height, column context: the C++
+    core); returns the floor and ceiling heights [m]."""
+    ls_s = local_shape(p, SMALL_VOXEL, nt)
+    ls_l = local_shape(p, LARGE_VOXEL, nt)
+    nz_s, lin_s, pla_s, sca_s = _shape(ls_s)
+    nz_l, lin_l, pla_l, sca_l = _shape(ls_l)
+    xl = _shape(local_shape(p, XL_VOXEL, nt))
+    z = p[:, 2]
+    z_floor, z_ceil = floor_and_ceiling(z, nz_s)
+    room_h = z_ceil - z_floor
+    # rays are "open" when they leave the scanned extent without meeting the band's occupancy
+    upright = (nz_s < 0.7).astype(np.uint8)
+    opt = _ext._ColumnContextOptions()
+    opt.cell_size, opt.z_low, opt.z_high = COLUMN_CELL, z_floor + 0.2, z_ceil - 0.2
+    opt.num_directions, opt.skip, opt.max_range, opt.num_threads = 16, 0.25, 100.0, nt
+    cc = _ext.column_context(p, upright, opt)
+    f[:, 0], f[:, 1], f[:, 2], f[:, 3] = nz_s, lin_s, pla_s, sca_s
+    f[:, 4] = np.log1p(ls_s[:, 6])
+    f[:, 5], f[:, 6], f[:, 7], f[:, 8] = nz_l, lin_l, pla_l, sca_l
+    f[:, 9], f[:, 10], f[:, 11], f[:, 12] = xl
+    f[:, 13] = np.clip(z - z_floor, -2, 12)
+    f[:, 14] = np.clip(z_ceil - z, -2, 12)
+    f[:, 15] = np.clip((z - z_floor) / room_h, -1, 2)
+    f[:, 16] = cc[:, 0]
+    f[:, 17] = np.log1p(cc[:, 1])
+    f[:, 18] = np.clip(cc[:, 2] - z_floor, -2, 12)
+    f[:, 19] = np.clip(z_ceil - cc[:, 3], -2, 12)
+    f[:, 20] = np.clip(z - cc[:, 2], 0, 12)
+    f[:, 21] = np.clip(cc[:, 3] - z, 0, 12)
+    f[:, 22] = cc[:, 4]
+    return z_floor, z_ceil
+
+
 def point_features(points, num_threads: int = 0, return_segments: bool = False):
     """Segmenter input features of every point.
 
@@ -106,37 +142,19 @@ def point_features(points, num_threads: int = 0, return_segments: bool = False):
     """
     p = as_cloud(points)
     nt = int(num_threads)
-    ls_s = local_shape(p, SMALL_VOXEL, nt)
-    ls_l = local_shape(p, LARGE_VOXEL, nt)
-    nz_s, lin_s, pla_s, sca_s = _shape(ls_s)
-    nz_l, lin_l, pla_l, sca_l = _shape(ls_l)
-    xl = _shape(local_shape(p, XL_VOXEL, nt))
-    z = p[:, 2]
-    z_floor, z_ceil = floor_and_ceiling(z, nz_s)
-    room_h = z_ceil - z_floor
-    # rays are "open" when they leave the scanned extent without meeting the band's occupancy
-    upright = (nz_s < 0.7).astype(np.uint8)
-    opt = _ext._ColumnContextOptions()
-    opt.cell_size, opt.z_low, opt.z_high = COLUMN_CELL, z_floor + 0.2, z_ceil - 0.2
-    opt.num_directions, opt.skip, opt.max_range, opt.num_threads = 16, 0.25, 100.0, nt
-    cc = _ext.column_context(p, upright, opt)
     f = np.empty((len(p), len(FEATURE_NAMES)), np.float32)
-    f[:, 0], f[:, 1], f[:, 2], f[:, 3] = nz_s, lin_s, pla_s, sca_s
-    f[:, 4] = np.log1p(ls_s[:, 6])
-    f[:, 5], f[:, 6], f[:, 7], f[:, 8] = nz_l, lin_l, pla_l, sca_l
-    f[:, 9], f[:, 10], f[:, 11], f[:, 12] = xl
-    f[:, 13] = np.clip(z - z_floor, -2, 12)
-    f[:, 14] = np.clip(z_ceil - z, -2, 12)
-    f[:, 15] = np.clip((z - z_floor) / room_h, -1, 2)
-    f[:, 16] = cc[:, 0]
-    f[:, 17] = np.log1p(cc[:, 1])
-    f[:, 18] = np.clip(cc[:, 2] - z_floor, -2, 12)
-    f[:, 19] = np.clip(z_ceil - cc[:, 3], -2, 12)
-    f[:, 20] = np.clip(z - cc[:, 2], 0, 12)
-    f[:, 21] = np.clip(cc[:, 3] - z, 0, 12)
-    f[:, 22] = cc[:, 4]
+    # the planar segments (numpy, mostly one core) run on a second thread while the C++ core
+    # computes local shape and column context (OpenMP, GIL released) on this one
+    with ThreadPoolExecutor(1) as pool:
+        fine = pool.submit(planar_segments, p, nt, residual=True)
+        coarse_job = pool.submit(planar_segments, p, nt, voxel=COARSE_SEGMENT_VOXEL,
+                                 max_offset=COARSE_SEGMENT_OFFSET, residual=True)
+        z_floor, z_ceil = _shape_and_context(p, nt, f)
+        seg, seg_nz, segment, res = fine.result()
+        cs, cs_nz, coarse, cres = coarse_job.result()
+    z = p[:, 2]
+    room_h = z_ceil - z_floor
     # the planar segment of the point: a wall's runs for metres, floor to ceiling (segments.py)
-    seg, seg_nz, segment, res = planar_segments(p, nt, residual=True)
     f[:, 23] = np.log1p(seg[:, 0])
     f[:, 24] = np.clip(seg[:, 1] / room_h, 0, 2)
     f[:, 25] = np.clip(seg[:, 2] - z_floor, -2, 12)
@@ -145,11 +163,9 @@ def point_features(points, num_threads: int = 0, return_segments: bool = False):
     f[:, 28] = seg_nz
     # is the plane as a whole the boundary of the scanned space?
     f[:, 29], f[:, 30] = _segment_mean(segment, f[:, 16]), _segment_mean(segment, f[:, 17])
-    # the same at 25 cm: far walls scanned by a few sparse lines are planar at this scale
-    cs, cs_nz, coarse, cres = planar_segments(p, nt, voxel=COARSE_SEGMENT_VOXEL,
-                                              max_offset=COARSE_SEGMENT_OFFSET, residual=True)
     # a board, picture or radiator joins the wall's segment but lies a few cm off its plane
     f[:, 31], f[:, 32] = np.minimum(res, 0.5), np.minimum(cres, 0.5)
+    # the same at 25 cm: far walls scanned by a few sparse lines are planar at this scale
     f[:, 33] = np.log1p(cs[:, 0])
     f[:, 34] = np.clip(cs[:, 1] / room_h, 0, 2)
     f[:, 35] = np.clip(cs[:, 2] - z_floor, -2, 12)
