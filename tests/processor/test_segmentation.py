@@ -272,3 +272,33 @@ def test_cli_segment_bad_input_is_one_line(tmp_path, capsys):
     bad.write_bytes(b"ply\nformat ascii 1.0\nelement vertex 3\nend_header\n1 2\n")
     assert main(["segment", str(bad), "-o", str(tmp_path / "o.ply")]) == 2
     assert main(["segment", str(bad), "-o", str(tmp_path / "o.txt")]) == 2
+
+
+def test_fast_inference_path_is_the_model_bitwise():
+    """``Segmenter.__call__`` (network in chunks with addmm and in-place ReLU, argmax per voxel,
+    planar segments on a second thread) gives exactly what the plain model, the unthreaded
+    features and the per-point probabilities give."""
+    import torch
+
+    from tripod_processor.preprocess import voxel_assign
+    from tripod_processor.scene.segmentation import plane_consistent
+    from tripod_processor.scene.segmentation.features import voxel_features
+
+    p, _, _, _ = room_scan(9004, head_steps=8)
+    p = np.concatenate([p, np.full((3, 3), np.nan, np.float32)])  # non-finite points too
+    seg = Segmenter()
+    f, pv, sg = voxel_features(p, return_segments=True)
+    with torch.inference_mode():
+        prob = torch.softmax(seg.model(torch.from_numpy(f)), 1).numpy()
+    prob = plane_consistent(prob, f, sg)
+    want = np.where(pv >= 0, prob.argmax(1)[pv], 3)
+    np.testing.assert_array_equal(seg(p), want)
+    np.testing.assert_array_equal(Segmenter(chunk=1000)(p), want)
+    np.testing.assert_array_equal(seg.probabilities(p)[pv >= 0], prob[pv[pv >= 0]])
+    # voxel grids of more points than one thread sorts alone: the same voxels as numpy's
+    q = np.random.default_rng(1).uniform(-3, 3, (300_000, 3)).astype(np.float32)
+    cen, qv, counts = voxel_assign(q, 0.25, 2)
+    keys, inv, cnt = np.unique(np.floor(q / np.float32(0.25)).astype(np.int64), axis=0,
+                               return_inverse=True, return_counts=True)
+    assert len(cen) == len(keys) and np.array_equal(np.sort(counts), np.sort(cnt))
+    np.testing.assert_array_equal(np.bincount(qv, minlength=len(cen)), counts)
