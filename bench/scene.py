@@ -7,7 +7,8 @@
   developing; the weights were trained on train seeds 0-19), IoU per family and summed; the
   leave-one-family-out models (the shipped recipe, ``train.RECIPE``, on the six other families;
   ``--lofo-steps`` / ``--lofo-per-family`` make them smaller), IoU on the family they never saw;
-  inference throughput with wall and CPU time and the load average;
+  inference throughput with wall and CPU time and the load average (``--only throughput``:
+  that alone, median of 5 runs with all cores and with one);
 * segmentation IoU per class on the digital twin's ``tripod simulate`` captures (a second
   simulator: all five scene templates, the test split of ``scene_data.SPLITS``: seed 131;
   ``--split dev`` gives seed 101; ``--no-twin`` skips them);
