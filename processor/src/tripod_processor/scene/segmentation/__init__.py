@@ -27,10 +27,13 @@ def plane_consistent(probabilities: np.ndarray, features: np.ndarray,
     """Second stage: the voxels of one planar segment agree, first on the 10 cm segments, then
     on the 25 cm ones (far and grazing walls, scanned by a few sparse lines, are one plane only
     at that scale), each leaving out the voxels that lie off the segment's plane
-    (:data:`FINE_GATE`, :data:`COARSE_GATE`: boards and radiators on walls).
+    (:data:`FINE_GATE`, :data:`COARSE_GATE`: boards and radiators on walls), then on the wall
+    planes (:func:`.segments.wall_planes`: coplanar segments apart, a pier beside a door and
+    the wall beyond it, and the sparse voxels on them).
 
     probabilities : (M, 4); features : (M, F) of :func:`.features.voxel_features`;
-    segment : (M, 2) segments of the two grids, or (M,) of the 10 cm grid only (then one pass).
+    segment : (M, 3) segments of the two grids and wall planes, (M, 2) the two grids only, or
+    (M,) the 10 cm grid only (then one pass).
     """
     seg = np.asarray(segment)
     if seg.ndim == 1:
@@ -38,7 +41,8 @@ def plane_consistent(probabilities: np.ndarray, features: np.ndarray,
     res = features[:, FEATURE_NAMES.index("segment_residual")]
     cres = features[:, FEATURE_NAMES.index("coarse_residual")]
     out = segment_consistent(probabilities, np.where(res > FINE_GATE, -1, seg[:, 0]))
-    return segment_consistent(out, np.where(cres > COARSE_GATE, -1, seg[:, 1]))
+    out = segment_consistent(out, np.where(cres > COARSE_GATE, -1, seg[:, 1]))
+    return segment_consistent(out, seg[:, 2]) if seg.shape[1] > 2 else out
 
 __all__ = ["segment", "Segmenter", "plane_consistent", "CLASS_NAMES", "NUM_CLASSES", "DEFAULT_WEIGHTS",
            "point_features"]

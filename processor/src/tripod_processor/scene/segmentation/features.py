@@ -17,7 +17,7 @@ import numpy as np
 
 from ... import _ext
 from ...preprocess import as_cloud, local_shape, voxel_assign
-from .segments import planar_segments
+from .segments import planar_segments, wall_planes
 
 FEATURE_NAMES = (
     "abs_nz_s", "linearity_s", "planarity_s", "scattering_s", "log_count_s",
@@ -125,6 +125,13 @@ def _shape_and_context(p: np.ndarray, nt: int, f: np.ndarray) -> tuple[float, fl
     return z_floor, z_ceil
 
 
+def _fine_segments_and_planes(p: np.ndarray, nt: int):
+    """:func:`.segments.planar_segments` on the 10 cm grid (with residuals) and the
+    :func:`.segments.wall_planes` made of its segments."""
+    seg, seg_nz, segment, res = planar_segments(p, nt, residual=True)
+    return seg, seg_nz, segment, res, wall_planes(p, segment)
+
+
 def point_features(points, num_threads: int = 0, return_segments: bool = False):
     """Segmenter input features of every point.
 
@@ -136,9 +143,9 @@ def point_features(points, num_threads: int = 0, return_segments: bool = False):
     Returns
     -------
     (N, len(FEATURE_NAMES)) float32. Non-finite points get zeros.
-    With ``return_segments``, also the (N, 2) int64 planar segments of every point
-    (:func:`.segments.planar_segments` on the 10 cm and the 25 cm grid, -1 for non-finite
-    points).
+    With ``return_segments``, also the (N, 3) int64 planar segments of every point
+    (:func:`.segments.planar_segments` on the 10 cm and the 25 cm grid) and its wall plane
+    (:func:`.segments.wall_planes`), -1 for none and for non-finite points.
     """
     p = as_cloud(points)
     nt = int(num_threads)
@@ -146,11 +153,11 @@ def point_features(points, num_threads: int = 0, return_segments: bool = False):
     # the planar segments (numpy, mostly one core) run on a second thread while the C++ core
     # computes local shape and column context (OpenMP, GIL released) on this one
     with ThreadPoolExecutor(1) as pool:
-        fine = pool.submit(planar_segments, p, nt, residual=True)
+        fine = pool.submit(_fine_segments_and_planes, p, nt)
         coarse_job = pool.submit(planar_segments, p, nt, voxel=COARSE_SEGMENT_VOXEL,
                                  max_offset=COARSE_SEGMENT_OFFSET, residual=True)
         z_floor, z_ceil = _shape_and_context(p, nt, f)
-        seg, seg_nz, segment, res = fine.result()
+        seg, seg_nz, segment, res, planes = fine.result()
         cs, cs_nz, coarse, cres = coarse_job.result()
     z = p[:, 2]
     room_h = z_ceil - z_floor
@@ -175,7 +182,7 @@ def point_features(points, num_threads: int = 0, return_segments: bool = False):
     f[:, 39], f[:, 40] = _segment_mean(coarse, f[:, 16]), _segment_mean(coarse, f[:, 17])
     f[~np.isfinite(f)] = 0.0
     f[~np.isfinite(p).all(1)] = 0.0
-    return (f, np.stack([segment, coarse], 1)) if return_segments else f
+    return (f, np.stack([segment, coarse, planes], 1)) if return_segments else f
 
 
 def voxel_features(points, num_threads: int = 0, return_segments: bool = False):
@@ -189,8 +196,8 @@ def voxel_features(points, num_threads: int = 0, return_segments: bool = False):
     -------
     features : (M, len(FEATURE_NAMES)) float32 of the voxel centroids
     point_voxel : (N,) int32 voxel of every point, -1 for non-finite points
-    segment : (M, 2) int64 planar segments (10 cm, 25 cm grid) of every voxel, only with
-        ``return_segments``
+    segment : (M, 3) int64 planar segments (10 cm, 25 cm grid) and wall plane of every voxel,
+        only with ``return_segments``
     """
     p = as_cloud(points)
     centroids, point_voxel, _ = voxel_assign(p, LABEL_VOXEL, num_threads)
