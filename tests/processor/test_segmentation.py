@@ -329,6 +329,7 @@ def test_fast_inference_path_is_the_model_bitwise():
     want = np.where(pv >= 0, prob.argmax(1)[pv], 3)
     np.testing.assert_array_equal(seg(p), want)
     np.testing.assert_array_equal(Segmenter(chunk=1000)(p), want)
+    np.testing.assert_array_equal(Segmenter(num_threads=1)(p), want)  # no second thread
     np.testing.assert_array_equal(seg.probabilities(p)[pv >= 0], prob[pv[pv >= 0]])
     # voxel grids of more points than one thread sorts alone: the same voxels as numpy's
     q = np.random.default_rng(1).uniform(-3, 3, (300_000, 3)).astype(np.float32)

@@ -150,15 +150,21 @@ def point_features(points, num_threads: int = 0, return_segments: bool = False):
     p = as_cloud(points)
     nt = int(num_threads)
     f = np.empty((len(p), len(FEATURE_NAMES)), np.float32)
-    # the planar segments (numpy, mostly one core) run on a second thread while the C++ core
-    # computes local shape and column context (OpenMP, GIL released) on this one
-    with ThreadPoolExecutor(1) as pool:
-        fine = pool.submit(_fine_segments_and_planes, p, nt)
-        coarse_job = pool.submit(planar_segments, p, nt, voxel=COARSE_SEGMENT_VOXEL,
-                                 max_offset=COARSE_SEGMENT_OFFSET, residual=True)
+    if nt == 1:  # one thread asked for: one after the other
         z_floor, z_ceil = _shape_and_context(p, nt, f)
-        seg, seg_nz, segment, res, planes = fine.result()
-        cs, cs_nz, coarse, cres = coarse_job.result()
+        seg, seg_nz, segment, res, planes = _fine_segments_and_planes(p, 1)
+        cs, cs_nz, coarse, cres = planar_segments(p, 1, voxel=COARSE_SEGMENT_VOXEL,
+                                                  max_offset=COARSE_SEGMENT_OFFSET, residual=True)
+    else:
+        # the planar segments (numpy, one core) run on a second thread while the C++ core
+        # computes local shape and column context (OpenMP, GIL released) on this one
+        with ThreadPoolExecutor(1) as pool:
+            fine = pool.submit(_fine_segments_and_planes, p, 1)
+            coarse_job = pool.submit(planar_segments, p, 1, voxel=COARSE_SEGMENT_VOXEL,
+                                     max_offset=COARSE_SEGMENT_OFFSET, residual=True)
+            z_floor, z_ceil = _shape_and_context(p, nt, f)
+            seg, seg_nz, segment, res, planes = fine.result()
+            cs, cs_nz, coarse, cres = coarse_job.result()
     z = p[:, 2]
     room_h = z_ceil - z_floor
     # the planar segment of the point: a wall's runs for metres, floor to ceiling (segments.py)
