@@ -100,28 +100,46 @@ class Segmenter:
     def _network(self, f: np.ndarray, out: np.ndarray) -> None:
         """Softmax of the network on the rows of ``f`` into ``out``, chunk by chunk: the same
         arithmetic as ``model(x)`` (addmm per layer) with the activations of a chunk small
-        enough to stay in cache and ReLU in place; torch's intra-op threads share each GEMM."""
+        enough to stay in cache and ReLU in place. With more than one thread the chunks are
+        shared by Python threads, each running torch single-threaded (torch releases the GIL):
+        no intra-op barriers per layer, which on a loaded machine cost more CPU than they save."""
         import torch
         from torch import nn
 
         chunk = self.chunk
-        with torch.inference_mode():
-            layers = list(self.model)
-            lin = [(m.weight, m.bias) for m in layers if isinstance(m, nn.Linear)]
-            if (len(layers) != 2 * len(lin) or not hasattr(layers[0], "inv_std")
-                    or not all(isinstance(m, nn.ReLU) for m in layers[2:-1:2])):
-                for s in range(0, len(f), chunk):  # another architecture: its own forward
+        layers = list(self.model)
+        lin = [(m.weight.detach(), m.bias.detach()) for m in layers if isinstance(m, nn.Linear)]
+        plain = (len(layers) == 2 * len(lin) and hasattr(layers[0], "inv_std")
+                 and all(isinstance(m, nn.ReLU) for m in layers[2:-1:2]))
+
+        def run(s: int) -> None:
+            with torch.inference_mode():
+                if not plain:  # another architecture: its own forward
                     out[s:s + chunk] = torch.softmax(self.model(torch.from_numpy(f[s:s + chunk])),
                                                      1).numpy()
-                return
-            mean, inv_std = layers[0].mean, layers[0].inv_std
-            for s in range(0, len(f), chunk):
-                x = (torch.from_numpy(f[s:s + chunk]) - mean) * inv_std
+                    return
+                x = (torch.from_numpy(f[s:s + chunk]) - layers[0].mean) * layers[0].inv_std
                 for i, (w, b) in enumerate(lin):
                     x = torch.addmm(b, x, w.t())
                     if i < len(lin) - 1:
                         x.relu_()
                 torch.softmax(x, 1, out=torch.from_numpy(out[s:s + chunk]))
+
+        starts = range(0, len(f), chunk)
+        workers = min(self.num_threads or torch.get_num_threads(), len(starts))
+        if workers <= 1:
+            for s in starts:
+                run(s)
+            return
+        from concurrent.futures import ThreadPoolExecutor
+
+        before = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            with ThreadPoolExecutor(workers) as pool:
+                list(pool.map(run, starts))
+        finally:
+            torch.set_num_threads(before)
 
     def __call__(self, points) -> np.ndarray:
         """(N,) int32 labels (0 ceiling, 1 floor, 2 wall, 3 other), in the input's order."""
