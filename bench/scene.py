@@ -7,7 +7,8 @@
   developing; the weights were trained on train seeds 0-19), IoU per family and summed; the
   leave-one-family-out models (the shipped recipe, ``train.RECIPE``, on the six other families;
   ``--lofo-steps`` / ``--lofo-per-family`` make them smaller), IoU on the family they never saw;
-  inference throughput with wall and CPU time and the load average;
+  inference throughput with wall and CPU time and the load average (``--only throughput``:
+  that alone, median of 5 runs with all cores and with one);
 * segmentation IoU per class on the digital twin's ``tripod simulate`` captures (a second
   simulator: all five scene templates, the test split of ``scene_data.SPLITS``: seed 131;
   ``--split dev`` gives seed 101; ``--no-twin`` skips them);
@@ -78,7 +79,8 @@ def _ious_text(c) -> str:
 
 def bench_procedural(split: str = "test", n_per_family: int = 3, lofo: bool = True,
                      lofo_per_family: int | None = None, lofo_steps: int | None = None,
-                     quick: bool = False) -> None:
+                     quick: bool = False, only_families=None,
+                     lofo_models: str | None = None) -> None:
     """Segmentation on generated buildings (``sim.procedural``) of every layout family:
 
     * the shipped weights on ``n_per_family`` buildings of the split's seeds per family (test:
@@ -86,19 +88,20 @@ def bench_procedural(split: str = "test", n_per_family: int = 3, lofo: bool = Tr
       developing), IoU per family and over all of them;
     * leave-one-family-out: for each family a model trained by the shipped recipe
       (``train.RECIPE``, optionally fewer buildings or steps) on the other six families only,
-      scored on that family's buildings of the split;
+      scored on that family's buildings of the split (``lofo_models``: a folder where each is
+      saved after training and loaded from on later runs, when its recipe matches);
     * inference throughput on the largest of these clouds: wall and CPU time, load average.
     """
-    import torch
 
     from tripod_processor.scene.segmentation import Segmenter
     from tripod_processor.scene.segmentation.features import FEATURE_NAMES, voxel_features
     from tripod_processor.scene.segmentation.metrics import confusion, iou
+    from tripod_processor.scene.segmentation.model import load_model, save_weights
     from tripod_processor.scene.segmentation.train import (RECIPE, procedural_features,
                                                            train_on_families)
     from tripod_processor.sim.procedural import FAMILIES, labelled_scan, split_seeds
 
-    families = FAMILIES[:2] if quick else FAMILIES
+    families = FAMILIES[:2] if quick else (tuple(only_families) if only_families else FAMILIES)
     n_per_family = 1 if quick else n_per_family
     seeds = split_seeds(split, n_per_family)
     print(f"  generated buildings, {split} seeds {seeds[0]}..{seeds[-1]}, "
@@ -128,43 +131,83 @@ def bench_procedural(split: str = "test", n_per_family: int = 3, lofo: bool = Tr
         cache = REPO / ".cache" / "scene_data" / "procedural"
         cache.mkdir(parents=True, exist_ok=True)
         feats = {}
-        for fam in FAMILIES:
-            fn = cache / f"train_{fam}_{per}x{RECIPE['copies']}_{RECIPE['keep_per_copy']}.npz"
-            z = np.load(fn) if fn.exists() else None
-            if z is None or z["F"].shape[1] != len(FEATURE_NAMES):  # none, or other features
-                F, L = procedural_features([fam], per_family=per)[fam]
-                np.savez(fn, F=F, L=L)
-                z = np.load(fn)
-            feats[fam] = (z["F"], z["L"])
+
+        def training_rows():  # every family's rows, computed once and cached
+            for fam in FAMILIES:
+                fn = cache / f"train_{fam}_{per}x{RECIPE['copies']}_{RECIPE['keep_per_copy']}.npz"
+                z = np.load(fn) if fn.exists() else None
+                if z is None or z["F"].shape[1] != len(FEATURE_NAMES):  # none, or other features
+                    F, L = procedural_features([fam], per_family=per)[fam]
+                    np.savez(fn, F=F, L=L)
+                    z = np.load(fn)
+                feats[fam] = (z["F"], z["L"])
+            return feats
+
         lofo_total = np.zeros((4, 4), np.int64)
         for fam in families:
             t0 = time.perf_counter()
-            model, _ = train_on_families(feats, [f for f in FAMILIES if f != fam], steps=steps,
-                                         num_threads=1)
+            saved = Path(lofo_models) / f"lofo_{fam}_{per}x{steps}.npz" if lofo_models else None
+            meta = {"held_out": fam, "families": [f for f in FAMILIES if f != fam],
+                    "per_family": per, "steps": steps, "recipe": {k: list(v) if isinstance(
+                        v, tuple) else v for k, v in RECIPE.items()}, "seed": 0}
+            model = None
+            if saved is not None and saved.is_file():
+                model, got = load_model(saved)
+                how = "loaded"
+                if {k: got.get(k) for k in meta} != meta:
+                    model = None  # another recipe: train again
+            if model is None:
+                model, _ = train_on_families(feats or training_rows(),
+                                             [f for f in FAMILIES if f != fam], steps=steps,
+                                             num_threads=1)
+                how = "trained"
+                if saved is not None:
+                    save_weights(model, saved, meta)
             m = Segmenter(model=model)
             c = sum(confusion(lab, m.probabilities_of(f, pv, sg).argmax(1))
                     for _, lab, f, pv, sg in clouds[fam])
             lofo_total += c
             row("segmentation", f"leave-one-family-out: {fam} unseen ({per}/family, {steps} steps, "
-                f"{time.perf_counter() - t0:.0f} s)", _ious_text(c))
+                f"{how}, {time.perf_counter() - t0:.0f} s)", _ious_text(c))
         for name, v, goal in zip(("ceiling", "floor", "wall", "other"), iou(lofo_total), GOALS):
             row("segmentation", f"leave-one-family-out, summed: IoU {name} (goal >= {goal})",
                 f"{v:.4f}")
-    # throughput: a dense scan (3 stations, 40 head positions each, ~1.7 M points: a registered
-    # map's density) of the first test building; features + network + plane consistency
-    p, _ = labelled_scan(families[0], seeds[0], n_stations=3, head_steps=40)
-    seg(p[:1000])
-    torch.set_num_threads(os.cpu_count() or 1)
-    load0 = os.getloadavg()[0]
-    w0, c0 = time.perf_counter(), time.process_time()
-    seg(p)
-    wall, cpu = time.perf_counter() - w0, time.process_time() - c0
-    row("segmentation", f"inference, {len(p) / 1e6:.2f} M pts: wall [M pts/s] (goal >= 1), "
-        f"CPU [M pts per CPU-s]", f"{len(p) / wall / 1e6:.2f}, {len(p) / cpu / 1e6:.2f}")
-    row("segmentation", f"  ({os.cpu_count()} cores, load average {load0:.1f} / "
-        f"{os.getloadavg()[0]:.1f} before / after)", f"{wall:.2f} s wall, {cpu:.2f} s CPU")
+    bench_throughput(families[0], seeds[0], repeats=1)
     row("segmentation", "training time [s] (weights' provenance)",
         f"{seg.meta.get('train_seconds', float('nan')):.0f}")
+
+
+def bench_throughput(family: str = "rooms", seed: int = 1_000_000, repeats: int = 5) -> None:
+    """Inference throughput of ``tripod segment``'s path (``Segmenter.__call__``: 4 cm voxels,
+    features, network, plane consistency, a label per point) on a dense scan of a generated
+    building (3 stations, 40 head positions each, ~1.7 M points: a registered map's density):
+    wall and CPU time per run with all cores and with one, the load average around each."""
+    import torch
+
+    from tripod_processor.scene.segmentation import Segmenter
+    from tripod_processor.sim.procedural import labelled_scan
+
+    p, _ = labelled_scan(family, seed, n_stations=3, head_steps=40)
+    cores = os.cpu_count() or 1
+    for threads in ((cores, 1) if repeats > 1 and cores > 1 else (cores,)):
+        seg = Segmenter(num_threads=threads)
+        seg(p[:1000])  # warm-up: torch's thread pool, the extension
+        torch.set_num_threads(threads)
+        walls, cpus, loads = [], [], []
+        for _ in range(repeats):
+            loads.append(os.getloadavg()[0])
+            w0, c0 = time.perf_counter(), time.process_time()
+            seg(p)
+            walls.append(time.perf_counter() - w0)
+            cpus.append(time.process_time() - c0)
+        k = int(np.argsort(walls)[len(walls) // 2])  # the median run
+        row("segmentation", f"inference, {len(p) / 1e6:.2f} M pts, {threads} of {cores} cores: "
+            f"wall [M pts/s] (goal >= 1), CPU [M pts per CPU-s]",
+            f"{len(p) / walls[k] / 1e6:.2f}, {len(p) / cpus[k] / 1e6:.2f}")
+        row("segmentation", f"  (median of {repeats}, best {len(p) / min(walls) / 1e6:.2f} M pts/s; "
+            f"load average {min(loads):.1f}-{max(loads + [os.getloadavg()[0]]):.1f})",
+            f"{walls[k]:.2f} s wall, {cpus[k]:.2f} s CPU")
+    torch.set_num_threads(cores)
 
 
 def bench_segmentation(pictures: bool, split: str = "test", quick: bool = False) -> None:
@@ -477,8 +520,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description="scene understanding benchmark")
     ap.add_argument("--pairs", type=int, default=50, help="registration pairs")
     ap.add_argument("--pictures", action="store_true", help="rewrite docs/scene_*.png")
-    ap.add_argument("--only", choices=("segmentation", "real", "planes", "registration",
-                                       "heightmap-pairs"), default=None,
+    ap.add_argument("--only", choices=("segmentation", "throughput", "real", "planes",
+                                       "registration", "heightmap-pairs"), default=None,
                     help="run one section only")
     ap.add_argument("--split", choices=("test", "dev", "val"), default="test",
                     help="segmentation captures: test (seed 131, fresh, reported), dev (seed "
@@ -495,6 +538,11 @@ def main(argv=None) -> int:
                          "shipped recipe's)")
     ap.add_argument("--lofo-steps", type=int, default=None,
                     help="leave-one-family-out: optimiser steps (default: the shipped recipe's)")
+    ap.add_argument("--families", default=None,
+                    help="segmentation: these layout families only (comma-separated; default all)")
+    ap.add_argument("--lofo-models", default=None, metavar="DIR",
+                    help="leave-one-family-out: save each trained model here and load it on "
+                         "later runs (when its recipe matches) instead of training again")
     ap.add_argument("--no-twin", action="store_true",
                     help="segmentation: skip the digital twin's template captures")
     ap.add_argument("--quick", action="store_true",
@@ -512,9 +560,12 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     if a.only in (None, "segmentation"):
         bench_procedural(a.split if a.split != "val" else "dev", a.buildings, not a.no_lofo,
-                         a.lofo_per_family, a.lofo_steps, a.quick)
+                         a.lofo_per_family, a.lofo_steps, a.quick,
+                         a.families.split(",") if a.families else None, a.lofo_models)
         if not a.no_twin:
             bench_segmentation(a.pictures, a.split, a.quick)
+    if a.only == "throughput":  # the inference path alone, 5 runs with all cores and with one
+        bench_throughput()
     if a.only in (None, "real"):
         bench_real(a.pictures)
     if a.only in (None, "planes"):

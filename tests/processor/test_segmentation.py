@@ -115,6 +115,41 @@ def test_planar_segments_residual_finds_a_board_on_the_wall():
     assert len(planar_segments(p, num_threads=1)) == 3
 
 
+def test_wall_planes_join_wall_pieces_apart_and_leave_a_box_out():
+    from tripod_processor.scene.segmentation.segments import planar_segments, wall_planes
+
+    rng = np.random.default_rng(2)
+    # a wall at y = 0 cut by a 1 m doorway (x 3-4 m) into a 3 m piece and a 0.5 m pier; a box
+    # face 0.6 m in front of the long piece; a sparse patch (a few scan lines) on the wall's
+    # plane above the doorway
+    x, z = _grid(np.arange(0, 3, 0.02), np.arange(0, 2.5, 0.02))
+    piece = np.c_[x, np.zeros_like(x), z]
+    x, z = _grid(np.arange(4, 4.5, 0.02), np.arange(0, 2.5, 0.02))
+    pier = np.c_[x, np.zeros_like(x), z]
+    x, z = _grid(np.arange(0.5, 1.5, 0.02), np.arange(0, 1.0, 0.02))
+    box = np.c_[x, np.full_like(x, 0.6), z]
+    x, z = _grid(np.arange(3.1, 3.9, 0.08), np.array([2.2, 2.4]))
+    sparse = np.c_[x, np.zeros_like(x), z]
+    p = np.concatenate([piece, pier, box, sparse]).astype(np.float32)
+    p += rng.normal(0, 0.002, p.shape).astype(np.float32)
+    cen, pv, _ = voxel_assign_4cm(p)
+    _, _, seg = planar_segments(cen, num_threads=1)
+    plane = wall_planes(cen, seg)[pv]
+    n1, n2, n3 = len(piece), len(pier), len(box)
+    a, b, c, d = plane[:n1], plane[n1:n1 + n2], plane[n1 + n2:n1 + n2 + n3], plane[n1 + n2 + n3:]
+    main = np.bincount(a[a >= 0]).argmax()
+    assert (a == main).mean() > 0.9 and (b == main).mean() > 0.9  # the pier is on the wall
+    assert (c == main).mean() < 0.01  # the box face in front is not
+    assert (d == main).mean() > 0.5  # the sparse lines above the doorway join the wall
+    assert np.all(wall_planes(cen[:3], seg[:3]) == -1)  # too few segments: no planes
+
+
+def voxel_assign_4cm(p):
+    from tripod_processor.preprocess import voxel_assign
+
+    return voxel_assign(p, 0.04, 1)
+
+
 def test_plane_consistency_leaves_voxels_off_the_plane_alone():
     from tripod_processor.scene.segmentation import COARSE_GATE, FINE_GATE, plane_consistent
 
@@ -272,3 +307,34 @@ def test_cli_segment_bad_input_is_one_line(tmp_path, capsys):
     bad.write_bytes(b"ply\nformat ascii 1.0\nelement vertex 3\nend_header\n1 2\n")
     assert main(["segment", str(bad), "-o", str(tmp_path / "o.ply")]) == 2
     assert main(["segment", str(bad), "-o", str(tmp_path / "o.txt")]) == 2
+
+
+def test_fast_inference_path_is_the_model_bitwise():
+    """``Segmenter.__call__`` (network in chunks with addmm and in-place ReLU, argmax per voxel,
+    planar segments on a second thread) gives exactly what the plain model, the unthreaded
+    features and the per-point probabilities give."""
+    import torch
+
+    from tripod_processor.preprocess import voxel_assign
+    from tripod_processor.scene.segmentation import plane_consistent
+    from tripod_processor.scene.segmentation.features import voxel_features
+
+    p, _, _, _ = room_scan(9004, head_steps=8)
+    p = np.concatenate([p, np.full((3, 3), np.nan, np.float32)])  # non-finite points too
+    seg = Segmenter()
+    f, pv, sg = voxel_features(p, return_segments=True)
+    with torch.inference_mode():
+        prob = torch.softmax(seg.model(torch.from_numpy(f)), 1).numpy()
+    prob = plane_consistent(prob, f, sg)
+    want = np.where(pv >= 0, prob.argmax(1)[pv], 3)
+    np.testing.assert_array_equal(seg(p), want)
+    np.testing.assert_array_equal(Segmenter(chunk=1000)(p), want)
+    np.testing.assert_array_equal(Segmenter(num_threads=1)(p), want)  # no second thread
+    np.testing.assert_array_equal(seg.probabilities(p)[pv >= 0], prob[pv[pv >= 0]])
+    # voxel grids of more points than one thread sorts alone: the same voxels as numpy's
+    q = np.random.default_rng(1).uniform(-3, 3, (300_000, 3)).astype(np.float32)
+    cen, qv, counts = voxel_assign(q, 0.25, 2)
+    keys, inv, cnt = np.unique(np.floor(q / np.float32(0.25)).astype(np.int64), axis=0,
+                               return_inverse=True, return_counts=True)
+    assert len(cen) == len(keys) and np.array_equal(np.sort(counts), np.sort(cnt))
+    np.testing.assert_array_equal(np.bincount(qv, minlength=len(cen)), counts)

@@ -6,6 +6,7 @@
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
+#include <iterator>
 #include <numeric>
 #include <stdexcept>
 #include <vector>
@@ -37,12 +38,30 @@ Grid build_grid(Eigen::Index n, KeyFn key_of, int nt) {
     std::vector<int64_t> pk(n);
 #pragma omp parallel for num_threads(nt) schedule(static)
     for (Eigen::Index i = 0; i < n; ++i) pk[i] = key_of(i);
+    // sorted unique keys: each thread sorts and dedups its share of the points, then the short
+    // runs (voxels, not points) are merged; the same keys as one sort of all of them
+    const int nc = int(std::max<Eigen::Index>(1, std::min<Eigen::Index>(nt, n / 65536)));
+    std::vector<std::vector<int64_t>> part(nc);
+#pragma omp parallel for num_threads(nc) schedule(static, 1)
+    for (int c = 0; c < nc; ++c) {
+        const Eigen::Index b = n * c / nc, e = n * (c + 1) / nc;
+        auto& v = part[c];
+        v.reserve(size_t(e - b));
+        for (Eigen::Index i = b; i < e; ++i)
+            if (pk[i] >= 0) v.push_back(pk[i]);
+        std::sort(v.begin(), v.end());
+        v.erase(std::unique(v.begin(), v.end()), v.end());
+    }
     Grid g;
-    g.keys.reserve(n);
-    for (auto k : pk)
-        if (k >= 0) g.keys.push_back(k);
-    std::sort(g.keys.begin(), g.keys.end());
-    g.keys.erase(std::unique(g.keys.begin(), g.keys.end()), g.keys.end());
+    g.keys = std::move(part[0]);
+    for (int c = 1; c < nc; ++c) {
+        std::vector<int64_t> merged;
+        merged.reserve(g.keys.size() + part[c].size());
+        std::merge(g.keys.begin(), g.keys.end(), part[c].begin(), part[c].end(),
+                   std::back_inserter(merged));
+        merged.erase(std::unique(merged.begin(), merged.end()), merged.end());
+        g.keys = std::move(merged);
+    }
     g.point_cell.assign(n, -1);
 #pragma omp parallel for num_threads(nt) schedule(static)
     for (Eigen::Index i = 0; i < n; ++i)
@@ -96,15 +115,18 @@ FeaturesF voxel_local_shape(const PointsXYZ& points, double voxel_size, int radi
         const int64_t ix = (k >> 42) & kMask, iy = (k >> 21) & kMask, iz = k & kMask;
         double s[10] = {0};
         // a fixed reference point keeps the sums of squares small (centre of this voxel)
+        // keys are sorted with z in the lowest bits: the voxels of one (dx, dy) column of the
+        // neighbourhood are one run of keys, found with one search (same order as dz = -r..r)
         for (int dx = -r; dx <= r; ++dx)
-            for (int dy = -r; dy <= r; ++dy)
-                for (int dz = -r; dz <= r; ++dz) {
-                    const int64_t kk = ((ix + dx) << 42) | ((iy + dy) << 21) | (iz + dz);
-                    const int64_t u = g.find(kk);
-                    if (u < 0) continue;
-                    const double* m = &mom[size_t(u) * 10];
+            for (int dy = -r; dy <= r; ++dy) {
+                const int64_t col = ((ix + dx) << 42) | ((iy + dy) << 21);
+                const int64_t k_lo = col | (iz - r), k_hi = col | (iz + r);
+                for (auto it = std::lower_bound(g.keys.begin(), g.keys.end(), k_lo);
+                     it != g.keys.end() && *it <= k_hi; ++it) {
+                    const double* m = &mom[size_t(it - g.keys.begin()) * 10];
                     for (int j = 0; j < 10; ++j) s[j] += m[j];
                 }
+            }
         const double cnt = s[0];
         const Eigen::Vector3d mean(s[1] / cnt, s[2] / cnt, s[3] / cnt);
         Eigen::Matrix3d cov;

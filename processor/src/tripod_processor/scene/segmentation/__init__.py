@@ -27,10 +27,13 @@ def plane_consistent(probabilities: np.ndarray, features: np.ndarray,
     """Second stage: the voxels of one planar segment agree, first on the 10 cm segments, then
     on the 25 cm ones (far and grazing walls, scanned by a few sparse lines, are one plane only
     at that scale), each leaving out the voxels that lie off the segment's plane
-    (:data:`FINE_GATE`, :data:`COARSE_GATE`: boards and radiators on walls).
+    (:data:`FINE_GATE`, :data:`COARSE_GATE`: boards and radiators on walls), then on the wall
+    planes (:func:`.segments.wall_planes`: coplanar segments apart, a pier beside a door and
+    the wall beyond it, and the sparse voxels on them).
 
     probabilities : (M, 4); features : (M, F) of :func:`.features.voxel_features`;
-    segment : (M, 2) segments of the two grids, or (M,) of the 10 cm grid only (then one pass).
+    segment : (M, 3) segments of the two grids and wall planes, (M, 2) the two grids only, or
+    (M,) the 10 cm grid only (then one pass).
     """
     seg = np.asarray(segment)
     if seg.ndim == 1:
@@ -38,7 +41,8 @@ def plane_consistent(probabilities: np.ndarray, features: np.ndarray,
     res = features[:, FEATURE_NAMES.index("segment_residual")]
     cres = features[:, FEATURE_NAMES.index("coarse_residual")]
     out = segment_consistent(probabilities, np.where(res > FINE_GATE, -1, seg[:, 0]))
-    return segment_consistent(out, np.where(cres > COARSE_GATE, -1, seg[:, 1]))
+    out = segment_consistent(out, np.where(cres > COARSE_GATE, -1, seg[:, 1]))
+    return segment_consistent(out, seg[:, 2]) if seg.shape[1] > 2 else out
 
 __all__ = ["segment", "Segmenter", "plane_consistent", "CLASS_NAMES", "NUM_CLASSES", "DEFAULT_WEIGHTS",
            "point_features"]
@@ -51,13 +55,13 @@ class Segmenter:
     ----------
     weights : path of a ``.npz`` weight file; None = the shipped weights
     num_threads : CPU threads for features and inference, 0 = all
-    chunk : points per inference batch
+    chunk : voxels per network batch (its activations, 128 floats a voxel, stay in cache)
     plane_consistency : second stage, the points of one planar segment agree
         (:func:`plane_consistent`)
     model : a torch model from :func:`.train.train` to use instead of a weight file
     """
 
-    def __init__(self, weights=None, num_threads: int = 0, chunk: int = 1 << 18,
+    def __init__(self, weights=None, num_threads: int = 0, chunk: int = 1 << 15,
                  plane_consistency: bool = True, model=None) -> None:
         if model is not None:  # a freshly trained network (evaluation protocols)
             self.model, self.meta = model.eval(), {}
@@ -81,21 +85,71 @@ class Segmenter:
                          segment: np.ndarray) -> np.ndarray:
         """:meth:`probabilities` from precomputed ``voxel_features(points,
         return_segments=True)`` (evaluations that score several models on one cloud)."""
-        import torch
+        return self._voxel_probabilities(f, segment)[point_voxel]
 
+    def _voxel_probabilities(self, f: np.ndarray, segment: np.ndarray) -> np.ndarray:
+        """(M + 1, 4) probabilities of the voxels, the last row for non-finite points (index
+        -1 of ``point_voxel``)."""
         vox = np.empty((len(f) + 1, NUM_CLASSES), np.float32)
         vox[-1] = [0.25, 0.25, 0.25, 0.25 + 1e-6]  # index -1: non-finite points
-        with torch.inference_mode():
-            for s in range(0, len(f), self.chunk):
-                logits = self.model(torch.from_numpy(f[s:s + self.chunk]))
-                vox[s:min(s + self.chunk, len(f))] = torch.softmax(logits, 1).numpy()
+        self._network(f, vox[:-1])
         if self.plane_consistency:
             vox[:-1] = plane_consistent(vox[:-1], f, segment)
-        return vox[point_voxel]
+        return vox
+
+    def _network(self, f: np.ndarray, out: np.ndarray) -> None:
+        """Softmax of the network on the rows of ``f`` into ``out``, chunk by chunk: the same
+        arithmetic as ``model(x)`` (addmm per layer) with the activations of a chunk small
+        enough to stay in cache and ReLU in place. With more than one thread the chunks are
+        shared by Python threads, each running torch single-threaded (torch releases the GIL):
+        no intra-op barriers per layer, which on a loaded machine cost more CPU than they save."""
+        import torch
+        from torch import nn
+
+        chunk = self.chunk
+        layers = list(self.model)
+        lin = [(m.weight.detach(), m.bias.detach()) for m in layers if isinstance(m, nn.Linear)]
+        plain = (len(layers) == 2 * len(lin) and hasattr(layers[0], "inv_std")
+                 and all(isinstance(m, nn.ReLU) for m in layers[2:-1:2]))
+
+        def run(s: int) -> None:
+            with torch.inference_mode():
+                if not plain:  # another architecture: its own forward
+                    out[s:s + chunk] = torch.softmax(self.model(torch.from_numpy(f[s:s + chunk])),
+                                                     1).numpy()
+                    return
+                x = (torch.from_numpy(f[s:s + chunk]) - layers[0].mean) * layers[0].inv_std
+                for i, (w, b) in enumerate(lin):
+                    x = torch.addmm(b, x, w.t())
+                    if i < len(lin) - 1:
+                        x.relu_()
+                torch.softmax(x, 1, out=torch.from_numpy(out[s:s + chunk]))
+
+        starts = range(0, len(f), chunk)
+        workers = min(self.num_threads or torch.get_num_threads(), len(starts))
+        if workers <= 1:
+            for s in starts:
+                run(s)
+            return
+        from concurrent.futures import ThreadPoolExecutor
+
+        before = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            with ThreadPoolExecutor(workers) as pool:
+                list(pool.map(run, starts))
+        finally:
+            torch.set_num_threads(before)
 
     def __call__(self, points) -> np.ndarray:
         """(N,) int32 labels (0 ceiling, 1 floor, 2 wall, 3 other), in the input's order."""
-        return self.probabilities(points).argmax(1).astype(np.int32)
+        if self.num_threads > 0:
+            import torch
+
+            torch.set_num_threads(self.num_threads)
+        f, point_voxel, segment = voxel_features(points, self.num_threads, return_segments=True)
+        # argmax per voxel, then one int per point (not 4 floats per point)
+        return self._voxel_probabilities(f, segment).argmax(1).astype(np.int32)[point_voxel]
 
 
 def segment(points, weights=None, num_threads: int = 0) -> np.ndarray:

@@ -11,11 +11,13 @@ the model is trained with a few degrees of tilt so that small errors do not matt
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 
 from ... import _ext
 from ...preprocess import as_cloud, local_shape, voxel_assign
-from .segments import planar_segments
+from .segments import planar_segments, wall_planes
 
 FEATURE_NAMES = (
     "abs_nz_s", "linearity_s", "planarity_s", "scattering_s", "log_count_s",
@@ -89,23 +91,9 @@ def _segment_mean(segment: np.ndarray, values: np.ndarray) -> np.ndarray:
     return out
 
 
-def point_features(points, num_threads: int = 0, return_segments: bool = False):
-    """Segmenter input features of every point.
-
-    Parameters
-    ----------
-    points : (N, 3) array_like [m], z up
-    num_threads : int, 0 = all cores
-
-    Returns
-    -------
-    (N, len(FEATURE_NAMES)) float32. Non-finite points get zeros.
-    With ``return_segments``, also the (N, 2) int64 planar segments of every point
-    (:func:`.segments.planar_segments` on the 10 cm and the 25 cm grid, -1 for non-finite
-    points).
-    """
-    p = as_cloud(points)
-    nt = int(num_threads)
+def _shape_and_context(p: np.ndarray, nt: int, f: np.ndarray) -> tuple[float, float]:
+    """Columns 0-22 of ``f`` (local shape at three scales, height, column context: the C++
+    core); returns the floor and ceiling heights [m]."""
     ls_s = local_shape(p, SMALL_VOXEL, nt)
     ls_l = local_shape(p, LARGE_VOXEL, nt)
     nz_s, lin_s, pla_s, sca_s = _shape(ls_s)
@@ -120,7 +108,6 @@ def point_features(points, num_threads: int = 0, return_segments: bool = False):
     opt.cell_size, opt.z_low, opt.z_high = COLUMN_CELL, z_floor + 0.2, z_ceil - 0.2
     opt.num_directions, opt.skip, opt.max_range, opt.num_threads = 16, 0.25, 100.0, nt
     cc = _ext.column_context(p, upright, opt)
-    f = np.empty((len(p), len(FEATURE_NAMES)), np.float32)
     f[:, 0], f[:, 1], f[:, 2], f[:, 3] = nz_s, lin_s, pla_s, sca_s
     f[:, 4] = np.log1p(ls_s[:, 6])
     f[:, 5], f[:, 6], f[:, 7], f[:, 8] = nz_l, lin_l, pla_l, sca_l
@@ -135,8 +122,52 @@ def point_features(points, num_threads: int = 0, return_segments: bool = False):
     f[:, 20] = np.clip(z - cc[:, 2], 0, 12)
     f[:, 21] = np.clip(cc[:, 3] - z, 0, 12)
     f[:, 22] = cc[:, 4]
-    # the planar segment of the point: a wall's runs for metres, floor to ceiling (segments.py)
+    return z_floor, z_ceil
+
+
+def _fine_segments_and_planes(p: np.ndarray, nt: int):
+    """:func:`.segments.planar_segments` on the 10 cm grid (with residuals) and the
+    :func:`.segments.wall_planes` made of its segments."""
     seg, seg_nz, segment, res = planar_segments(p, nt, residual=True)
+    return seg, seg_nz, segment, res, wall_planes(p, segment)
+
+
+def point_features(points, num_threads: int = 0, return_segments: bool = False):
+    """Segmenter input features of every point.
+
+    Parameters
+    ----------
+    points : (N, 3) array_like [m], z up
+    num_threads : int, 0 = all cores
+
+    Returns
+    -------
+    (N, len(FEATURE_NAMES)) float32. Non-finite points get zeros.
+    With ``return_segments``, also the (N, 3) int64 planar segments of every point
+    (:func:`.segments.planar_segments` on the 10 cm and the 25 cm grid) and its wall plane
+    (:func:`.segments.wall_planes`), -1 for none and for non-finite points.
+    """
+    p = as_cloud(points)
+    nt = int(num_threads)
+    f = np.empty((len(p), len(FEATURE_NAMES)), np.float32)
+    if nt == 1:  # one thread asked for: one after the other
+        z_floor, z_ceil = _shape_and_context(p, nt, f)
+        seg, seg_nz, segment, res, planes = _fine_segments_and_planes(p, 1)
+        cs, cs_nz, coarse, cres = planar_segments(p, 1, voxel=COARSE_SEGMENT_VOXEL,
+                                                  max_offset=COARSE_SEGMENT_OFFSET, residual=True)
+    else:
+        # the planar segments (numpy, one core) run on a second thread while the C++ core
+        # computes local shape and column context (OpenMP, GIL released) on this one
+        with ThreadPoolExecutor(1) as pool:
+            fine = pool.submit(_fine_segments_and_planes, p, 1)
+            coarse_job = pool.submit(planar_segments, p, 1, voxel=COARSE_SEGMENT_VOXEL,
+                                     max_offset=COARSE_SEGMENT_OFFSET, residual=True)
+            z_floor, z_ceil = _shape_and_context(p, nt, f)
+            seg, seg_nz, segment, res, planes = fine.result()
+            cs, cs_nz, coarse, cres = coarse_job.result()
+    z = p[:, 2]
+    room_h = z_ceil - z_floor
+    # the planar segment of the point: a wall's runs for metres, floor to ceiling (segments.py)
     f[:, 23] = np.log1p(seg[:, 0])
     f[:, 24] = np.clip(seg[:, 1] / room_h, 0, 2)
     f[:, 25] = np.clip(seg[:, 2] - z_floor, -2, 12)
@@ -145,11 +176,9 @@ def point_features(points, num_threads: int = 0, return_segments: bool = False):
     f[:, 28] = seg_nz
     # is the plane as a whole the boundary of the scanned space?
     f[:, 29], f[:, 30] = _segment_mean(segment, f[:, 16]), _segment_mean(segment, f[:, 17])
-    # the same at 25 cm: far walls scanned by a few sparse lines are planar at this scale
-    cs, cs_nz, coarse, cres = planar_segments(p, nt, voxel=COARSE_SEGMENT_VOXEL,
-                                              max_offset=COARSE_SEGMENT_OFFSET, residual=True)
     # a board, picture or radiator joins the wall's segment but lies a few cm off its plane
     f[:, 31], f[:, 32] = np.minimum(res, 0.5), np.minimum(cres, 0.5)
+    # the same at 25 cm: far walls scanned by a few sparse lines are planar at this scale
     f[:, 33] = np.log1p(cs[:, 0])
     f[:, 34] = np.clip(cs[:, 1] / room_h, 0, 2)
     f[:, 35] = np.clip(cs[:, 2] - z_floor, -2, 12)
@@ -159,7 +188,7 @@ def point_features(points, num_threads: int = 0, return_segments: bool = False):
     f[:, 39], f[:, 40] = _segment_mean(coarse, f[:, 16]), _segment_mean(coarse, f[:, 17])
     f[~np.isfinite(f)] = 0.0
     f[~np.isfinite(p).all(1)] = 0.0
-    return (f, np.stack([segment, coarse], 1)) if return_segments else f
+    return (f, np.stack([segment, coarse, planes], 1)) if return_segments else f
 
 
 def voxel_features(points, num_threads: int = 0, return_segments: bool = False):
@@ -173,8 +202,8 @@ def voxel_features(points, num_threads: int = 0, return_segments: bool = False):
     -------
     features : (M, len(FEATURE_NAMES)) float32 of the voxel centroids
     point_voxel : (N,) int32 voxel of every point, -1 for non-finite points
-    segment : (M, 2) int64 planar segments (10 cm, 25 cm grid) of every voxel, only with
-        ``return_segments``
+    segment : (M, 3) int64 planar segments (10 cm, 25 cm grid) and wall plane of every voxel,
+        only with ``return_segments``
     """
     p = as_cloud(points)
     centroids, point_voxel, _ = voxel_assign(p, LABEL_VOXEL, num_threads)

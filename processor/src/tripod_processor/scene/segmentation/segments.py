@@ -167,3 +167,102 @@ def segment_consistent(probabilities: np.ndarray, segment: np.ndarray) -> np.nda
     q = p[ok] * mean[s].astype(np.float32)
     out[ok] = q / np.maximum(q.sum(1, keepdims=True), 1e-30)
     return out
+
+
+#: :func:`wall_planes` settings: segments of at least this many voxels take part
+PLANE_MIN_VOXELS = 8
+PLANE_MAX_ANGLE_DEG = 3.0  # coplanar segments: normals within this
+PLANE_MAX_OFFSET = 0.04  # [m] ... and plane offsets within this
+PLANE_MAX_NZ = 0.2  # |n_z| of a vertical plane
+PLANE_GATE = 0.03  # [m] a member voxel farther than this from the plane is left out
+PLANE_SNAP = 0.04  # [m] a voxel of a small segment this close to a plane joins it ...
+PLANE_MARGIN = 0.3  # [m] ... when within the plane's extent (members' span + this)
+
+
+def wall_planes(points, segment) -> np.ndarray:
+    """Vertical planes made of planar segments that lie in one plane even when they are apart,
+    and the sparse voxels on them: the third stage of the segmenter's plane consistency.
+
+    A wall is cut into separate segments by doors, furniture in front of it and occlusion: a
+    narrow pier beside a door, the strip above a wardrobe, a far wall seen through a doorway in
+    a few sparse lines. Segments of at least :data:`PLANE_MIN_VOXELS` voxels that are vertical
+    and flat (least-squares plane of their voxels) are joined when their normals agree within
+    :data:`PLANE_MAX_ANGLE_DEG` and their offsets within :data:`PLANE_MAX_OFFSET`; groups of two
+    or more segments are planes. Voxels of small segments within :data:`PLANE_SNAP` of a plane
+    and inside its extent join it; member voxels farther than :data:`PLANE_GATE` from it (a
+    board on the wall) are left out. O(S^2) in the segments taking part (hundreds).
+
+    points : (M, 3) [m] voxel centroids, z up; segment : (M,) int planar segment of each
+    (:func:`planar_segments`, -1 none). Returns (M,) int64 plane id, -1 for no plane.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    seg = np.asarray(segment)
+    m = len(seg)
+    out = np.full(m, -1, np.int64)
+    ok = seg >= 0
+    if not ok.any():
+        return out
+    idx = np.flatnonzero(ok)
+    s = seg[ok]
+    c = np.asarray(points, np.float64)[ok]
+    ns = int(s.max()) + 1
+    cnt = np.bincount(s, minlength=ns).astype(np.float64)
+    mean = np.stack([np.bincount(s, c[:, k], ns) for k in range(3)], 1) / np.maximum(cnt, 1)[:, None]
+    d = c - mean[s]
+    big = np.flatnonzero(cnt >= PLANE_MIN_VOXELS)
+    if len(big) < 2:
+        return out
+    cov = np.zeros((ns, 3, 3))
+    for i in range(3):
+        for j in range(i, 3):
+            cov[:, i, j] = cov[:, j, i] = np.bincount(s, d[:, i] * d[:, j], ns) / np.maximum(cnt, 1)
+    w, v = np.linalg.eigh(cov[big])
+    n = v[:, :, 0]
+    flat = (np.abs(n[:, 2]) < PLANE_MAX_NZ) & (w[:, 0] < 0.02 ** 2) & (w[:, 1] > 4 * w[:, 0])
+    big, n = big[flat], n[flat]
+    if len(big) < 2:
+        return out
+    # horizontal normal as an angle in [0, pi) (a plane has no side) and the offset along it
+    th = np.arctan2(n[:, 1], n[:, 0]) % np.pi
+    n2 = np.stack([np.cos(th), np.sin(th)], 1)
+    off = (n2 * mean[big, :2]).sum(1)
+    dth = np.abs(th[:, None] - th[None, :])
+    wrap = dth > np.pi / 2  # angles near 0 and near pi: the same plane, the offset flips sign
+    dth = np.where(wrap, np.pi - dth, dth)
+    doff = np.abs(off[:, None] - np.where(wrap, -off[None, :], off[None, :]))
+    a, b = np.nonzero(np.triu((dth < np.deg2rad(PLANE_MAX_ANGLE_DEG)) & (doff < PLANE_MAX_OFFSET), 1))
+    k = len(big)
+    _, comp = connected_components(coo_matrix((np.ones(len(a), np.int8), (a, b)), shape=(k, k)),
+                                   directed=False)
+    multi = np.bincount(comp)[comp] >= 2
+    seg_plane = np.full(ns, -1, np.int64)
+    seg_plane[big[multi]] = comp[multi]
+    g = seg_plane[s]
+    # each plane from its members' horizontal scatter; members off it are left out, voxels of
+    # small segments on it (within its extent) join it
+    small = (cnt[s] < PLANE_MIN_VOXELS) & (g < 0)
+    cand = np.flatnonzero(small)
+    best_d = np.full(len(cand), np.inf)
+    best_g = np.full(len(cand), -1, np.int64)
+    xc = c[cand]
+    for pid in np.unique(g[g >= 0]):
+        mem = np.flatnonzero(g == pid)
+        q = c[mem]
+        mu = q[:, :2].mean(0)
+        qc = q[:, :2] - mu
+        _, vec = np.linalg.eigh(qc.T @ qc)
+        nrm, tan = vec[:, 0], vec[:, 1]
+        g[mem[np.abs(qc @ nrm) > PLANE_GATE]] = -1
+        tm = qc @ tan
+        dist = np.abs((xc[:, :2] - mu) @ nrm)
+        tt = (xc[:, :2] - mu) @ tan
+        inside = ((dist < PLANE_SNAP) & (tt > tm.min() - PLANE_MARGIN)
+                  & (tt < tm.max() + PLANE_MARGIN) & (xc[:, 2] > q[:, 2].min() - PLANE_MARGIN)
+                  & (xc[:, 2] < q[:, 2].max() + PLANE_MARGIN) & (dist < best_d))
+        best_d[inside] = dist[inside]
+        best_g[inside] = pid
+    g[cand] = best_g
+    out[idx] = g
+    return out
