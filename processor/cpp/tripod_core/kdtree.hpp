@@ -51,18 +51,17 @@ public:
             cells_.resize(total * 2 * Dim);
             parent_.resize(total);
             const Row lo = Row::Constant(-std::numeric_limits<float>::infinity()), hi = -lo;
+            std::iota(order_.begin(), order_.end(), 0);
             if (parallel) {
+                // one parallel region, two barriers (each may have to wake a sleeping thread)
 #pragma omp parallel num_threads(nt)
                 {
-#pragma omp for schedule(static)
-                    for (int64_t i = 0; i < n; ++i) order_[i] = i;
 #pragma omp single
                     build(0, 0, static_cast<int>(n), lo, hi, -1, true);
 #pragma omp for schedule(static)
                     for (int64_t i = 0; i < n; ++i) copy_row(i);
                 }
             } else {
-                std::iota(order_.begin(), order_.end(), 0);
                 build(0, 0, static_cast<int>(n), lo, hi, -1, false);
                 for (int64_t i = 0; i < n; ++i) copy_row(i);
             }
