@@ -51,20 +51,15 @@ public:
             cells_.resize(total * 2 * Dim);
             parent_.resize(total);
             const Row lo = Row::Constant(-std::numeric_limits<float>::infinity()), hi = -lo;
+            std::iota(order_.begin(), order_.end(), 0);
+            // each leaf copies its rows when made: no pass after the build, so one parallel
+            // region with one barrier (each may have to wake a sleeping thread)
             if (parallel) {
 #pragma omp parallel num_threads(nt)
-                {
-#pragma omp for schedule(static)
-                    for (int64_t i = 0; i < n; ++i) order_[i] = i;
 #pragma omp single
-                    build(0, 0, static_cast<int>(n), lo, hi, -1, true);
-#pragma omp for schedule(static)
-                    for (int64_t i = 0; i < n; ++i) copy_row(i);
-                }
+                build(0, 0, static_cast<int>(n), lo, hi, -1, true);
             } else {
-                std::iota(order_.begin(), order_.end(), 0);
                 build(0, 0, static_cast<int>(n), lo, hi, -1, false);
-                for (int64_t i = 0; i < n; ++i) copy_row(i);
             }
         }
         src_ = nullptr;
@@ -294,8 +289,13 @@ private:
         pos_[order_[i]] = static_cast<int>(i);
     }
 
+    /// Node `id` is a leaf over tree positions [begin, end): their order is final, so their
+    /// rows are copied here.
     void make_leaf(int id, int begin, int end) {
-        for (int i = begin; i < end; ++i) leaf_node_[i] = id;
+        for (int i = begin; i < end; ++i) {
+            leaf_node_[i] = id;
+            copy_row(i);
+        }
     }
 
     /// Build node `id` over tree positions [begin, end) and its subtree (nodes id, id + 1, ...).

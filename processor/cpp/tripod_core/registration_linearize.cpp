@@ -14,6 +14,7 @@
 // Only the lower triangle is summed; the upper one is filled once at the end.
 #include <omp.h>
 
+#include "tripod_core/parallel_chunks.hpp"
 #include "tripod_core/phase_timer.hpp"
 #include "tripod_core/registration_internal.hpp"
 #include "tripod_core/registration_voxels.hpp"
@@ -137,13 +138,13 @@ Normal linearize_model(const Problem& P, const Eigen::Isometry3d& T, std::vector
     const int64_t m = static_cast<int64_t>(P.rows.size());
     // Fixed chunks, each with its own partial sum, added in chunk order afterwards (the same
     // sums on any thread count). Each thread takes the same contiguous run of chunks at every
-    // call (static schedule): the correspondences and weights it writes stay in its own cache
-    // from one iteration to the next (lines moving between cores cost more than the work).
+    // call first (the correspondences and weights it writes stay in its own cache from one
+    // iteration to the next: lines moving between cores cost more than the work), then helps
+    // with what the others have left (parallel_chunks).
     constexpr int64_t kChunk = 128;
     const int64_t num_chunks = (m + kChunk - 1) / kChunk;
     std::vector<Normal> parts(num_chunks);
-#pragma omp parallel for num_threads(threads(P.num_threads)) schedule(static)
-    for (int64_t chunk = 0; chunk < num_chunks; ++chunk) {
+    parallel_chunks(P.num_threads, num_chunks, [&](int64_t chunk) {
         Normal acc;
         GicpSums gicp;
         const int64_t end = std::min(m, (chunk + 1) * kChunk);
@@ -231,7 +232,7 @@ Normal linearize_model(const Problem& P, const Eigen::Isometry3d& T, std::vector
         }
         if constexpr (kGicp) gicp.store(acc);
         parts[chunk] = acc;
-    }
+    });
     Normal out;
     for (const Normal& p : parts) {
         out.H += p.H;
