@@ -106,7 +106,7 @@ class OdometryConfig(StrictModel):
     #: station saw through loses to one that does not, whatever their overlap (a corridor slid
     #: along its axis overlaps well and is wrong)
     free_space_check: bool = True
-    max_free_space_violation: float = Field(default=0.002, ge=0, le=1)
+    max_free_space_violation: float = Field(default=0.005, ge=0, le=1)
     #: a pair that respects free space is registered down to this overlap (a station round a
     #: corridor's corner shares little with the one before it)
     min_fitness_free_space: float = Field(default=0.15, ge=0, le=1)

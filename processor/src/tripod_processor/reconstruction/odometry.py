@@ -332,7 +332,8 @@ def register_fragments(source: np.ndarray, target: np.ndarray, R_world_source: n
             if np.linalg.norm(D[:3, 3]) < cfg.guess_radius_m and ang < 5.0:
                 best = r
                 break
-        key = (consistent, r.fitness, -r.rmse)
+        # respecting free space ranks first when the overlap is worth keeping at all
+        key = (consistent and r.fitness >= cfg.min_fitness_free_space, r.fitness, -r.rmse)
         if best is None or key > best_key:
             best, best_key = r, key
     assert best is not None
