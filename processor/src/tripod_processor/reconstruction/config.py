@@ -101,6 +101,15 @@ class OdometryConfig(StrictModel):
     guess_radius_m: float = Field(default=0.5, gt=0)
     #: below this overlap (fitness) a pair is taken as not registered
     min_fitness: float = Field(default=0.3, ge=0, le=1)
+    #: check each pair's candidate poses against free space (``free_space``): a candidate that
+    #: puts more than ``max_free_space_violation`` of either fragment's points where the other
+    #: station saw through loses to one that does not, whatever their overlap (a corridor slid
+    #: along its axis overlaps well and is wrong)
+    free_space_check: bool = True
+    max_free_space_violation: float = Field(default=0.005, ge=0, le=1)
+    #: a pair that respects free space is registered down to this overlap (a station round a
+    #: corridor's corner shares little with the one before it)
+    min_fitness_free_space: float = Field(default=0.15, ge=0, le=1)
 
 
 class SlamConfig(StrictModel):

@@ -27,6 +27,11 @@ class PairResult:
     information: np.ndarray
     ok: bool
     seed: str = ""
+    #: share of either fragment's points in the other's free space (``free_space``; nan when
+    #: not checked)
+    violation: float = float("nan")
+    #: the registration core's status of the last stage
+    status: str = ""
 
 
 def information_target_frame(info_rt_source: np.ndarray, T_target_source: np.ndarray
@@ -120,6 +125,18 @@ class CloudCache:
             self.get(key, points, v, threads)
         if cfg.oriented_refine:
             self.oriented(key, points, ORIENTED_VOXEL_M, threads)
+        if cfg.free_space_check:
+            self.range_image(key, points, threads)
+
+    def range_image(self, key, points: np.ndarray, threads: int | None = None) -> np.ndarray:
+        """The fragment's range image (``free_space.range_image``) from its cloud at
+        ``ORIENTED_VOXEL_M``."""
+        from .free_space import range_image
+
+        k = ("range", key)
+        if k not in self._c:
+            self._c[k] = range_image(self.down(key, points, ORIENTED_VOXEL_M, threads))
+        return self._c[k]
 
 
 def icp_refine(source: np.ndarray, target: np.ndarray, T_init: np.ndarray,
@@ -153,7 +170,7 @@ def icp_refine(source: np.ndarray, target: np.ndarray, T_init: np.ndarray,
     assert res is not None
     info = _cap_information(information_target_frame(res.information, T), cfg)
     ok = res.fitness >= cfg.min_fitness and res.status != "too_few_correspondences"
-    return PairResult(T, float(res.fitness), float(res.inlier_rmse), info, ok)
+    return PairResult(T, float(res.fitness), float(res.inlier_rmse), info, ok, status=res.status)
 
 
 # ---- final refinement: point-to-plane with oriented normals --------------------------------------
@@ -245,6 +262,24 @@ def translation_seeds(target_w: np.ndarray, source_w: np.ndarray, cell: float,
     return seeds
 
 
+def free_space_violation(source: np.ndarray, target: np.ndarray, T_target_source: np.ndarray,
+                         cfg: OdometryConfig, cache: CloudCache, keys=("source", "target")
+                         ) -> float:
+    """The larger share of either fragment's points (the seeds' coarse clouds) lying in the
+    other station's free space with the pair placed by ``T_target_source``."""
+    from .free_space import violation
+
+    coarse = cfg.voxels_m[0] * 0.5
+    T = np.asarray(T_target_source, dtype=np.float64)
+    Ti = np.eye(4)
+    Ti[:3, :3] = T[:3, :3].T
+    Ti[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+    return max(violation(cache.coarse(keys[0], source, coarse), T,
+                         cache.range_image(keys[1], target)),
+               violation(cache.coarse(keys[1], target, coarse), Ti,
+                         cache.range_image(keys[0], source)))
+
+
 def register_fragments(source: np.ndarray, target: np.ndarray, R_world_source: np.ndarray,
                        R_world_target: np.ndarray, cfg: OdometryConfig, num_threads: int = 0,
                        T_guess: np.ndarray | None = None, cache: CloudCache | None = None,
@@ -252,7 +287,10 @@ def register_fragments(source: np.ndarray, target: np.ndarray, R_world_source: n
     """T_target_source between two fragments, with the IMU attitude as rotation prior.
 
     Tries ``T_guess`` first when given (loop closures from the current map), then the top-down
-    seeds; keeps the best-fitting verified result.
+    seeds; keeps the best-fitting verified result. With ``cfg.free_space_check`` a candidate
+    that respects free space beats one that does not (a corridor's slide along its axis fits
+    better than the truth when the stations see different legs of an L), and a pair that
+    respects it is registered down to ``cfg.min_fitness_free_space``.
     """
     R_ts = R_world_target.T @ R_world_source
     cache = cache or CloudCache(cfg.point_sigma_m, num_threads)
@@ -273,28 +311,46 @@ def register_fragments(source: np.ndarray, target: np.ndarray, R_world_source: n
     # look alike, a far seed can fit better and be wrong.
     n_coarse = max(1, min(2, len(cfg.voxels_m) - 1))
     coarse_v, fine_v = cfg.voxels_m[:n_coarse], cfg.voxels_m[n_coarse:]
+    check = cfg.free_space_check
+
+    def free(r: PairResult) -> bool:
+        """r respects free space (always, unchecked)."""
+        if check and r.fitness > 0:
+            r.violation = free_space_violation(source, target, r.T_target_source, cfg, cache,
+                                               keys)
+        return not check or r.violation <= cfg.max_free_space_violation
+
     best: PairResult | None = None
+    best_key: tuple = ()
     for name, T0 in candidates:
         r = icp_refine(source, target, T0, cfg, num_threads, coarse_v, cache, keys, R_ts)
         r.seed = name
-        if name == "guess" and r.ok:
+        consistent = free(r)
+        if name == "guess" and r.ok and consistent:
             D = np.linalg.inv(T0) @ r.T_target_source
             ang = np.degrees(np.arccos(np.clip((np.trace(D[:3, :3]) - 1) / 2, -1, 1)))
             if np.linalg.norm(D[:3, 3]) < cfg.guess_radius_m and ang < 5.0:
                 best = r
                 break
-        if best is None or (r.fitness, -r.rmse) > (best.fitness, -best.rmse):
-            best = r
+        # respecting free space ranks first when the overlap is worth keeping at all
+        key = (consistent and r.fitness >= cfg.min_fitness_free_space, r.fitness, -r.rmse)
+        if best is None or key > best_key:
+            best, best_key = r, key
     assert best is not None
     if fine_v:
         seed = best.seed
         best = icp_refine(source, target, best.T_target_source, cfg, num_threads, fine_v, cache,
                           keys, R_ts)
         best.seed = seed
+    if check and not best.ok and best.fitness >= cfg.min_fitness_free_space \
+            and best.status != "too_few_correspondences" and free(best):
+        best.ok = True  # little overlap, but placed where free space agrees
     if best.ok and cfg.oriented_refine:
         T, info, fit, rmse = oriented_refine(source, target, best.T_target_source, cfg,
                                              num_threads, cache=cache, keys=keys)
         D = np.linalg.inv(best.T_target_source) @ T
         if np.linalg.norm(D[:3, 3]) < 0.3 and fit > 0.5 * best.fitness:
             best = PairResult(T, best.fitness, rmse, _cap_information(info, cfg), True, best.seed)
+    if check and best.ok:
+        free(best)  # the final pose's violation, for the notes
     return best

@@ -86,6 +86,10 @@ def run_odometry(frags: list[Fragment], cfg: OdometryConfig, num_threads: int = 
             edges.append(_edge(i, k, r, "odometry"))
             if k - i > 1:
                 notes.append(f"station {k}: registered to station {i} (not {k - 1})")
+            if r.fitness < cfg.min_fitness:
+                notes.append(f"station {k}: registered to station {i} at a low overlap "
+                             f"({r.fitness:.0%}), kept as free space agrees (violation "
+                             f"{r.violation:.2%})")
         else:
             comp[k] = comp[:k].max() + 1
             T[k] = np.eye(4)
