@@ -27,6 +27,11 @@ class PlacementConfig(StrictModel):
     extrinsic: ExtrinsicConfig = ExtrinsicConfig()
     #: IMU-to-lidar time offset [s] added to the IMU's lidar-clock stamps; null: estimate it
     imu_time_offset_s: float | None = None
+    #: span [s] of the zero-phase smoothing of the IMU's attitude samples (a quadratic fit
+    #: over the window at each sample; 0: raw samples): the IMU's white noise per sample would
+    #: otherwise turn each station's fragment (anchored at one moment) and the calibration's
+    #: sweep-to-sweep turns
+    imu_smooth_s: float = Field(default=0.15, ge=0, le=1.0)
     #: search range of the time-offset estimate [s] (± this)
     time_offset_search_s: float = Field(default=0.08, gt=0)
     min_range_m: float = Field(default=0.4, ge=0)
