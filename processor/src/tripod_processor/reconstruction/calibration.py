@@ -16,6 +16,7 @@ from scipy.spatial import cKDTree
 from ..decode.timed import decode_timed_points
 from .inputs import LidarPackets
 from .placement import Extrinsic, ImuOrientation, place_points
+from .scaleout import _threaded_map, thread_workers
 from .stations import Station
 
 
@@ -461,7 +462,7 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
                    points_per_station: int = 80_000, voxel_m: float = 0.25,
                    min_separation_s: float = 0.3, iterations: int = 8,
                    max_range: float = 60.0, sigma_inflation: float = 3.0,
-                   ) -> SelfCalibration:
+                   num_threads: int = 0) -> SelfCalibration:
     """Lever arm, IMU time offset and mount rotation that make every station self-consistent.
 
     At a standing station the head turns about a fixed pivot, so a surface seen at two moments
@@ -483,17 +484,22 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
     rigidly) and the mount's turn about b (turns it). The time offset is seen where the turn
     rate changes (the pan's start and stop, a hand-turned head); at a constant rate it only
     turns the fragment, and its sigma says so.
+
+    The stations' sampling and residuals run side by side on ``num_threads`` threads (0: every
+    core), one station a thread, gathered in station order: the same result on any count.
     """
     from scipy.spatial.transform import Rotation
 
     use = _pick_stations(stations, orient, max_stations)
+    workers = thread_workers(num_threads, len(use))
     b = pan_axis_in_imu(orient, use)
     U_l = _perp_basis(b)  # lever arm directions across the pan axis (IMU frame)
     R_il = ext.R_imu_lidar.copy()
     ell = ext.lever_arm_m.astype(np.float64).copy()
     off = orient.time_offset_ns
-    data = [_station_points(lidar, st, points_per_station, 11 + k, max_range,
-                            orient if fit_time else None) for k, st in enumerate(use)]
+    data = _threaded_map(_station_points, [
+        (lidar, st, points_per_station, 11 + k, max_range, orient if fit_time else None)
+        for k, st in enumerate(use)], workers)
     sep_ns = int(min_separation_s * 1e9)
     cols = (["l1", "l2"] if fit_lever else []) + (["dt"] if fit_time else []) + (
         ["r1", "r2"] if fit_rotation else [])
@@ -508,9 +514,13 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
         H = np.zeros((n_p, n_p))
         g = np.zeros(n_p)
         all_r, all_J = [], []
-        for xyz, t in data:
+        # coarse to fine: a large lever-arm error doubles surfaces by twice its size, which
+        # small voxels would see as two planes (or none)
+        vox = voxel_m * max(1.0, 2.4 / (1.0 + it))
+
+        def station_residuals(xyz, t):  # one station's (r, Jr); stations side by side
             if len(xyz) < 500:
-                continue
+                return np.zeros(0), None
             R_wi = o.rotation_at(t)
             v = xyz @ R_il.T + ell
             p = np.einsum("nij,nj->ni", R_wi, v)
@@ -529,10 +539,9 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
                 R_wl = R_wi @ R_il
                 for m in range(2):
                     J[:, :, c + m] = -np.einsum("nij,nj->ni", R_wl, np.cross(xyz, U_r[:, m]))
-            # coarse to fine: a large lever-arm error doubles surfaces by twice its size, which
-            # small voxels would see as two planes (or none)
-            vox = voxel_m * max(1.0, 2.4 / (1.0 + it))
-            r, Jr = _voxel_plane_residuals(p, J, t, vox, sep_ns)
+            return _voxel_plane_residuals(p, J, t, vox, sep_ns)
+
+        for r, Jr in _threaded_map(station_residuals, data, workers):
             if len(r):
                 all_r.append(r)
                 all_J.append(Jr)
@@ -676,11 +685,13 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
         T = pose_world_lidar(o, ext, np.array([tk, tj], dtype=np.int64))
         return np.linalg.inv(T[0]) @ T[1]
 
-    meas: list[tuple[int, int, np.ndarray, float]] = []  # (t_k, t_j, A measured, rate change)
-    for st in use:
+    def station_turns(st: Station, num_threads: int) -> list[tuple[int, int, np.ndarray, float]]:
+        """One station's measurements (t_k, t_j, A measured, rate change); stations run side
+        by side on threads (each registration on ``num_threads``, bit-identical on any)."""
+        meas: list[tuple[int, int, np.ndarray, float]] = []
         times = np.arange(st.start_ns, st.end_ns - win, int(step_s * 1e9), dtype=np.int64)
         if len(times) < 3:
-            continue
+            return meas
         mids = times + win // 2
         R_w = orient.rotation_at(mids)
         rate = np.einsum("ni,ni->n", _world_rate(orient, mids, 50_000_000),
@@ -727,6 +738,12 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
             if r.fitness < 0.5 or slip > 1.0:
                 continue
             meas.append((int(mids[k]), int(mids[j]), A, float(np.degrees(dr))))
+        return meas
+
+    workers = thread_workers(num_threads, len(use))
+    inner = num_threads if workers == 1 else 1
+    meas = [m for ms in _threaded_map(station_turns, [(st, inner) for st in use], workers)
+            for m in ms]
     if len(meas) < 3:
         return TurnTimeOffset(off0, float("inf"), len(meas), 0.0)
     keep = np.ones(len(meas), dtype=bool)
