@@ -331,7 +331,13 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
         notes.append(f"self-calibration failed ({exc}): the lever arm and time offset stay at "
                      "their priors")
         return ext, orient, None
-    surf_off = cal.time_offset_ns  # the surfaces' own offset, fitted with the lever arm
+    if fit_lever:
+        if cal.lever_arm_observable:
+            pass
+        else:
+            notes.append("WARNING: lever arm poorly observable (σ "
+                         f"{np.max(cal.lever_arm_sigma_m) * 1000:.1f} mm): few surfaces seen "
+                         "from opposite sides of the pan")
     off = orient.time_offset_ns
     if turn is not None:
         # the surfaces' estimate joins the turns' when it is sure and agrees (inverse-variance
@@ -359,28 +365,6 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
             notes.append(f"WARNING: IMU time offset not observable (σ "
                          f"{cal.time_offset_sigma_ms:.1f} ms): kept at "
                          f"{orient.time_offset_ns * 1e-6:.2f} ms")
-    if fit_time_surf and (fit_lever or fit_rot) and abs(surf_off - off) > 0.5e6:
-        # the lever arm and tilts were fitted together with the surfaces' offset, which is not
-        # the one applied (not sure enough, or the turns' differs): a wrong offset drags the
-        # lever arm with it (a lidar on its side: 10 ms took it 17 cm off), so they are fitted
-        # again with the offset held at the one used
-        try:
-            held = self_calibrate(rec.lidar, seg.stations, orient.with_offset(off), ext,
-                                  fit_lever=fit_lever, fit_time=False, fit_rotation=fit_rot,
-                                  max_stations=cc.max_stations, num_threads=cfg.num_threads)
-            for k in ("time_offset_ns", "time_offset_sigma_ms", "time_offset_observable",
-                      "time_offset_method", "turns"):
-                setattr(held, k, getattr(cal, k))
-            cal = held
-        except ValueError:
-            pass
-    if fit_lever:
-        if cal.lever_arm_observable:
-            pass
-        else:
-            notes.append("WARNING: lever arm poorly observable (σ "
-                         f"{np.max(cal.lever_arm_sigma_m) * 1000:.1f} mm): few surfaces seen "
-                         "from opposite sides of the pan")
     R = cal.R_imu_lidar if fit_rot else ext.R_imu_lidar
     ell = cal.lever_arm_m if fit_lever else ext.lever_arm_m
     src = ext.source if not fit_lever else (
