@@ -127,12 +127,10 @@ class OutputConfig(StrictModel):
     map_voxel_m: float = Field(default=0.03, gt=0)
     #: moving-least-squares smoothing radius of the merged map [m] (0: off). Range noise of a
     #: VLP-16 (~3 cm) leaves a layer as thick as the noise; MLS projects it onto the surface.
-    #: The 3 cm map's voxels are ~3 cm off the surface (median, a room's dual returns); 0.15 m
-    #: left 8-9 mm in rooms, 0.25 m leaves ~5 mm (and rounds details below ~0.25 m more)
-    smooth_radius_m: float = Field(default=0.25, ge=0)
+    smooth_radius_m: float = Field(default=0.15, ge=0)
     #: MLS surfaces are fitted at the centroids of voxels this size [m] and each point is
     #: projected onto its nearest one (0: a fit per point, ~6x slower on a 3 cm map)
-    smooth_fit_voxel_m: float = Field(default=0.1, ge=0)
+    smooth_fit_voxel_m: float = Field(default=0.075, ge=0)
     write_pcd: bool = True
     write_fragments: bool = True
     write_mcap: bool = True
