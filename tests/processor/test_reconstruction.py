@@ -147,7 +147,8 @@ def test_fragment_bounded_memory_path_keeps_the_cloud(run):
 
     res, truth, _ = run
     rec = res.recording
-    orient = ImuOrientation(rec.imu, fit_clock_map(rec.lidar), res.time_offset_ns)
+    orient = ImuOrientation(rec.imu, fit_clock_map(rec.lidar), res.time_offset_ns,
+                            smooth_s=ReconstructConfig().placement.imu_smooth_s)  # the run's
     st = res.fragments[0].station
     whole = build_fragment(rec.lidar, st, orient, res.extrinsic, 0.02, 0.4, 100.0, 2)
     bounded = build_fragment(rec.lidar, st, orient, res.extrinsic, 0.02, 0.4, 100.0, 2,

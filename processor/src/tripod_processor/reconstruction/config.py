@@ -27,6 +27,13 @@ class PlacementConfig(StrictModel):
     extrinsic: ExtrinsicConfig = ExtrinsicConfig()
     #: IMU-to-lidar time offset [s] added to the IMU's lidar-clock stamps; null: estimate it
     imu_time_offset_s: float | None = None
+    #: span [s] of the zero-phase smoothing of the IMU's attitude samples (a quadratic fit
+    #: over the window at each sample; 0: raw samples): the IMU's white noise per sample would
+    #: otherwise turn each station's fragment (anchored at one moment) and the calibration's
+    #: sweep-to-sweep turns. Off by default: on development rigs 0-3 and 19 it took the station
+    #: angle error of two from 0.128/0.123° to 0.103/0.097° but left three others worse (see the
+    #: README's rig benchmark), so it is not yet shown to help
+    imu_smooth_s: float = Field(default=0.0, ge=0, le=1.0)
     #: search range of the time-offset estimate [s] (± this)
     time_offset_search_s: float = Field(default=0.08, gt=0)
     min_range_m: float = Field(default=0.4, ge=0)

@@ -121,7 +121,8 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
     pc = cfg.placement
     ext = Extrinsic.from_config(pc.extrinsic.q_imu_lidar, pc.extrinsic.lever_arm_m)
     notes = list(rec.notes) + notes_clock
-    orient = ImuOrientation(rec.imu, clock, int(round((pc.imu_time_offset_s or 0.0) * 1e9)))
+    orient = ImuOrientation(rec.imu, clock, int(round((pc.imu_time_offset_s or 0.0) * 1e9)),
+                            smooth_s=pc.imu_smooth_s)
     imu_t = orient.t_ns
     if imu_t[0] > rec.lidar.lidar_ns[0] + 1e9 or imu_t[-1] < rec.lidar.lidar_ns[-1] - 1e9:
         notes.append("IMU samples do not cover the whole lidar recording; orientation is held "
@@ -280,7 +281,7 @@ def _calibrate_mount(rec, seg, orient, ext, pc, threads, times, quiet, notes):
         except ValueError as exc:
             ext.source = "default"
             notes.append(f"mount calibration failed ({exc}): identity assumed")
-    return ext, ImuOrientation(rec.imu, orient.clock, orient.time_offset_ns)
+    return ext, orient.with_offset(orient.time_offset_ns)
 
 
 def _rig_changed(a: Extrinsic, b: Extrinsic) -> bool:

@@ -174,6 +174,57 @@ class Extrinsic:
         return [float(w), float(x), float(y), float(z)]
 
 
+def smooth_quaternions(t_ns: np.ndarray, q_wxyz: np.ndarray, span_s: float) -> np.ndarray:
+    """Zero-phase smoothing of an attitude track (K, 4) w, x, y, z (one hemisphere along the
+    track) sampled at ``t_ns`` (K,) [ns, non-decreasing]: at each sample, the rotation vectors
+    of its neighbours within ±span_s/2 relative to it are fitted by a quadratic in time (a
+    Savitzky–Golay filter on the manifold) and the fit's value at the sample is taken. A
+    symmetric window adds no lag (an IMU time offset estimated on the result is unbiased) and a
+    quadratic keeps a steadily changing turn rate (ramps, a hand's speed changes); white noise
+    per sample drops by √(0.21) at 11 samples. Samples with fewer than 5 neighbours in the
+    window (ends, gaps) are kept as they are."""
+    from scipy.spatial.transform import Rotation
+
+    q = np.asarray(q_wxyz, dtype=np.float64)
+    K = len(q)
+    if K < 5 or span_s <= 0:
+        return q.copy()
+    t = np.asarray(t_ns, dtype=np.int64)
+    dt_med = float(np.median(np.diff(t))) if K > 1 else 0.0
+    h = int(np.ceil(0.5 * span_s * 1e9 / max(dt_med, 1.0)))
+    if h < 1:
+        return q.copy()
+    half = 0.5 * span_s * 1e9 + 0.5 * dt_med
+    R = Rotation.from_quat(q[:, [1, 2, 3, 0]])
+    Rinv = R.inv()
+    S = np.zeros((K, 5))  # Σ w x^k, k = 0..4
+    B = np.zeros((K, 3, 3))  # Σ w x^k r, k = 0..2
+    for j in range(-h, h + 1):
+        idx = np.clip(np.arange(K) + j, 0, K - 1)
+        x = (t[idx] - t).astype(np.float64) / half  # [window half-spans]
+        w = ((np.arange(K) + j >= 0) & (np.arange(K) + j < K) & (np.abs(x) <= 1.0))
+        w = w.astype(np.float64)
+        r = (Rinv * R[idx]).as_rotvec() if j else np.zeros((K, 3))
+        xp = np.ones(K)
+        for k in range(5):
+            S[:, k] += w * xp
+            if k < 3:
+                B[:, k] += (w * xp)[:, None] * r
+            xp = xp * x
+    A = np.stack([S[:, 0:3], S[:, 1:4], S[:, 2:5]], axis=1)  # (K, 3, 3) normal matrix
+    ok = S[:, 0] >= 5
+    ok &= np.abs(np.linalg.det(A)) > 1e-30
+    out = q.copy()
+    if not ok.any():
+        return out
+    coef = np.linalg.solve(A[ok], B[ok])  # (n, 3, 3): rows = polynomial terms
+    corr = Rotation.from_rotvec(coef[:, 0, :])
+    qs = (R[ok] * corr).as_quat()[:, [3, 0, 1, 2]]
+    qs *= np.sign(np.einsum("ij,ij->i", qs, q[ok]))[:, None]
+    out[ok] = qs
+    return out
+
+
 class ImuOrientation:
     """q_world_imu on the lidar time line, interpolated by slerp.
 
@@ -184,10 +235,15 @@ class ImuOrientation:
         A constant offset (:func:`host_to_lidar_offset_ns`) or a fitted :func:`fit_clock_map`.
     time_offset_ns : int
         IMU latency correction added after the clock mapping (estimated or configured).
+    smooth_s : float
+        Span [s] of the zero-phase smoothing of the samples (:func:`smooth_quaternions`; 0:
+        the raw samples). An IMU's fused attitude carries white noise per sample (0.05° per
+        axis on the IMU Brick 2.0); a station's fragment is anchored on the attitude at one
+        moment, so that noise turns the whole station.
     """
 
     def __init__(self, imu: ImuTrack, host_minus_lidar_ns: "int | ClockMap",
-                 time_offset_ns: int = 0):
+                 time_offset_ns: int = 0, smooth_s: float = 0.0):
         self.imu = imu
         if isinstance(host_minus_lidar_ns, ClockMap):
             clock = host_minus_lidar_ns
@@ -201,8 +257,9 @@ class ImuOrientation:
         for k in range(1, len(q)):
             if np.dot(q[k], q[k - 1]) < 0:
                 q[k] = -q[k]
-        self._q = q
         self._base_t = clock.to_lidar(dejitter_periodic(imu.host_ns))
+        self.smooth_s = float(smooth_s)
+        self._q = smooth_quaternions(self._base_t, q, smooth_s) if smooth_s > 0 else q
 
     @property
     def t_ns(self) -> np.ndarray:
@@ -216,8 +273,9 @@ class ImuOrientation:
 
     def with_offset(self, time_offset_ns: int) -> "ImuOrientation":
         o = ImuOrientation.__new__(ImuOrientation)
-        o.imu, o.clock, o.host_minus_lidar_ns, o._q, o._base_t = (
-            self.imu, self.clock, self.host_minus_lidar_ns, self._q, self._base_t)
+        o.imu, o.clock, o.host_minus_lidar_ns, o._q, o._base_t, o.smooth_s = (
+            self.imu, self.clock, self.host_minus_lidar_ns, self._q, self._base_t,
+            self.smooth_s)
         o.time_offset_ns = int(time_offset_ns)
         return o
 
