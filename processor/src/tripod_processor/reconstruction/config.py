@@ -70,6 +70,10 @@ class StationConfig(StrictModel):
     still_gap_s: float = Field(default=0.5, gt=0)
     #: ... and the head swings off its pan axis (IMU) by less than this [deg] in that time
     still_tilt_deg: float = Field(default=0.25, gt=0)
+    #: largest IMU time offset error [ms] the lidar test tolerates where the pan rate changes (a
+    #: reversal, a pause): such windows are refitted with a turn about the pan axis of up to
+    #: this times the rate change free (0: off)
+    max_time_offset_error_ms: float = Field(default=12.0, ge=0)
     #: shortest station [s] (the still period, before trimming); shorter still periods are
     #: reported and not used
     min_station_s: float = Field(default=2.5, gt=0)

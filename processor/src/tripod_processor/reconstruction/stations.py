@@ -334,6 +334,13 @@ def segment_stations(lidar: LidarPackets, orient: ImuOrientation, ext: Extrinsic
     motion = np.full(K, np.inf)
     motion[known] = np.linalg.norm(np.einsum("kij,kj->ki", Pm[known], Dz[known] - np.einsum(
         "kij,j->ki", M[known], e)), axis=1)
+    # a time offset error δ turns window k against window k − gap about the pan axis by
+    # δ·(ω_k − ω_{k−gap}) (and twists a window whose rate changes): nothing at a steady pan, but
+    # at a hand pan's reversal or pause a fraction of a degree, which a 20-40 m hall turns into
+    # centimetres of apparent shift; those windows are placed again with the offset free (a
+    # carry's shift stays)
+    motion = _offset_tolerant_motion(lidar, times, win, gap, orient, ext, axis, e, motion,
+                                     ~moving_imu, cfg, n_points, n_query)
     # unknown (too little shared view): take the neighbours' verdict
     bad = ~np.isfinite(motion)
     if bad.any() and (~bad).any():
@@ -379,6 +386,86 @@ def segment_stations(lidar: LidarPackets, orient: ImuOrientation, ext: Extrinsic
                      "pivot did not move across them)")
     return Segmentation(stations, times, motion, still, notes, tilt, short, list(marks), axis, e,
                         merged)
+
+
+def _pan_rate(orient: ImuOrientation, axis: np.ndarray, t_ns: np.ndarray,
+              h_ns: int = 50_000_000) -> np.ndarray:
+    """Signed turn rate about the pan axis (K,) [rad/s] at ``t_ns`` (central difference)."""
+    if not len(t_ns):
+        return np.zeros(0)
+    Ra = orient.rotation_at(t_ns - h_ns // 2)
+    Rb = orient.rotation_at(t_ns + h_ns // 2)
+    ua = _pan_angle(Ra, axis)
+    ub = _pan_angle(Rb, axis)
+    return np.angle(np.exp(1j * (ub - ua))) / (h_ns * 1e-9)
+
+
+def _offset_tolerant_motion(lidar: LidarPackets, times: np.ndarray, win: int, gap: int,
+                            orient: ImuOrientation, ext: Extrinsic, axis: np.ndarray,
+                            e: np.ndarray, motion: np.ndarray, imu_still: np.ndarray,
+                            cfg: StationConfig, n_points: int, n_query: int, n_grid: int = 5
+                            ) -> np.ndarray:
+    """``motion`` with the windows that look moving only where the pan rate changes refitted.
+
+    A window k the IMU calls still, whose shift exceeds ``still_threshold`` while the pan rate
+    changes across it and window k − gap (by Δω: a reversal, a pause, a hand's uneven speed),
+    is placed again, with window k − gap, at time offsets δ ∈ [−δmax, δmax] from the current
+    one (δmax = ``cfg.max_time_offset_error_ms``; a grid, then a finer one around the best):
+    its motion is the smallest shift over δ. An offset error turns each point about the pan
+    axis by δ·ω(t) — a turn of one window against the other, and a twist inside a window where
+    the rate changes — and nothing else; a carry moves the pivot, which no δ explains. Each
+    window's points are drawn with its own seed (the result does not depend on the order or
+    the threads)."""
+    K = len(times)
+    out = motion.copy()
+    dmax_ns = int(cfg.max_time_offset_error_ms * 1e6)
+    if K <= gap or dmax_ns <= 0:
+        return out
+    # the pan rate's spread over each window and the one gap before it
+    sub = np.linspace(0, win, 5).astype(np.int64)
+    rate = _pan_rate(orient, axis, (times[:, None] + sub[None, :]).reshape(-1)).reshape(K, -1)
+    lo, hi = rate.min(axis=1), rate.max(axis=1)
+    spread = np.zeros(K)
+    spread[gap:] = np.maximum(hi[gap:], hi[:-gap]) - np.minimum(lo[gap:], lo[:-gap])
+    todo = np.flatnonzero(np.isfinite(motion) & (motion >= cfg.still_threshold) & imu_still
+                          & (spread * dmax_ns * 1e-9 > np.radians(0.01)))
+    todo = todo[todo >= gap]
+    if not len(todo):
+        return out
+    ab = np.searchsorted(lidar.lidar_ns, np.stack([times, times + win], axis=1))
+    samples: dict[int, tuple] = {}
+
+    def sample(k: int) -> tuple:
+        if k not in samples:
+            pts = _window_points(lidar, int(ab[k, 0]), int(ab[k, 1]))
+            rng = np.random.default_rng([0x5EED, k])
+            samples[k] = _window_sample(pts, _window_subset(len(pts[0]), n_points, rng))
+        return samples[k]
+
+    for k in todo.tolist():
+        j = k - gap
+        sj, sk = sample(j), sample(k)
+        if len(sj[0]) <= 50 or len(sk[0]) <= 50:
+            continue
+
+        def shift(d_ns: int) -> float:
+            o = orient.with_offset(orient.time_offset_ns + int(d_ns))
+            ref, a_j = _place_window(lidar, int(ab[j, 0]), sj, o, ext)
+            c, a_k = _place_window(lidar, int(ab[k, 0]), sk, o, ext)
+            fit = pivot_shift_fit(ref, c[:n_query])
+            if fit is None:
+                return float("inf")
+            R_j, R_k = o.rotation_at(np.array([a_j, a_k]))
+            d, P = fit
+            return float(np.linalg.norm(P @ (d - (R_k - R_j) @ e)))
+
+        grid = np.linspace(-dmax_ns, dmax_ns, n_grid).astype(np.int64)
+        vals = [shift(int(t)) for t in grid]
+        step = int(2 * dmax_ns // (n_grid - 1))
+        best = int(grid[int(np.argmin(vals))])
+        fine = [shift(best + int(t)) for t in np.linspace(-step, step, n_grid + 2)[1:-1]]
+        out[k] = min(float(out[k]), min(vals), min(fine))
+    return out
 
 
 def _runs(still: np.ndarray) -> list[tuple[int, int]]:
