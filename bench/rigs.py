@@ -84,8 +84,10 @@ def _true_offset_ms(cap: Path, res) -> float | None:
     return None if fn is None else fn(cap, res.recording) * 1e-6
 
 
-def run_one(work: str, seed: int, threads: int, sets: dict | None = None) -> dict:
-    """Simulate (cached) and reconstruct one rig; every number of its row."""
+def run_one(work: str, seed: int, threads: int, sets: dict | None = None,
+            keep: bool = False) -> dict:
+    """Simulate (cached) and reconstruct one rig; every number of its row. The reconstruction's
+    outputs (~400 MB per capture) are deleted once scored unless ``keep``."""
     from tripod_processor.sim.rigs import describe
     from tripod_processor.sim.truth import (calibration_errors, match_stations, score_stations,
                                             true_station_spans)
@@ -134,6 +136,9 @@ def run_one(work: str, seed: int, threads: int, sets: dict | None = None) -> dic
         row["trace"] = traceback.format_exc(limit=3)
         row.setdefault("recall", 0.0)
         row.setdefault("precision", 0.0)
+    finally:
+        if not keep:
+            shutil.rmtree(Path(work) / "out" / f"seed{seed}", ignore_errors=True)
     return row
 
 
@@ -280,6 +285,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="captures in parallel (processes); threads per job = CPUs / jobs")
     ap.add_argument("--work", type=Path, default=Path("/tmp/tripod-bench-rigs"))
     ap.add_argument("--json", type=Path, help="also write the rows as JSON")
+    ap.add_argument("--keep", action="store_true",
+                    help="keep each reconstruction's outputs under WORK/out/seedN (~400 MB each; "
+                         "deleted once scored by default)")
     ap.add_argument("--stages", action="store_true",
                     help="also print each stage's wall and CPU time per capture [s]")
     args = ap.parse_args(argv)
@@ -319,13 +327,13 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     if jobs == 1:
         for s in seeds:
-            rows.append(run_one(str(args.work), s, threads, sets))
+            rows.append(run_one(str(args.work), s, threads, sets, args.keep))
             _progress(rows[-1], len(rows), n, w0)
     else:
         import multiprocessing as mp
 
         with ProcessPoolExecutor(jobs, mp_context=mp.get_context("spawn")) as ex:
-            futs = [ex.submit(run_one, str(args.work), s, threads, sets) for s in seeds]
+            futs = [ex.submit(run_one, str(args.work), s, threads, sets, args.keep) for s in seeds]
             for f in as_completed(futs):
                 rows.append(f.result())
                 _progress(rows[-1], len(rows), n, w0)
