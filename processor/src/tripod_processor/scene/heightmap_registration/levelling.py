@@ -98,8 +98,10 @@ def level_scan(points, labels, *, seed: int = 0, max_points: int = 200_000,
     if len(P) > max_points:  # planes and images need no more
         idx = np.random.default_rng(seed).choice(len(P), max_points, replace=False)
         P, labels = P[idx], labels[idx]
-    planes = extract_planes(P, labels, classes=(FLOOR, CEILING, WALL) if gravity
-                            else (FLOOR, CEILING), min_points=200, seed=seed)
+    planes = extract_planes(P, labels, classes=(FLOOR, CEILING), min_points=200, seed=seed)
+    if gravity:  # the walls' normals, on a subset (they only level)
+        few = slice(None, None, max(1, len(P) // 60_000))
+        planes += extract_planes(P[few], labels[few], classes=(WALL,), min_points=100, seed=seed)
     floors = [p for p in planes if p.label == FLOOR
               and (not gravity or abs(p.normal[2]) > np.cos(np.radians(10.0)))]
     T = np.eye(4)
