@@ -29,12 +29,12 @@
   uses the ``synthetic_rooms`` generator instead;
 * registration by heightmaps on ``tripod reconstruct``'s own fragments from rigs with vertical,
   tilted and side-mounted lidars, levelled by the up direction the fragments carry
-  (``bench/scene_heightmap_pairs.py``; ``--only heightmap-pairs``, ``--pair-split`` picks its
-  seeds too).
+  (``bench/scene_heightmap_pairs.py``; ``--only heightmap-pairs``; ``--hm-split
+  dev|dev2|test|test2`` picks its seeds, else ``--pair-split`` does; ``--hm-scenes`` a subset).
 
 Usage: ``python bench/scene.py [--quick] [--pairs 50] [--pictures] [--only SECTION]
 [--split test|dev|val] [--buildings 3] [--no-lofo] [--lofo-steps N] [--lofo-per-family N]
-[--no-twin] [--pair-split test|dev] [--pair-source twin|synthetic] [--no-baselines]``
+[--no-twin] [--pair-split test|dev] [--hm-split S] [--hm-scenes ...] [--pair-source twin|synthetic] [--no-baselines]``
 (``--pictures`` rewrites docs/*.png; ``--quick``: two families, one building each, small
 leave-one-family-out models, the room capture only of the twin, 8 pairs from the first seed,
 no baselines).
@@ -529,6 +529,13 @@ def main(argv=None) -> int:
     ap.add_argument("--pair-split", choices=("test", "dev"), default="test",
                     help="registration pairs: test (seeds 231-233, draw 1, reported) or dev "
                          "(seeds 201-203, draw 0: the pairs the method was developed on)")
+    ap.add_argument("--hm-split", choices=("dev", "dev2", "test", "test2"), default=None,
+                    help="heightmap pairs of reconstruct's fragments: dev / dev2 (seeds 301 / "
+                         "302, looked at while developing), test (seed 331, run once for the "
+                         "first figure), test2 (seed 332, run once for the second); default: "
+                         "--pair-split's")
+    ap.add_argument("--hm-scenes", nargs="+", default=None,
+                    help="heightmap pairs: scenes (default: all five)")
     ap.add_argument("--buildings", type=int, default=3,
                     help="generated buildings per layout family to score (segmentation)")
     ap.add_argument("--no-lofo", action="store_true",
@@ -575,7 +582,8 @@ def main(argv=None) -> int:
     if a.only in (None, "heightmap-pairs"):  # reconstruct's fragments, any lidar mount
         from scene_heightmap_pairs import bench_heightmap_pairs
 
-        bench_heightmap_pairs(a.pair_split, a.quick, row=row)
+        bench_heightmap_pairs(a.hm_split or a.pair_split, a.quick, row=row,
+                              scenes=a.hm_scenes)
     from rich.console import Console
     from rich.table import Table
 

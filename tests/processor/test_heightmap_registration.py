@@ -177,3 +177,48 @@ def test_cli_register_heightmaps_method(tmp_path, capsys):
     assert out["method"] == "heightmaps" and (tmp_path / "r.json").is_file()
     assert out["success"] is True and out["structure_fitness"] > 0.5
     assert {"free_space_violation", "ambiguity", "twin_ambiguity", "proposer"} <= out.keys()
+
+
+def _tipped(axis_deg: float, tilt_deg: float) -> np.ndarray:
+    """(3, 3) a turn by ``tilt_deg`` about the horizontal axis at ``axis_deg`` of azimuth."""
+    from scipy.spatial.transform import Rotation
+
+    a = np.radians(axis_deg)
+    return Rotation.from_rotvec(np.radians(tilt_deg) * np.array([np.cos(a), np.sin(a), 0.0])
+                                ).as_matrix()
+
+
+def test_walls_correct_an_imu_up_that_is_off():
+    """A lidar with its spin axis vertical sees a band of walls and little floor; the up its
+    fragments carry (the IMU's gravity) is off by 0.8 deg, in another direction at each station.
+    Levelled by that up alone the pair is ~1.3 deg and several cm off; the walls (made vertical
+    by ``structure_up``) fix the level and the pair registers within 1 deg / 5 cm."""
+    from tripod_processor.scene.heightmap_registration import register_by_heightmaps
+    from tripod_processor.sim.rooms import free_station, make_room, scan
+
+    scene = make_room(43)
+    rng = np.random.default_rng(43)
+    a, b = free_station(scene, rng), free_station(scene, rng)
+    clouds = []
+    for st, seed, axis in ((a, 1, 20.0), (b, 2, 170.0)):
+        p, lab = scan(scene, st, head_steps=10, noise_m=0.03, seed=seed)
+        d = p - st
+        band = np.abs(d[:, 2]) < np.tan(np.radians(15.0)) * np.linalg.norm(d[:, :2], axis=1)
+        R = _tipped(axis, 0.8)  # the cloud's true up is R @ e_z; the IMU says e_z
+        clouds.append(((p[band] - st) @ R.T, lab[band], R))
+    (pt, lt, Rt), (ps, lsb, Rs) = clouds
+    T_true = np.eye(4)
+    T_true[:3, :3] = Rt @ Rs.T
+    T_true[:3, 3] = Rt @ (b - a)
+    # the up from the "IMU", off by 0.8 deg in each cloud
+    up = np.array([0.0, 0.0, 1.0])
+    r = register_by_heightmaps(ps.astype(np.float32), pt.astype(np.float32), source_labels=lsb,
+                               target_labels=lt, source_up=up, target_up=up)
+    ang, dist = _pose_error(r.T_target_source, T_true)
+    assert ang < 1.0 and dist < 0.05, (ang, dist)
+    assert r.success
+    # the structure's up of each cloud is within 0.2 deg of its true up
+    for P, lab, R in clouds:
+        lv = hr.level_scan(P, lab, gravity=True)
+        up_est = lv.T_level_scan[2, :3]
+        assert np.degrees(np.arccos(np.clip(up_est @ (R @ [0, 0, 1.0]), -1, 1))) < 0.2

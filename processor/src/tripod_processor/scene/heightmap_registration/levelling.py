@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..planes import CEILING, FLOOR, extract_planes
+from ..planes import CEILING, FLOOR, WALL, extract_planes
 
 
 def _rot_to_z(n: np.ndarray) -> np.ndarray:
@@ -39,16 +39,58 @@ class LevelledScan:
     floor_trusted: bool = True
 
 
+def structure_up(planes, *, prior_weight: float = 2000.0, max_tilt_deg: float = 3.0,
+                 outlier_deg: float = 1.0) -> np.ndarray:
+    """The up direction (unit (3,), in the planes' frame) that makes the walls vertical and the
+    floors and ceilings horizontal, near +z: the frame's +z is the prior (an IMU's gravity).
+
+    Each wall (normal within 10 deg of horizontal) asks n . u = 0, each floor or ceiling (within
+    10 deg of vertical) u parallel to n; with u = (a, b, 1) these are linear in (a, b), weighted
+    by the plane's points (at most 20 000 each) against ``prior_weight`` points' worth of the
+    prior (a, b) = 0, so that a direction no wall constrains (a corridor's) stays at the prior.
+    Planes more than ``outlier_deg`` off the first fit are dropped and the fit repeated; a
+    correction over ``max_tilt_deg`` is not trusted (+z is returned). A vertical lidar's band of
+    walls fixes its level to a small fraction of a degree where the IMU's is off by ~1 deg."""
+    rows, rhs, w = [], [], []
+    for p in planes:
+        n = np.asarray(p.normal, np.float64)
+        k = float(min(len(p.indices), 20_000))
+        if p.label == WALL and abs(n[2]) < np.sin(np.radians(10.0)):
+            rows.append([n[0], n[1]]), rhs.append(-n[2]), w.append(k)
+        elif p.label in (FLOOR, CEILING) and abs(n[2]) > np.cos(np.radians(10.0)):
+            rows += [[1.0, 0.0], [0.0, 1.0]]
+            rhs += [n[0] / n[2], n[1] / n[2]]
+            w += [k, k]
+    if not rows:
+        return np.array([0.0, 0.0, 1.0])
+    A, y, wt = np.asarray(rows), np.asarray(rhs), np.asarray(w)
+    keep = np.ones(len(y), bool)
+    ab = np.zeros(2)
+    for _ in range(2):
+        Aw = np.vstack([A[keep] * np.sqrt(wt[keep])[:, None], np.sqrt(prior_weight) * np.eye(2)])
+        yw = np.concatenate([y[keep] * np.sqrt(wt[keep]), [0.0, 0.0]])
+        ab = np.linalg.lstsq(Aw, yw, rcond=None)[0]
+        keep = np.abs(A @ ab - y) < np.radians(outlier_deg)
+        if not keep.any():
+            break
+    u = np.array([ab[0], ab[1], 1.0])
+    u /= np.linalg.norm(u)
+    if np.degrees(np.arccos(np.clip(u[2], -1, 1))) > max_tilt_deg:
+        return np.array([0.0, 0.0, 1.0])
+    return u
+
+
 def level_scan(points, labels, *, seed: int = 0, max_points: int = 200_000,
-               gravity: bool = False, max_tilt_deg: float = 1.0) -> LevelledScan:
+               gravity: bool = False, max_tilt_deg: float = 3.0) -> LevelledScan:
     """Level a labelled scan on its largest floor plane (and measure the ceiling height).
 
-    ``gravity``: the scan's z is already up along gravity (levelled by its IMU up): the floor is
-    then the lowest sizeable floor plane within 10 deg of horizontal, refines the levelling only
-    when within ``max_tilt_deg`` of it (a sparse, grazing floor can fit worse than the IMU), and
-    without one the floor height comes from the lowest floor-labelled (else lowest) points: a
-    lidar with its spin axis vertical sees little floor in a small room, but gravity still
-    levels it. ``floor_trusted``: the floor is a plane with under 1 % of the points below it."""
+    ``gravity``: the scan's z is already up along gravity (levelled by its IMU up): the level is
+    then refined by the structure (:func:`structure_up`: walls vertical, floors and ceilings
+    horizontal; a correction over ``max_tilt_deg`` is not trusted), the floor is the lowest
+    sizeable floor plane within 10 deg of horizontal and gives the height only, and without one
+    the height comes from the lowest floor-labelled (else lowest) points: a lidar with its spin
+    axis vertical sees little floor in a small room, but gravity and its walls still level it.
+    ``floor_trusted``: the floor is a plane with under 1 % of the points below it."""
     P = np.asarray(points, np.float64)
     labels = np.asarray(labels)
     ok = np.isfinite(P).all(1)
@@ -57,25 +99,32 @@ def level_scan(points, labels, *, seed: int = 0, max_points: int = 200_000,
         idx = np.random.default_rng(seed).choice(len(P), max_points, replace=False)
         P, labels = P[idx], labels[idx]
     planes = extract_planes(P, labels, classes=(FLOOR, CEILING), min_points=200, seed=seed)
+    if gravity:  # the walls' normals, on a subset (they only level)
+        few = slice(None, None, max(1, len(P) // 60_000))
+        planes += extract_planes(P[few], labels[few], classes=(WALL,), min_points=100, seed=seed)
     floors = [p for p in planes if p.label == FLOOR
               and (not gravity or abs(p.normal[2]) > np.cos(np.radians(10.0)))]
     T = np.eye(4)
-    if floors:
-        fl = max(floors, key=lambda p: len(p.indices))
-        if gravity:  # the lowest sizeable one: a sparse floor can be smaller than a table top
+    if gravity:  # gravity, refined by the walls, floors and ceilings; the floor gives the height
+        R = _rot_to_z(structure_up(planes, max_tilt_deg=max_tilt_deg))
+        T[:3, :3] = R
+        if floors:  # the lowest sizeable one: a sparse floor can be smaller than a table top
+            fl = max(floors, key=lambda p: len(p.indices))
             big = [p for p in floors if len(p.indices) >= 0.2 * len(fl.indices)]
             fl = min(big, key=lambda p: float(np.median(P[p.indices, 2])))
+            floor_idx = fl.indices
+            T[2, 3] = -float(np.median(P[floor_idx] @ R[2]))
+        else:
+            z = P @ R[2]
+            on_floor = labels == FLOOR
+            zf = z[on_floor] if on_floor.sum() >= 50 else z
+            T[2, 3] = -float(np.percentile(zf, 1.0 if on_floor.sum() >= 50 else 0.5))
+            floor_idx = np.flatnonzero(np.abs(z + T[2, 3]) < 0.05)
+    elif floors:
+        fl = max(floors, key=lambda p: len(p.indices))
         floor_idx = fl.indices
-        if not gravity or abs(fl.normal[2]) > np.cos(np.radians(max_tilt_deg)):
-            T[:3, :3] = _rot_to_z(fl.normal)
-            T[2, 3] = fl.offset  # n.x + d = 0 on the floor -> z' = n.x + d
-        else:  # keep gravity's level; the floor gives its height only
-            T[2, 3] = -float(np.median(P[floor_idx, 2]))
-    elif gravity:
-        on_floor = labels == FLOOR
-        zf = P[on_floor, 2] if on_floor.sum() >= 50 else P[:, 2]
-        T[2, 3] = -float(np.percentile(zf, 1.0 if on_floor.sum() >= 50 else 0.5))
-        floor_idx = np.flatnonzero(np.abs(P[:, 2] + T[2, 3]) < 0.05)
+        T[:3, :3] = _rot_to_z(fl.normal)
+        T[2, 3] = fl.offset  # n.x + d = 0 on the floor -> z' = n.x + d
     else:
         raise ValueError("no floor plane found: cannot level the scan")
     R = T[:3, :3]
