@@ -379,7 +379,10 @@ def print_thread_table(con, rows, load):
                   f"{r['register_cpu_ms']:.1f}", f"{sp:.2f}", f"{sr:.2f}", f"{st:.2f}")
     con.print(t)
     con.print(f"load average (1 min) at start/end: {load[0]:.2f}/{load[1]:.2f} on "
-              f"{os.cpu_count()} cores (the figure needs an idle machine: load < 0.5)")
+              f"{os.cpu_count()} cores (the figure needs an idle machine: load < 0.5); OpenMP "
+              f"wait: OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY', 'unset')}, "
+              f"GOMP_SPINCOUNT={os.environ.get('GOMP_SPINCOUNT', 'unset')} (set by "
+              "tripod_processor at import unless given)")
 
 
 # ---------------------------------------------------------------------------- tables
