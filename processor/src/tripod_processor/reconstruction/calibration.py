@@ -124,6 +124,19 @@ def _rotvec(R: np.ndarray) -> np.ndarray:
     return Rotation.from_matrix(R).as_rotvec()
 
 
+def _register_sweeps(src: np.ndarray, tgt: np.ndarray, init: np.ndarray, num_threads: int):
+    """GICP of one short lidar sweep onto another (10-cm voxels, 1 m → 15 cm correspondences);
+    None when the registration cannot run (too few points after downsampling)."""
+    from ..registration import pairwise as reg
+
+    try:
+        return reg.register(src, tgt, method="gicp", init=init, voxel_size=0.1,
+                            max_correspondence_distance=[1.0, 0.3, 0.15],
+                            num_threads=num_threads)
+    except ValueError:
+        return None
+
+
 def _sweep(lidar: LidarPackets, orient: ImuOrientation, ext: Extrinsic, start_ns: int,
            win_ns: int, num_threads: int) -> np.ndarray:
     """The packets of [start_ns, start_ns + win_ns) (lidar time) de-skewed by the IMU to the
@@ -154,8 +167,6 @@ def calibrate_mount(lidar: LidarPackets, stations: list[Station], orient: ImuOri
     Returns (Extrinsic with source "calibrated", diagnostics).
     """
     from scipy.spatial.transform import Rotation
-
-    from ..registration import pairwise as reg
 
     st = most_turning_station(stations, orient)
     t0 = st.start_ns
@@ -193,11 +204,8 @@ def calibrate_mount(lidar: LidarPackets, stations: list[Station], orient: ImuOri
             B = R_w[k].T @ R_w[j]
             init = np.eye(4)
             init[:3, :3] = R_guess.T @ B @ R_guess
-            try:
-                r = reg.register(cj, ck, method="gicp", init=init, voxel_size=0.1,
-                                 max_correspondence_distance=[1.0, 0.3, 0.15],
-                                 num_threads=num_threads)
-            except ValueError:
+            r = _register_sweeps(cj, ck, init, num_threads)
+            if r is None:
                 continue
             # a turn's angle is the same in any frame: a registration that disagrees with
             # the IMU's by more than 1° slipped (a corridor, little shared view)
@@ -671,7 +679,6 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
     """
     from scipy.spatial.transform import Rotation
 
-    from ..registration import pairwise as reg
     from .placement import pose_world_lidar
 
     use = _pick_stations(stations, orient, max_stations)
@@ -727,11 +734,8 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
             if len(ck) < 500 or len(cj) < 500:
                 continue
             init = rel(orient, int(mids[k]), int(mids[j]))
-            try:
-                r = reg.register(cj, ck, method="gicp", init=init, voxel_size=0.1,
-                                 max_correspondence_distance=[1.0, 0.3, 0.15],
-                                 num_threads=num_threads)
-            except ValueError:
+            r = _register_sweeps(cj, ck, init, num_threads)
+            if r is None:
                 continue
             A = r.T_target_source
             slip = np.degrees(Rotation.from_matrix(init[:3, :3].T @ A[:3, :3]).magnitude())

@@ -80,6 +80,18 @@ def floor_and_ceiling(z: np.ndarray, abs_nz: np.ndarray, bin_m: float = 0.05) ->
     return z_floor, max(z_ceil, z_floor + 0.5)
 
 
+def _segment_description(seg: np.ndarray, nz: np.ndarray, z_floor: float,
+                         z_ceil: float) -> np.ndarray:
+    """(N, 6) features of each point's planar segment from ``segments.py``'s (N, 5) stats
+    (horizontal span, vertical span, lowest z, highest z, area) and its |n_z|: log horizontal
+    span, vertical span over the room's height, bottom above the floor and top below the
+    ceiling [m], log area, |n_z|."""
+    room_h = z_ceil - z_floor
+    return np.column_stack([np.log1p(seg[:, 0]), np.clip(seg[:, 1] / room_h, 0, 2),
+                            np.clip(seg[:, 2] - z_floor, -2, 12),
+                            np.clip(z_ceil - seg[:, 3], -2, 12), np.log1p(seg[:, 4]), nz])
+
+
 def _segment_mean(segment: np.ndarray, values: np.ndarray) -> np.ndarray:
     """Each point's mean of ``values`` over its segment (-1: its own value)."""
     ok = segment >= 0
@@ -165,26 +177,14 @@ def point_features(points, num_threads: int = 0, return_segments: bool = False):
             z_floor, z_ceil = _shape_and_context(p, nt, f)
             seg, seg_nz, segment, res, planes = fine.result()
             cs, cs_nz, coarse, cres = coarse_job.result()
-    z = p[:, 2]
-    room_h = z_ceil - z_floor
     # the planar segment of the point: a wall's runs for metres, floor to ceiling (segments.py)
-    f[:, 23] = np.log1p(seg[:, 0])
-    f[:, 24] = np.clip(seg[:, 1] / room_h, 0, 2)
-    f[:, 25] = np.clip(seg[:, 2] - z_floor, -2, 12)
-    f[:, 26] = np.clip(z_ceil - seg[:, 3], -2, 12)
-    f[:, 27] = np.log1p(seg[:, 4])
-    f[:, 28] = seg_nz
+    f[:, 23:29] = _segment_description(seg, seg_nz, z_floor, z_ceil)
     # is the plane as a whole the boundary of the scanned space?
     f[:, 29], f[:, 30] = _segment_mean(segment, f[:, 16]), _segment_mean(segment, f[:, 17])
     # a board, picture or radiator joins the wall's segment but lies a few cm off its plane
     f[:, 31], f[:, 32] = np.minimum(res, 0.5), np.minimum(cres, 0.5)
     # the same at 25 cm: far walls scanned by a few sparse lines are planar at this scale
-    f[:, 33] = np.log1p(cs[:, 0])
-    f[:, 34] = np.clip(cs[:, 1] / room_h, 0, 2)
-    f[:, 35] = np.clip(cs[:, 2] - z_floor, -2, 12)
-    f[:, 36] = np.clip(z_ceil - cs[:, 3], -2, 12)
-    f[:, 37] = np.log1p(cs[:, 4])
-    f[:, 38] = cs_nz
+    f[:, 33:39] = _segment_description(cs, cs_nz, z_floor, z_ceil)
     f[:, 39], f[:, 40] = _segment_mean(coarse, f[:, 16]), _segment_mean(coarse, f[:, 17])
     f[~np.isfinite(f)] = 0.0
     f[~np.isfinite(p).all(1)] = 0.0
