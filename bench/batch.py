@@ -30,7 +30,9 @@ reconstructions are re-used when up to date (``--force`` to redo them).
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import resource
 import time
 from pathlib import Path
 
@@ -123,14 +125,31 @@ def building(args, con) -> None:
     cfg = building_config(dirs[0] / "gt" / "calibration.json")
     out = args.work / f"building-{args.building}-out"
     load0 = os.getloadavg()
-    res = batch_reconstruct(recs, out, cfg, workers=args.workers, force=args.force,
-                            merge=MergeConfig(num_threads=args.workers))
+    t0 = time.perf_counter()
+    if args.merge_only:
+        # the reconstructions already in OUT (whatever config made them) merged again: for a
+        # change to the merge only
+        from tripod_processor.reconstruction.merge import merge_recordings
+
+        done = [r for r in recs if (out / r.name / "result.json").is_file()]
+        merge = merge_recordings([out / r.name for r in done], merged_folder(out, recs),
+                                 MergeConfig(num_threads=args.workers),
+                                 names=[r.name for r in done])
+        outcomes = [{"name": r.name, "status": "reused", "summary": json.loads(
+            (out / r.name / "result.json").read_text())} for r in done]
+    else:
+        res = batch_reconstruct(recs, out, cfg, workers=args.workers, force=args.force,
+                                merge=MergeConfig(num_threads=args.workers))
+        merge, outcomes = res.merge, res.outcomes
+    wall = time.perf_counter() - t0
+    # the merge runs in this process (the reconstructions in Ray workers): its peak RSS
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     load1 = os.getloadavg()
-    ms = merge_summary(res.merge)
-    names = [o["name"] for o in res.outcomes if o["status"] != "failed"]
+    ms = merge_summary(merge)
+    names = [o["name"] for o in outcomes if o["status"] != "failed"]
     ev = evaluate_merge(merged_folder(out, recs), {n: out / n for n in names},
                         {d.name: d for d in dirs})
-    rec_cpu = sum(o["summary"].get("processing_cpu_s", 0.0) for o in res.outcomes)
+    rec_cpu = sum(o["summary"].get("processing_cpu_s", 0.0) for o in outcomes)
     n_st = ms["stations"]
     t = Table(title=f"merged building ({args.building}): {len(recs)} recordings, {n_st} stations "
                     f"reconstructed; batch {args.workers} workers", header_style="bold")
@@ -154,7 +173,9 @@ def building(args, con) -> None:
         ("merge CPU s / wall s", f"{ms['processing_cpu_s']:.0f} / {ms['processing_s']:.0f}"),
         ("merge CPU s by stage", ", ".join(f"{k} {v:.0f}" for k, v in
                                            ms["stage_cpu_s"].items())),
-        ("batch wall s (reconstruct + merge)", f"{res.wall_s:.0f}"),
+        ("merge: bench process peak RSS MB", f"{peak_mb:.0f}"),
+        ("batch wall s (reconstruct + merge)" if not args.merge_only else
+         "merge wall s (reconstructions re-used as they are)", f"{wall:.0f}"),
         ("simulation wall s (cached when 0)", f"{sim_s:.0f}"),
         ("load 1 min before / after", f"{load0[0]:.1f} / {load1[0]:.1f}"),
     ]
@@ -163,6 +184,44 @@ def building(args, con) -> None:
     con.print(t)
     for f in ev["false_link_list"][:10]:
         con.print(f"false link: {f}")
+    detail_tables(con, ev)
+    (args.work / f"building-{args.building}-eval.json").write_text(json.dumps(
+        {"eval": ev, "merge": {k: v for k, v in ms.items() if k != "recording_pairs"},
+         "peak_rss_mb": peak_mb, "load": [load0, load1]}, indent=1, default=str))
+
+
+def detail_tables(con, ev: dict) -> None:
+    """Per recording (which one carries the error) and per recording pair (its hypothesis
+    against the truth, its links) of :func:`evaluate_merge`'s result."""
+    from rich.table import Table
+
+    r = Table(title="per recording: station error in the merged model (one alignment), the same "
+                    "stations aligned on their own, and the reconstruction alone",
+              header_style="bold")
+    for c in ("recording", "stations", "ATE cm / deg (merged)", "max cm", "own-aligned cm",
+              "reconstruction alone cm / deg"):
+        r.add_column(c, justify="right")
+    for n, x in ev["recordings"].items():
+        r.add_row(n, f"{x['merged_stations']} / {x['stations']}",
+                  f"{x['ate_cm']:.1f} / {x['ate_deg']:.2f}", f"{x['max_err_cm']:.1f}",
+                  f"{x['own_ate_cm']:.1f}", f"{x['alone_ate_cm']:.2f} / {x['alone_ate_deg']:.3f}")
+    con.print(r)
+    p = Table(title="per recording pair: hypothesis error against the truth, links true / kept / "
+                    "true found / false / weak, twin check", header_style="bold")
+    for c in ("pair", "joined", "hypothesis err m / deg", "true", "kept", "found", "false",
+              "weak", "twin scores (ratio)"):
+        p.add_column(c, justify="right")
+    for ab, x in ev["pairs"].items():
+        tw = x.get("twin", {})
+        joined = (x.get("accepted") or "-") if not tw.get("cycle") else "cycle-unjoined"
+        if tw.get("ambiguous"):
+            joined = "ambiguous"
+        err = (f"{x['hyp_err_m']:.2f} / {x['hyp_err_deg']:.2f}" if "hyp_err_m" in x else "-")
+        sc = ", ".join(f"{k}: {v:.2f}" for k, v in tw.get("scores", {}).items())
+        p.add_row(ab.replace("|", " x "), joined, err, str(x["true_links"]), str(x["kept"]),
+                  str(x["true_found"]), str(x["false"]), str(x["weak"]),
+                  f"{sc} ({tw['ratio']:.2f})" if sc else "-")
+    con.print(p)
 
 
 def scaleout(args, con) -> None:
@@ -361,6 +420,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--building", choices=("full", "small", "none"), default="full")
     ap.add_argument("--workers", type=int, default=2, help="workers of the building's batch")
     ap.add_argument("--force", action="store_true", help="reconstruct the building again")
+    ap.add_argument("--merge-only", action="store_true",
+                    help="building: merge the reconstructions already in WORK/building-SIZE-out "
+                         "again (whatever config made them; no batch): for a change to the merge")
     ap.add_argument("--growth", action="store_true",
                     help="instead of the building's score: cost growth of the reconstruction "
                          "and the merge for ~50, ~100, ~200 and all stations")

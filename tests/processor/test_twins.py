@@ -148,3 +148,69 @@ def test_cycle_check_unjoins_the_pair_that_breaks_cycles():
     three = {ab: acc[ab] for ab in ((0, 1), (0, 3), (1, 3))}
     outcomes[(0, 3)].links = 2  # the weakest of the broken cycle
     assert drop_inconsistent(three, outcomes, cfg) == [(0, 3)]
+
+
+# ---- shifted twins: a corridor with doors at a regular spacing ----------------------------------
+PERIOD = 4.0  # door spacing along the corridor [m]
+
+
+def _corridor():
+    """A 44 x 2.2 m corridor along x with a door and a niche (2 x 1.6 m) every ``PERIOD`` m on
+    its north side (so not point-symmetric), closed at both ends, and one cabinet: under a shift
+    by the period only the cabinet and the far end walls tell the placements apart."""
+    mb = MeshBuilder()
+    rects = [(0.0, 0.0, 44.0, 2.2)]
+    for x in np.arange(3.0, 42.0, PERIOD):
+        rects += [(x - 0.5, 2.2, x + 0.5, 2.4), (x - 1.0, 2.4, x + 1.0, 4.0)]
+    mb.floor_plan(rects, H)
+    mb.box((22.0, 0.02, 0.0), (23.0, 0.5, 1.2), OTHER)  # the cabinet
+    return mb.build("periodic_corridor", [(1, 1.1), (43, 1.1)], False, {},
+                    np.random.default_rng(0))
+
+
+def test_shifted_twin_of_a_repeated_corridor_is_found_and_rejected(tmp_path):
+    """Two recordings of the corridor: the hypothesis shifted by one door spacing along it is
+    found as a translational twin of the true one, and handed the shifted one, the pair check
+    does not keep it (the true placement wins, or the pair is left undecided)."""
+    from tripod_processor.reconstruction.merge import (MergeConfig, _Coarse, _close,
+                                                       check_hypothesis, load_recording,
+                                                       shift_twins, submap)
+    from tripod_processor.reconstruction.odometry import CloudCache
+
+    scene = _corridor()
+    st_a = [((18.0, 1.1), 20.0), ((21.4, 1.0), 100.0), ((24.6, 1.2), -30.0)]
+    st_b = [((20.1, 1.2), -60.0), ((23.5, 1.1), 45.0), ((26.8, 1.0), 170.0)]
+    T_w_a = pose(yaw_deg=st_a[0][1], xyz=(*st_a[0][0], 1.4))
+    T_w_b = pose(yaw_deg=st_b[0][1], xyz=(*st_b[0][0], 1.4))
+    _recording(tmp_path / "a", scene, st_a, T_w_a, 11)
+    _recording(tmp_path / "b", scene, st_b, T_w_b, 17)
+    cfg = MergeConfig(num_threads=2)
+    recs = [load_recording(tmp_path / n) for n in ("a", "b")]
+    cache = CloudCache(recs[0].config.odometry.point_sigma_m, 2)
+    coarse = _Coarse(recs, cfg.overlap_voxel_m)
+    maps = [submap(r, cfg.submap_voxel_m) for r in recs]
+    H_true = np.linalg.inv(T_w_a) @ T_w_b
+    along = np.linalg.inv(T_w_a)[:3, :3] @ np.array([1.0, 0.0, 0.0])  # corridor axis in A
+
+    # the repeat is found: a twin shifted by one period along the corridor
+    twins = shift_twins(maps[0], maps[1], H_true, cfg)
+    shifts = [(H2[:3, 3] - H_true[:3, 3]) for _, H2, _ in twins]
+    assert any(abs(abs(d @ along) - PERIOD) < 0.4 and np.linalg.norm(d - (d @ along) * along)
+               < 0.1 for d in shifts), twins
+
+    for start in (1.0, -1.0):
+        H_wrong = H_true.copy()
+        H_wrong[:3, 3] += start * PERIOD * along
+        H, links, info = check_hypothesis(recs, cache, coarse, maps, 0, 1, H_wrong, "global",
+                                          cfg)
+        assert "scores" in info and any("m@" in k for k in info["scores"]), info
+        # the shifted placement it was handed loses to its own shifted twin (the truth): the
+        # truth is kept, or the pair is left undecided; never the shifted placement
+        assert info["winner"] != "0", info
+        assert info["ambiguous"] or (_close(H, H_true, 0.05, 0.5)
+                                     and len(links) >= cfg.min_links), (info, H[:3, 3])
+    # the true placement stays, its shifted twins scored and beaten
+    H, links, info = check_hypothesis(recs, cache, coarse, maps, 0, 1, H_true, "global", cfg)
+    assert any("m@" in k for k in info["scores"]), info
+    assert not info["ambiguous"] and info["winner"] == "0", info
+    assert _close(H, H_true, 0.05, 0.5) and len(links) >= cfg.min_links

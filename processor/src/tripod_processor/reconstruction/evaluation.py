@@ -250,7 +250,15 @@ def evaluate_merge(merged_dir, recording_dirs: dict, sim_dirs: dict, *, true_ove
       *false* when that share is below ``false_overlap`` or its relative pose is off the truth by
       more than ``link_tol_m`` / ``link_tol_deg``; pairs in between are weak (neither needed
       nor false). Recall = true links kept / true links; precision = kept links not false /
-      kept links.
+      kept links;
+    - per recording (``recordings``: {name: ...}): its stations' ATE in the merged model under
+      the one alignment (which recording carries the error), the same stations aligned on
+      their own (bent inside the model) and its own reconstruction's ATE aligned alone (its
+      error inside the recording);
+    - per recording pair (``pairs``: {"A|B": ...}): true links, links kept / true found /
+      false / weak, and, where the merge's ``result.json`` gives the pair's hypothesis
+      (``recording_pairs[].T_a_b``), its error against the truth [m] / [deg] (each recording's
+      frame placed in the building frame by its own reconstruction aligned to the truth).
     """
     import csv
     from pathlib import Path
@@ -270,6 +278,7 @@ def evaluate_merge(merged_dir, recording_dirs: dict, sim_dirs: dict, *, true_ove
         tt = same_hour(tt, t[i:i + 1])
         T_true[i] = interpolate_poses(tt, TT, t[i:i + 1])[0]
     e = pose_errors(T, T_true)
+    A_all = align_poses(T, T_true)
     # true links: every cross-recording station pair, from the truth
     names = list(recording_dirs)
     recs = [load_recording(recording_dirs[n], n) for n in names]
@@ -321,6 +330,54 @@ def evaluate_merge(merged_dir, recording_dirs: dict, sim_dirs: dict, *, true_ove
                                 "b": f"{names[B]}#{recs[B].index[b]}", "true_overlap": ov,
                                 "err_m": err_m, "err_deg": err_deg})
     hit = len((true_pairs & found) - false_set)
+    # per recording: which one carries the error
+    rec_of = np.array([row["recording"] for row in rows])
+    per_rec, T_world_rec = {}, {}
+    for ri, r in enumerate(recs):
+        m = rec_of == r.name
+        alone = pose_errors(r.T, T_st[ri])
+        A_r = align_poses(r.T, T_st[ri])
+        T_world_rec[r.name] = A_r
+        d = (np.linalg.norm((A_all @ T[m])[:, :3, 3] - T_true[m, :3, 3], axis=1) if m.any()
+             else np.zeros(0))
+        E = np.linalg.inv(T_true[m]) @ (A_all @ T[m])
+        dr = np.degrees(Rotation.from_matrix(E[:, :3, :3]).magnitude()) if m.any() else d
+        per_rec[r.name] = {
+            "stations": int(len(r.t_ns)), "merged_stations": int(m.sum()),
+            "ate_cm": float(100 * np.sqrt(np.mean(d**2))) if m.any() else float("nan"),
+            "ate_deg": float(np.sqrt(np.mean(dr**2))) if m.any() else float("nan"),
+            "max_err_cm": float(100 * d.max()) if m.any() else float("nan"),
+            # its stations in the merged model aligned on their own (bent inside the model?)
+            "own_ate_cm": (pose_errors(T[m], T_true[m]).ate_m * 100 if m.any()
+                           else float("nan")),
+            "alone_ate_cm": alone.ate_m * 100, "alone_ate_deg": alone.ate_deg}
+    # per recording pair: links, and the hypothesis against the truth
+    hyp = {}
+    res_file = merged / "result.json"
+    if res_file.is_file():
+        import json
+
+        for p in json.loads(res_file.read_text()).get("recording_pairs", []):
+            hyp[(p["a"], p["b"])] = p
+    per_pair = {}
+    for A in range(len(recs)):
+        for B in range(A + 1, len(recs)):
+            ab = {q for q in true_pairs if q[0] == A and q[2] == B}
+            fd = {q for q in found if q[0] == A and q[2] == B}
+            fs = {q for q in false_set if q[0] == A and q[2] == B}
+            row = {"true_links": len(ab), "kept": len(fd), "true_found": len(ab & fd - fs),
+                   "false": len(fs), "weak": len(fd - ab - fs)}
+            p = hyp.get((names[A], names[B]))
+            if p is not None:
+                row.update(accepted=p.get("accepted", ""), twin=p.get("twin", {}))
+                if p.get("T_a_b") is not None:
+                    H = np.asarray(p["T_a_b"], dtype=np.float64)
+                    H_true = np.linalg.inv(T_world_rec[names[A]]) @ T_world_rec[names[B]]
+                    E = np.linalg.inv(H_true) @ H
+                    row.update(hyp_err_m=float(np.linalg.norm(E[:3, 3])),
+                               hyp_err_deg=float(np.degrees(
+                                   Rotation.from_matrix(E[:3, :3]).magnitude())))
+            per_pair[f"{names[A]}|{names[B]}"] = row
     return {"stations": int(len(t)), "ate_cm": e.ate_m * 100, "ate_deg": e.ate_deg,
             "max_err_cm": e.max_m * 100, "max_err_deg": e.max_deg,
             "true_links": len(true_pairs), "true_links_found": hit,
@@ -328,4 +385,4 @@ def evaluate_merge(merged_dir, recording_dirs: dict, sim_dirs: dict, *, true_ove
             "weak_links_kept": len(found - true_pairs - false_set),
             "link_recall": hit / len(true_pairs) if true_pairs else 1.0,
             "link_precision": (kept - len(false_links)) / kept if kept else 1.0,
-            "false_link_list": false_links}
+            "false_link_list": false_links, "recordings": per_rec, "pairs": per_pair}

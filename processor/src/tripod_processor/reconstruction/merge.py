@@ -31,7 +31,10 @@ Steps, for every pair of recordings (A, B):
    the same way; score: the mean over the ``probe_links`` best candidate pairs of fitness -
    ``free_space_weight`` x free-space violation, 0 for a pair that does not verify): the best
    wins, and when the runner-up scores more than ``max_twin_ratio`` of it the pair is
-   *ambiguous* and does not join the recordings (they may still join through other pairs);
+   *ambiguous* and does not join the recordings (they may still join through other pairs).
+   **Shifted twins** likewise: a repeated structure (doors along a corridor at a regular
+   spacing) fits the hypothesis shifted by its period; the other optima of the maps' structure
+   overlap along the overlap's principal horizontal axes are probed and scored the same way;
 2b. **cycle consistency**: three joined recordings' hypotheses must compose to the identity;
    the pair in the most broken cycles (the weakest on a tie) is unjoined until none is broken;
 3. **one pose graph** per group of joined recordings: every station a node (starting where the
@@ -104,6 +107,14 @@ class MergeConfig(StrictModel):
     #: a twin whose maps fit (the restricted global registration's fitness) below this share of
     #: the hypothesis' own is not probed (it cannot compete; saves its link registrations)
     twin_min_map_fit: float = Field(default=0.7, ge=0, le=1)
+    #: translational twins: shifts of the hypothesis along its overlap's two principal
+    #: horizontal axes to the other local optima of the maps' structure overlap (a corridor
+    #: with doors at a regular spacing fits a placement shifted by that spacing); the
+    #: ``twin_shifts`` best of those that fit at least ``twin_min_map_fit`` of the hypothesis'
+    #: own are probed and scored like the turned twins (0: none)
+    twin_shifts: int = Field(default=2, ge=0)
+    #: the shifts searched: up to this far [m] either way along each axis
+    twin_shift_max_m: float = Field(default=12.0, gt=0)
     #: weight of the free-space violation against the fitness in a link's score (fitness -
     #: weight x violation; a hypothesis scores the mean over its ``probe_links`` best candidates)
     free_space_weight: float = Field(default=10.0, ge=0)
@@ -456,6 +467,91 @@ def refine_on_maps(map_A: np.ndarray, map_B: np.ndarray, H: np.ndarray, cfg: Mer
     return T if tilt < 2.0 else H
 
 
+#: the grid [m] of the structure overlap that finds translational twins, and its shift step [m]
+SHIFT_VOXEL_M = 0.2
+SHIFT_STEP_M = 0.1
+
+
+def _structure(P: np.ndarray) -> np.ndarray:
+    """The points of a z-up map off its floor and ceiling (25 cm from the 1st and 99th height
+    percentiles): a floor and a ceiling overlap under any horizontal shift."""
+    if not len(P):
+        return P
+    lo, hi = np.percentile(P[:, 2], [1, 99])
+    return P[(P[:, 2] > lo + 0.25) & (P[:, 2] < hi - 0.25)]
+
+
+def shift_twins(map_A: np.ndarray, map_B: np.ndarray, H: np.ndarray, cfg: MergeConfig
+                ) -> list[tuple[str, np.ndarray, float]]:
+    """Translational twins of the hypothesis ``H`` (T_A_B; both maps z up, (N, 3) [m]): a
+    repeated structure (doors along a corridor at a regular spacing) fits B shifted by its
+    period about as well. B's structure (off floor and ceiling) placed by H is shifted along
+    each principal horizontal axis of its overlap with A's, in ``SHIFT_STEP_M`` steps up to
+    ``twin_shift_max_m`` either way; the score of a shift is the share of B's structure points
+    in a cell of A's (a ``SHIFT_VOXEL_M`` grid dilated by one cell). Its local maxima (over
+    ±0.5 m) at least 1 m from H, parted from H's peak by a dip (below 0.95 of their score) and
+    scoring at least ``twin_min_map_fit`` of H's own, best first, at most ``twin_shifts``:
+    [(label "+4.1 m@87°" (shift along the axis of that yaw in A's frame), H shifted, score /
+    H's score)]."""
+    from scipy import ndimage
+
+    from ..preprocess import voxel_downsample
+
+    v = SHIFT_VOXEL_M
+    if cfg.twin_shifts <= 0 or len(map_A) < 100 or len(map_B) < 100:
+        return []
+    a = _structure(voxel_downsample(np.ascontiguousarray(map_A, dtype=np.float32), v, 1)
+                   .astype(np.float64))
+    b = _structure(voxel_downsample(np.ascontiguousarray(map_B, dtype=np.float32), v, 1)
+                   .astype(np.float64))
+    if len(a) < 100 or len(b) < 100:
+        return []
+    b = b @ H[:3, :3].T + H[:3, 3]
+    lo = a.min(axis=0) - 2 * v
+    k = np.floor((a - lo) / v).astype(np.int64)
+    shape = k.max(axis=0) + 3
+    grid = np.zeros(shape, dtype=bool)
+    grid[tuple(k.T)] = True
+    grid = ndimage.binary_dilation(grid, np.ones((3, 3, 3), dtype=bool))
+
+    def hits(P: np.ndarray) -> np.ndarray:
+        q = np.floor((P - lo) / v).astype(np.int64)
+        inside = ((q >= 0) & (q < shape)).all(axis=1)
+        out = np.zeros(len(P), dtype=bool)
+        out[inside] = grid[tuple(q[inside].T)]
+        return out
+
+    h0 = hits(b)
+    if h0.sum() < 50:
+        return []
+    ov = b[h0, :2]
+    _, V = np.linalg.eigh(np.cov((ov - ov.mean(axis=0)).T))
+    s = np.arange(-cfg.twin_shift_max_m, cfg.twin_shift_max_m + 1e-9, SHIFT_STEP_M)
+    w = int(round(0.5 / SHIFT_STEP_M))
+    found = []
+    for u in (V[:, 1], V[:, 0]):  # the major axis first (along a corridor)
+        f = np.array([hits(b + np.array([x * u[0], x * u[1], 0.0])).mean() for x in s])
+        near = np.abs(s) < 0.5
+        f0 = float(f[near].max())
+        if f0 <= 0:
+            continue
+        i0 = int(np.flatnonzero(near)[np.argmax(f[near])])
+        for i in range(len(s)):
+            if abs(s[i]) < 1.0 or f[i] < cfg.twin_min_map_fit * f0:
+                continue
+            if f[i] < f[max(0, i - w): i + w + 1].max():
+                continue  # not a local maximum
+            between = f[min(i, i0): max(i, i0) + 1]
+            if between.min() >= 0.95 * f[i]:
+                continue  # H's own peak, widened: no dip between them
+            H2 = H.copy()
+            H2[:2, 3] += s[i] * u
+            yaw = np.degrees(np.arctan2(u[1], u[0]))
+            found.append((f"{s[i]:+.1f} m@{yaw:.0f}°", H2, float(f[i] / f0)))
+    found.sort(key=lambda c: -c[2])
+    return found[: cfg.twin_shifts]
+
+
 def resolve_twins(recs, cache, coarse, maps, A: int, B: int, H: np.ndarray, src: str,
                   found: list[Link], quality: list[float], cfg: MergeConfig):
     """The accepted hypothesis ``H`` (its links ``found``, candidate ``quality``) against its
@@ -463,14 +559,15 @@ def resolve_twins(recs, cache, coarse, maps, A: int, B: int, H: np.ndarray, src:
     registration of the two maps restricted to yaws within 30 deg of H's turned by it; a twin
     whose maps fit at least ``twin_min_map_fit`` of H's own (the same restricted registration
     about H's yaw) and distinct from H is refined by ICP on the maps, its ``probe_links`` best
-    candidates registered like H's, and scored by :func:`hypothesis_score`. Returns (T_A_B,
-    links, info): the best-scoring hypothesis and its links (a twin that wins is refined by its
-    best link and all its links searched);
-    ``info["ambiguous"]`` when the runner-up scores more than ``max_twin_ratio`` of the winner
+    candidates registered like H's, and scored by :func:`hypothesis_score`; then its
+    translational twins (:func:`shift_twins`: H shifted along a repeated structure), refined,
+    probed and scored the same way. Returns (T_A_B, links, info): the best-scoring hypothesis
+    and its links (a twin that wins is refined by its best link and all its links searched);
+    ``info["scores"]``: {"0" (H), turn deg, or shift label: score}, ``info["ambiguous"]`` when the runner-up scores more than ``max_twin_ratio`` of the winner
     (or the winner scores <= 0)."""
     from ..registration import pairwise as reg
 
-    cands = [(0.0, H, found, hypothesis_score(quality, cfg))]
+    cands = [("0", H, found, hypothesis_score(quality, cfg))]
     if len(maps[A]) >= 100 and len(maps[B]) >= 100:
         def restricted(turn: float):
             return reg.register_global(maps[B], maps[A], voxel_size=cfg.global_voxel_m,
@@ -489,13 +586,20 @@ def resolve_twins(recs, cache, coarse, maps, A: int, B: int, H: np.ndarray, src:
                 continue
             # probed and scored on its best candidates; all its links searched if it wins
             probes, q2 = all_links(recs, cache, coarse, A, B, H2, src, cfg, cfg.probe_links)
-            cands.append((turn, H2, probes, hypothesis_score(q2, cfg)))
+            cands.append((f"{turn:.0f}", H2, probes, hypothesis_score(q2, cfg)))
+        # translational twins: H shifted along a repeated structure to its other optima
+        for label, H2, _fit in shift_twins(maps[A], maps[B], H, cfg):
+            H2 = refine_on_maps(maps[A], maps[B], H2, cfg)
+            if any(_close(c[1], H2, 1.0, 20.0) for c in cands):
+                continue
+            probes, q2 = all_links(recs, cache, coarse, A, B, H2, src, cfg, cfg.probe_links)
+            cands.append((label, H2, probes, hypothesis_score(q2, cfg)))
     order = sorted(range(len(cands)), key=lambda k: -cands[k][3])
     win = cands[order[0]]
     runner = max((cands[k][3] for k in order[1:]), default=0.0)
     ratio = 1.0 if win[3] <= 0 else max(0.0, runner) / win[3]
-    info = {"scores": {f"{c[0]:.0f}": round(c[3], 4) for c in cands},
-            "winner": f"{win[0]:.0f}", "ratio": round(float(ratio), 4),
+    info = {"scores": {c[0]: round(c[3], 4) for c in cands},
+            "winner": win[0], "ratio": round(float(ratio), 4),
             "ambiguous": bool(ratio > cfg.max_twin_ratio)}
     H_win, links = win[1], win[2]
     if order[0] != 0 and not info["ambiguous"] and links:
@@ -504,6 +608,27 @@ def resolve_twins(recs, cache, coarse, maps, A: int, B: int, H: np.ndarray, src:
         H_win = recs[A].T[top.a] @ top.T_a_b @ inv(recs[B].T[top.b])
         links = all_links(recs, cache, coarse, A, B, H_win, src, cfg)[0]
     return H_win, links, info
+
+
+def check_hypothesis(recs, cache, coarse, maps, A: int, B: int, H: np.ndarray, src: str,
+                     cfg: MergeConfig, times: dict | None = None
+                     ) -> tuple[np.ndarray, list[Link], dict]:
+    """A verified hypothesis ``H`` (T_A_B) of recordings A and B: every link searched from it,
+    then (``cfg.twins``) judged against its turned and shifted twins (:func:`resolve_twins`).
+    Returns (T_A_B, links, twin info); no links when the pair is ambiguous."""
+    times = {} if times is None else times
+    with _Timer(times, "links"):
+        found, quality = all_links(recs, cache, coarse, A, B, H, src, cfg)
+    info: dict = {}
+    if len(found) >= cfg.min_links and cfg.twins:
+        # the hypothesis against its twins: the best wins by a clear margin, or the pair
+        # stays unjoined (a symmetric or repeated space seen from both recordings)
+        with _Timer(times, "twins"):
+            H, found, info = resolve_twins(recs, cache, coarse, maps, A, B, H, src, found,
+                                           quality, cfg)
+        if info.get("ambiguous"):
+            found = []
+    return H, found, info
 
 
 def drop_inconsistent(accepted: dict, outcomes: dict, cfg: MergeConfig) -> list:
@@ -555,6 +680,8 @@ class PairOutcome:
     #: the twin check: {"scores": {turn deg: score}, "winner": turn, "ratio": runner-up /
     #: winner, "ambiguous": bool}
     twin: dict = field(default_factory=dict)
+    #: the hypothesis T_A_B that came out of the pair's checks (None when none verified)
+    T_A_B: np.ndarray | None = None
 
 
 @dataclass
@@ -656,16 +783,9 @@ def merge_recordings(outdirs: list, outdir: str | os.PathLike, cfg: MergeConfig 
             # the hypothesis refined by its best link, then every link searched from it
             top = max(got, key=lambda lk: lk.fitness)
             H = recs[A].T[top.a] @ top.T_a_b @ inv(recs[B].T[top.b])
-            with _Timer(times, "links"):
-                found, quality = all_links(recs, cache, coarse, A, B, H, src, cfg)
-            if len(found) >= cfg.min_links and cfg.twins:
-                # the hypothesis against its turned twins: the best wins by a clear margin, or
-                # the pair stays unjoined (a symmetric space seen from both recordings)
-                with _Timer(times, "twins"):
-                    H, found, po.twin = resolve_twins(recs, cache, coarse, maps, A, B, H, src,
-                                                      found, quality, cfg)
-                if po.twin.get("ambiguous"):
-                    found = []
+            H, found, po.twin = check_hypothesis(recs, cache, coarse, maps, A, B, H, src, cfg,
+                                                 times)
+            po.T_A_B = H
             if len(found) >= cfg.min_links:
                 po.accepted, po.links = src, len(found)
                 accepted[(A, B)] = H
@@ -895,7 +1015,9 @@ def merge_summary(mres: MergeResult) -> dict:
         "links_kept": int(sum(lk.kept for lk in mres.links)),
         "recording_pairs_joined": int(sum(bool(p.accepted) for p in mres.pairs)),
         "recording_pairs": [{"a": recs[p.A].name, "b": recs[p.B].name, "tried": p.tried,
-                             "accepted": p.accepted, "links": p.links, "twin": p.twin}
+                             "accepted": p.accepted, "links": p.links, "twin": p.twin,
+                             "T_a_b": None if p.T_A_B is None else
+                             np.round(p.T_A_B, 6).tolist()}
                             for p in mres.pairs],
         "recording_pairs_ambiguous": int(sum(bool(p.twin.get("ambiguous")) for p in mres.pairs)),
         "map_points": int(mres.files.get("_map_points", 0)),
@@ -930,13 +1052,15 @@ def merge_report(mres: MergeResult, summ: dict) -> str:
     ln += ["", "## Recording pairs", "",
            "Hypotheses (source: candidate station pairs, verified probes); the accepted one and "
            "its kept links; the twin check (score of the hypothesis and of its twins turned by "
-           "180/90/270 deg; runner-up / winner; ambiguous pairs are not joined).", "",
+           "180/90/270 deg or shifted along a repeated structure (m@axis yaw); runner-up / "
+           "winner; ambiguous pairs are not joined).", "",
            "| a | b | hypotheses | accepted | links | twins |", "|---|---|---|---|---|---|"]
     for p in mres.pairs:
         tried = "; ".join(f"{s}: {n}, {v} ok" for s, n, v in p.tried) or "none"
         tw = []
         if "scores" in p.twin:
-            tw.append(", ".join(f"{k}°: {v:.2f}" for k, v in p.twin["scores"].items())
+            tw.append(", ".join(f"{k}{'°' if k.isdigit() else ''}: {v:.2f}"
+                                for k, v in p.twin["scores"].items())
                       + f"; ratio {p.twin['ratio']:.2f}"
                       + (" **ambiguous**" if p.twin["ambiguous"] else ""))
         if p.twin.get("cycle"):
