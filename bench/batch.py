@@ -184,10 +184,10 @@ def building(args, con) -> None:
     con.print(t)
     for f in ev["false_link_list"][:10]:
         con.print(f"false link: {f}")
-    detail_tables(con, ev)
     (args.work / f"building-{args.building}-eval.json").write_text(json.dumps(
         {"eval": ev, "merge": {k: v for k, v in ms.items() if k != "recording_pairs"},
          "peak_rss_mb": peak_mb, "load": [load0, load1]}, indent=1, default=str))
+    detail_tables(con, ev)
 
 
 def detail_tables(con, ev: dict) -> None:
