@@ -121,6 +121,9 @@ def building(args, con) -> None:
     dirs = simulate_survey(survey, args.building, seed=0, pan_s=5.0, nthreads=2,
                            progress=lambda i, n: con.print(f"simulated {i}/{n}"))
     sim_s = time.perf_counter() - t0
+    if args.only:
+        keep = set(args.only.split(","))
+        dirs = [d for d in dirs if d.name in keep]
     recs, _ = discover(dirs)
     cfg = building_config(dirs[0] / "gt" / "calibration.json")
     out = args.work / f"building-{args.building}-out"
@@ -420,6 +423,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--building", choices=("full", "small", "none"), default="full")
     ap.add_argument("--workers", type=int, default=2, help="workers of the building's batch")
     ap.add_argument("--force", action="store_true", help="reconstruct the building again")
+    ap.add_argument("--only", default="",
+                    help="building: these recordings only (comma-separated names, e.g. "
+                         "03-west-north,04-west-south)")
     ap.add_argument("--merge-only", action="store_true",
                     help="building: merge the reconstructions already in WORK/building-SIZE-out "
                          "again (whatever config made them; no batch): for a change to the merge")
