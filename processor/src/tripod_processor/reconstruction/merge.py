@@ -563,8 +563,9 @@ def resolve_twins(recs, cache, coarse, maps, A: int, B: int, H: np.ndarray, src:
     translational twins (:func:`shift_twins`: H shifted along a repeated structure), refined,
     probed and scored the same way. Returns (T_A_B, links, info): the best-scoring hypothesis
     and its links (a twin that wins is refined by its best link and all its links searched);
-    ``info["scores"]``: {"0" (H), turn deg, or shift label: score}, ``info["ambiguous"]`` when the runner-up scores more than ``max_twin_ratio`` of the winner
-    (or the winner scores <= 0)."""
+    ``info["scores"]``: {"0" (H), turn deg, or shift label: score}; ``info["ambiguous"]``
+    when the runner-up scores more than ``max_twin_ratio`` of the winner (or the winner scores
+    <= 0)."""
     from ..registration import pairwise as reg
 
     cands = [("0", H, found, hypothesis_score(quality, cfg))]
