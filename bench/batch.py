@@ -162,8 +162,8 @@ def building(args, con) -> None:
     rows = [
         ("stations in the merged model / all", f"{ms['merged_stations']} / {n_st}"),
         ("components (recordings each)", ", ".join(str(len(c["recordings"])) for c in comps)),
-        ("station ATE [cm] / [deg]", f"{ev['ate_cm']:.2f} / {ev['ate_deg']:.3f}"),
-        ("max station error [cm] / [deg]", f"{ev['max_err_cm']:.2f} / {ev['max_err_deg']:.3f}"),
+        ("station ATE cm / deg", f"{ev['ate_cm']:.2f} / {ev['ate_deg']:.3f}"),
+        ("max station error cm / deg", f"{ev['max_err_cm']:.2f} / {ev['max_err_deg']:.3f}"),
         ("true links between recordings", str(ev["true_links"])),
         ("links kept / true found / false / weak",
          f"{ev['links_kept']} / {ev['true_links_found']} / {ev['false_links']} / "
