@@ -339,8 +339,10 @@ void estimate_gicp_geometry(PreparedCloud& pc, int k, const Eigen::Vector3d& vie
     const Eigen::Matrix3d iso = s2 * Eigen::Matrix3d::Identity();
     const std::vector<int> groups = tree.groups(32);
     const int64_t num_groups = static_cast<int64_t>(groups.size()) - 1;
+    TRIPOD_TEAM("geometry");
 #pragma omp parallel num_threads(num_threads > 0 ? num_threads : omp_get_max_threads())
     {
+        TRIPOD_TEAM_ENTER();
         KdTree<3>::KnnScratch scratch;
 #pragma omp for schedule(dynamic, 4)
         for (int64_t g = 0; g < num_groups; ++g) {
@@ -381,6 +383,7 @@ void estimate_gicp_geometry(PreparedCloud& pc, int k, const Eigen::Vector3d& vie
                 pc.covariances[i].noalias() = iso - (s2 * (1 - kEps)) * nrm * nrm.transpose();
             });
         }
+        TRIPOD_TEAM_LEAVE();
     }
     pc.cov_scale = s2;
     pc.cov_plane = 1 - kEps;

@@ -232,7 +232,7 @@ Normal linearize_model(const Problem& P, const Eigen::Isometry3d& T, std::vector
         }
         if constexpr (kGicp) gicp.store(acc);
         parts[chunk] = acc;
-    });
+    }, find ? "assoc+lin" : (with_jacobian ? "lin" : "eval"));
     Normal out;
     for (const Normal& p : parts) {
         out.H += p.H;
