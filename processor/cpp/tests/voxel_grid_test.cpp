@@ -65,6 +65,29 @@ TEST_P(VoxelGridTest, OutputIsIndependentOfThreadCount) {
     EXPECT_TRUE((one.array() == many.array()).all());
 }
 
+// Rows in the order of a scan (each chunk of rows covers one part of the room, as the PCL room
+// scan's do), with non-finite rows among them: the chunks, the parts of the merge and the
+// stealing between threads must not change a bit, on any thread count and either lattice.
+TEST(VoxelGrid, ScanOrderedRowsGiveTheSameOutputOnAnyThreadCount) {
+    PointsXYZ cloud = test::box_room(150000, 0.02, 5);
+    std::vector<Eigen::Index> order(cloud.rows());
+    for (Eigen::Index i = 0; i < cloud.rows(); ++i) order[i] = i;
+    std::stable_sort(order.begin(), order.end(), [&](Eigen::Index a, Eigen::Index b) {
+        return std::atan2(cloud(a, 1), cloud(a, 0)) < std::atan2(cloud(b, 1), cloud(b, 0));
+    });
+    PointsXYZ scan(cloud.rows(), 3);
+    for (Eigen::Index i = 0; i < cloud.rows(); ++i) scan.row(i) = cloud.row(order[i]);
+    for (Eigen::Index i = 0; i < scan.rows(); i += 997) scan(i, i % 3) = NAN;
+    for (const VoxelAlign align : {VoxelAlign::kOrigin, VoxelAlign::kMinBound}) {
+        const PointsXYZ one = voxel_downsample(scan, 0.05, 1, align);
+        for (const int threads : {2, 3, 5, 8}) {
+            const PointsXYZ many = voxel_downsample(scan, 0.05, threads, align);
+            ASSERT_EQ(one.rows(), many.rows()) << threads << " threads";
+            EXPECT_TRUE((one.array() == many.array()).all()) << threads << " threads";
+        }
+    }
+}
+
 TEST(VoxelGrid, DropsNonFiniteAndRejectsBadSize) {
     PointsXYZ p(3, 3);
     p << 0.01f, 0.01f, 0.01f, NAN, 0.f, 0.f, 0.02f, 0.02f, 0.02f;

@@ -20,6 +20,8 @@
 #include <numeric>
 #include <vector>
 
+#include "tripod_core/phase_timer.hpp"
+
 namespace tripod {
 
 /// Static k-d tree (median split on the widest axis, leaves of up to `leaf_size` points).
@@ -55,9 +57,14 @@ public:
             // each leaf copies its rows when made: no pass after the build, so one parallel
             // region with one barrier (each may have to wake a sleeping thread)
             if (parallel) {
+                TRIPOD_TEAM("kdtree build");
 #pragma omp parallel num_threads(nt)
+                {
+                    TRIPOD_TEAM_ENTER();
 #pragma omp single
-                build(0, 0, static_cast<int>(n), lo, hi, -1, true);
+                    build(0, 0, static_cast<int>(n), lo, hi, -1, true);
+                    TRIPOD_TEAM_LEAVE();
+                }
             } else {
                 build(0, 0, static_cast<int>(n), lo, hi, -1, false);
             }

@@ -16,12 +16,15 @@
 #include <cstdint>
 #include <memory>
 
+#include "tripod_core/phase_timer.hpp"
+
 namespace tripod::detail {
 
 /// Calls body(chunk) once for every chunk in [0, num_chunks) on up to `num_threads` threads
 /// (<= 0: all), or on the calling thread alone when there is one chunk or one thread.
 template <class Body>
-void parallel_chunks(int num_threads, int64_t num_chunks, Body&& body) {
+void parallel_chunks(int num_threads, int64_t num_chunks, Body&& body,
+                     const char* team_name = "parallel_chunks") {
     const int nt = static_cast<int>(std::min<int64_t>(
         num_threads > 0 ? num_threads : omp_get_max_threads(), num_chunks));
     if (nt <= 1) {
@@ -37,8 +40,10 @@ void parallel_chunks(int num_threads, int64_t num_chunks, Body&& body) {
         share[u].next.store(num_chunks * u / nt, std::memory_order_relaxed);
         share[u].end = num_chunks * (u + 1) / nt;
     }
+    TRIPOD_TEAM(team_name);
 #pragma omp parallel num_threads(nt)
     {
+        TRIPOD_TEAM_ENTER();
         // a team smaller than asked for leaves shares without owner: the stealing loop runs them
         const int t = omp_get_thread_num();
         for (int k = 0; k < nt; ++k) {
@@ -50,6 +55,7 @@ void parallel_chunks(int num_threads, int64_t num_chunks, Body&& body) {
                 body(c);
             }
         }
+        TRIPOD_TEAM_LEAVE();
     }
 }
 

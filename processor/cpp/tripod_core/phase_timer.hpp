@@ -5,15 +5,21 @@
 // opened outside a parallel region time what the calling thread does: a serial phase's CPU
 // time is its whole work, a parallel region's is the calling thread's share. Off (one cached
 // flag test per scope) unless the variable is set.
+// TRIPOD_TEAM("name") / TRIPOD_TEAM_ENTER / TRIPOD_TEAM_LEAVE time a parallel region's team: how
+// long after the fork each thread started and how long each waited at the join for the last
+// one (summed over threads and calls, printed with the phases as "team: name").
 #pragma once
 
+#include <omp.h>
 #include <time.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <cstdlib>
 #include <map>
 #include <mutex>
 #include <string>
+#include <vector>
 
 namespace tripod::prof {
 
@@ -29,15 +35,33 @@ struct Totals {
     struct Entry {
         double wall_ms = 0, cpu_ms = 0;
         long calls = 0;
+        std::vector<float> walls;  // per call [ms], for the median
+        double median() {
+            if (walls.empty()) return 0;
+            std::nth_element(walls.begin(), walls.begin() + walls.size() / 2, walls.end());
+            return walls[walls.size() / 2];
+        }
     };
     std::mutex mu;
     std::map<std::string, Entry> by_name;
+    struct TeamEntry {
+        double late_ms = 0, idle_ms = 0, busy_ms = 0;  // summed over threads other than none
+        long calls = 0, threads = 0;
+    };
+    std::map<std::string, TeamEntry> teams;
     ~Totals() {
-        if (by_name.empty()) return;
-        std::fprintf(stderr, "%-28s %8s %10s %10s\n", "phase", "calls", "wall ms", "cpu ms");
-        for (const auto& [k, e] : by_name)
-            std::fprintf(stderr, "%-28s %8ld %10.3f %10.3f\n", k.c_str(), e.calls, e.wall_ms,
-                         e.cpu_ms);
+        if (by_name.empty() && teams.empty()) return;
+        std::fprintf(stderr, "%-28s %8s %10s %10s %10s\n", "phase", "calls", "wall ms", "cpu ms",
+                     "median ms");
+        for (auto& [k, e] : by_name)
+            std::fprintf(stderr, "%-28s %8ld %10.3f %10.3f %10.4f\n", k.c_str(), e.calls,
+                         e.wall_ms, e.cpu_ms, e.median());
+        if (teams.empty()) return;
+        std::fprintf(stderr, "%-28s %8s %10s %10s %10s %8s\n", "team", "calls", "late ms",
+                     "idle ms", "busy ms", "threads");
+        for (const auto& [k, e] : teams)
+            std::fprintf(stderr, "team: %-22s %8ld %10.3f %10.3f %10.3f %8ld\n", k.c_str(),
+                         e.calls, e.late_ms, e.idle_ms, e.busy_ms, e.threads);
     }
 };
 
@@ -69,6 +93,7 @@ public:
         e.wall_ms += w;
         e.cpu_ms += c;
         ++e.calls;
+        e.walls.push_back(static_cast<float>(w));
     }
     Scope(const Scope&) = delete;
     Scope& operator=(const Scope&) = delete;
@@ -78,8 +103,50 @@ private:
     double wall0_ = 0, cpu0_ = 0;
 };
 
+/// One parallel region's team: made before the fork (records the fork time), enter()/leave()
+/// called by each thread first and last thing in the region, totals added when it goes.
+/// late: from the fork to a thread's start; idle: from a thread's end to the last one's end.
+class Team {
+public:
+    static constexpr int kMax = 64;
+    explicit Team(const char* name) : name_(enabled() ? name : nullptr) {
+        if (name_) fork_ = now_ms(CLOCK_MONOTONIC);
+    }
+    void enter(int t) {
+        if (name_ && t < kMax) enter_[t] = now_ms(CLOCK_MONOTONIC);
+    }
+    void leave(int t) {
+        if (name_ && t < kMax) leave_[t] = now_ms(CLOCK_MONOTONIC);
+    }
+    ~Team() {
+        if (!name_) return;
+        double last = 0;
+        int nt = 0;
+        for (int t = 0; t < kMax && enter_[t] > 0; ++t, ++nt) last = std::max(last, leave_[t]);
+        Totals& tot = totals();
+        std::lock_guard<std::mutex> lock(tot.mu);
+        auto& e = tot.teams[name_];
+        ++e.calls;
+        e.threads += nt;
+        for (int t = 0; t < nt; ++t) {
+            e.late_ms += enter_[t] - fork_;
+            e.idle_ms += last - leave_[t];
+            e.busy_ms += leave_[t] - enter_[t];
+        }
+    }
+    Team(const Team&) = delete;
+    Team& operator=(const Team&) = delete;
+
+private:
+    const char* name_;
+    double fork_ = 0, enter_[kMax] = {}, leave_[kMax] = {};
+};
+
 }  // namespace tripod::prof
 
 #define TRIPOD_PHASE_CAT2(a, b) a##b
 #define TRIPOD_PHASE_CAT(a, b) TRIPOD_PHASE_CAT2(a, b)
 #define TRIPOD_PHASE(name) ::tripod::prof::Scope TRIPOD_PHASE_CAT(tripod_phase_, __LINE__)(name)
+#define TRIPOD_TEAM(name) ::tripod::prof::Team tripod_team(name)
+#define TRIPOD_TEAM_ENTER() tripod_team.enter(omp_get_thread_num())
+#define TRIPOD_TEAM_LEAVE() tripod_team.leave(omp_get_thread_num())

@@ -175,12 +175,26 @@ double condition_number(const PreparedCloud& src, const Mat6& H, const std::arra
 /// lm: Levenberg-Marquardt iterations per set of correspondences at most (Ceres' 10 before).
 constexpr int kLmInner = 10;
 
+/// The next iteration's linearisation, made in the same pass as a step's acceptance test
+/// (linearize_fused: one parallel region per iteration instead of two). The buffers are the
+/// solver's spares, swapped with its pairs and weights when the step is accepted.
+struct Ahead {
+    double sq_dist = 0;  ///< the stage's association distance^2 [m^2]
+    std::vector<int> corr;
+    std::vector<Eigen::Matrix3d> mahalanobis;
+    Normal next;        ///< at the accepted pose, with its new pairs (now the solver's)
+    bool have = false;  ///< `next` is that of the last accepted step
+};
+
 /// One damped Gauss-Newton step from T on the normal equations `nl` (prior and locks added
 /// here): Marquardt damping, accepted only when the cost (same pairs) decreases, as small_gicp's
-/// LM optimiser does; T itself when no damping up to 1e6 decreases it.
+/// LM optimiser does; T itself when no damping up to 1e6 decreases it. With `ahead`, the first
+/// try also linearises at its pose (pairs found anew): if it is accepted, that is the next
+/// iteration's (ahead->have); a rejected try wastes it (rare: the later tries only evaluate).
 Eigen::Isometry3d damped_step(const Problem& P, const Eigen::Isometry3d& T, Normal nl,
                               std::vector<int>& corr, std::vector<Eigen::Matrix3d>& mahalanobis,
-                              double& lambda) {
+                              double& lambda, Ahead* ahead = nullptr) {
+    if (ahead) ahead->have = false;
     const RegistrationOptions& opt = P.opt;
     const double err = nl.error + add_prior(opt, T.linear(), &nl.H, &nl.b);
     const auto lock = locked(opt);
@@ -203,10 +217,23 @@ Eigen::Isometry3d damped_step(const Problem& P, const Eigen::Isometry3d& T, Norm
             continue;
         }
         const Eigen::Isometry3d cand = apply(T, delta);
-        const Normal ev = detail::linearize(P, cand, corr, false, -1, &mahalanobis);
-        const double e_new = ev.error + add_prior(opt, cand.linear(), nullptr, nullptr);
+        double e_pairs = 0;
+        const bool fused = ahead && inner == 0;
+        Normal next;
+        if (fused)
+            next = detail::linearize_fused(P, cand, corr, &mahalanobis, e_pairs, ahead->corr,
+                                           ahead->sq_dist, &ahead->mahalanobis);
+        else
+            e_pairs = detail::linearize(P, cand, corr, false, -1, &mahalanobis).error;
+        const double e_new = e_pairs + add_prior(opt, cand.linear(), nullptr, nullptr);
         if (e_new <= err) {
             lambda = std::max(lambda / 10, 1e-10);
+            if (fused) {
+                corr.swap(ahead->corr);
+                mahalanobis.swap(ahead->mahalanobis);
+                ahead->next = next;
+                ahead->have = true;
+            }
             return cand;
         }
         lambda *= 10;
@@ -215,9 +242,11 @@ Eigen::Isometry3d damped_step(const Problem& P, const Eigen::Isometry3d& T, Norm
 }
 
 /// Iterate one stage (correspondence distance d) from T. Returns false when too few pairs
-/// were left; `converged` tells whether the stage's step test passed.
+/// were left; `converged` tells whether the stage's step test passed. `last` (if given) gets
+/// the linearisation at the final T with association at d when the last step made it (then
+/// `corr` holds its pairs), else is left empty.
 bool run_stage(Problem& P, double d, Eigen::Isometry3d& T, std::vector<int>& corr,
-               RegistrationResult& res, bool& converged) {
+               RegistrationResult& res, bool& converged, std::optional<Normal>* last = nullptr) {
     const RegistrationOptions& opt = P.opt;
     const bool closed_form = opt.method == Method::kPointToPoint && !opt.has_rotation_prior &&
                              !opt.lock_z;
@@ -233,6 +262,11 @@ bool run_stage(Problem& P, double d, Eigen::Isometry3d& T, std::vector<int>& cor
     }
     std::vector<Eigen::Matrix3d> mahalanobis;  // GICP weights of the current pairs
     double lambda = 1e-4;
+    // one damped step per association: its acceptance test and the next linearisation in one
+    // pass (lm solves each association's problem with cost-only tests: not fused)
+    const bool fuse = !closed_form && opt.method != Method::kLM;
+    Ahead ahead;
+    ahead.sq_dist = d * d;
     detail::StepTest test(opt);
     converged = false;
     for (int it = 0; it < opt.max_iterations; ++it) {
@@ -245,9 +279,12 @@ bool run_stage(Problem& P, double d, Eigen::Isometry3d& T, std::vector<int>& cor
             if (m < need) return false;
             T_new = kabsch(P.src, P.tgt, T, corr, kernel, inv_s2);
         } else {
-            Normal nl = detail::linearize(P, T, corr, true, d * d, &mahalanobis);
+            Normal nl = ahead.have ? ahead.next
+                                   : detail::linearize(P, T, corr, true, d * d, &mahalanobis);
+            ahead.have = false;
             if (nl.count < need) return false;
-            T_new = damped_step(P, T, std::move(nl), corr, mahalanobis, lambda);
+            T_new = damped_step(P, T, std::move(nl), corr, mahalanobis, lambda,
+                                fuse ? &ahead : nullptr);
             // lm: the non-linear problem of these pairs solved to convergence before the
             // next association (one damped step per association for the others)
             for (int inner = 1; opt.method == Method::kLM && inner < kLmInner; ++inner) {
@@ -263,6 +300,7 @@ bool run_stage(Problem& P, double d, Eigen::Isometry3d& T, std::vector<int>& cor
             break;
         }
     }
+    if (last && ahead.have) *last = ahead.next;
     P.voxels = nullptr;
     if (opt.method == Method::kVGICP) corr.clear();
     return true;
@@ -272,13 +310,14 @@ bool run_stage(Problem& P, double d, Eigen::Isometry3d& T, std::vector<int>& cor
 
 namespace detail {
 
-void finish_result(const Problem& P, RegistrationResult& res, std::vector<int> corr) {
+void finish_result(const Problem& P, RegistrationResult& res, std::vector<int> corr,
+                   const Normal* last) {
     const PreparedCloud& src = P.src;
     const PreparedCloud& tgt = P.tgt;
     const RegistrationOptions& opt = P.opt;
     const Eigen::Isometry3d T(res.T_target_source);
     const double d = opt.max_correspondence_distances.back();
-    Normal nl = linearize(P, T, corr, true, d * d);
+    Normal nl = last ? *last : linearize(P, T, corr, true, d * d);
     res.final_error = nl.error + add_prior(opt, T.linear(), &nl.H, &nl.b);
     res.residual_rmse = nl.count ? std::sqrt(nl.sq_res / nl.count) : 0;
     // Fitness and RMSE as Open3D defines them (all correspondences within the distance), over
@@ -339,8 +378,10 @@ void estimate_gicp_geometry(PreparedCloud& pc, int k, const Eigen::Vector3d& vie
     const Eigen::Matrix3d iso = s2 * Eigen::Matrix3d::Identity();
     const std::vector<int> groups = tree.groups(32);
     const int64_t num_groups = static_cast<int64_t>(groups.size()) - 1;
+    TRIPOD_TEAM("geometry");
 #pragma omp parallel num_threads(num_threads > 0 ? num_threads : omp_get_max_threads())
     {
+        TRIPOD_TEAM_ENTER();
         KdTree<3>::KnnScratch scratch;
 #pragma omp for schedule(dynamic, 4)
         for (int64_t g = 0; g < num_groups; ++g) {
@@ -381,6 +422,7 @@ void estimate_gicp_geometry(PreparedCloud& pc, int k, const Eigen::Vector3d& vie
                 pc.covariances[i].noalias() = iso - (s2 * (1 - kEps)) * nrm * nrm.transpose();
             });
         }
+        TRIPOD_TEAM_LEAVE();
     }
     pc.cov_scale = s2;
     pc.cov_plane = 1 - kEps;
@@ -451,9 +493,13 @@ RegistrationResult register_local(const PreparedCloud& src, const PreparedCloud&
     sc.emplace("register: stages");
     res.status = "max_iterations";
     const size_t stages = opt.max_correspondence_distances.size();
+    // the last stage's final linearisation, when its last step made it (finish_result needs it)
+    std::optional<Normal> last;
     for (size_t stage = 0; stage < stages; ++stage) {
         bool converged = false;
-        if (!run_stage(P, opt.max_correspondence_distances[stage], T, corr, res, converged)) {
+        if (!run_stage(P, opt.max_correspondence_distances[stage], T, corr, res, converged,
+                       stage + 1 == stages ? &last : nullptr)) {
+            last.reset();
             res.status = "too_few_correspondences";
             break;
         }
@@ -469,7 +515,9 @@ RegistrationResult register_local(const PreparedCloud& src, const PreparedCloud&
     sc.reset();
     sc.emplace("register: finish");
     Problem F(src, tgt, opt, model, opt.num_threads);
-    detail::finish_result(F, res, std::move(corr));
+    // the solver's model is the finish's (not lm, not VGICP): its last linearisation is reused
+    const bool reuse = last && model == opt.method;
+    detail::finish_result(F, res, std::move(corr), reuse ? &*last : nullptr);
     if (res.status != "too_few_correspondences" && res.condition < 1e-4) {
         res.status = "degenerate";
         res.converged = false;

@@ -95,10 +95,24 @@ Normal linearize(const Problem& P, const Eigen::Isometry3d& T, std::vector<int>&
                  bool with_jacobian, double associate_sq_dist = -1,
                  std::vector<Eigen::Matrix3d>* mahalanobis = nullptr);
 
+/// linearize(P, T, corr, true, associate_sq_dist, mahalanobis) and, in the same pass (one
+/// parallel region instead of two), the cost at T of the previous pairs `prev_corr` (GICP:
+/// weighted by `prev_mahalanobis`), bit for bit what linearize(P, T, prev_corr, false, -1,
+/// prev_mahalanobis).error gives, into `prev_error`. The previous pairs are the searches' hints.
+/// `corr` and `mahalanobis` must not be `prev_corr` and `prev_mahalanobis`.
+Normal linearize_fused(const Problem& P, const Eigen::Isometry3d& T,
+                       const std::vector<int>& prev_corr,
+                       const std::vector<Eigen::Matrix3d>* prev_mahalanobis, double& prev_error,
+                       std::vector<int>& corr, double associate_sq_dist,
+                       std::vector<Eigen::Matrix3d>* mahalanobis);
+
 /// Fill fitness, RMSE, information and condition of `res` at its pose (`corr`: the last
 /// matches, as hints for the final association, or empty). P.method: the residual model of the
 /// information.
-void finish_result(const Problem& P, RegistrationResult& res, std::vector<int> corr = {});
+/// `last`: the linearisation at that pose with association at the last distance, when the
+/// solver already has it (P.method's model, `corr` its pairs), else computed here.
+void finish_result(const Problem& P, RegistrationResult& res, std::vector<int> corr = {},
+                   const Normal* last = nullptr);
 
 /// Convergence test of one stage. Steps are measured against the thresholds (s = max(rotation
 /// / rotation_eps, translation / translation_eps)); a step below them (s < 1) is converged only

@@ -104,10 +104,18 @@ struct GicpSums {
     }
 };
 
+/// The previous pairs, evaluated (cost only) in the same pass as a linearisation at the same
+/// pose: see linearize_fused().
+struct PrevPairs {
+    const std::vector<int>& corr;
+    const std::vector<Eigen::Matrix3d>* mahalanobis;
+    double error = 0;
+};
+
 template <Method M>
 Normal linearize_model(const Problem& P, const Eigen::Isometry3d& T, std::vector<int>& corr,
                        bool with_jacobian, double associate_sq_dist,
-                       std::vector<Eigen::Matrix3d>* mahalanobis) {
+                       std::vector<Eigen::Matrix3d>* mahalanobis, PrevPairs* prev = nullptr) {
     constexpr bool kVoxels = M == Method::kVGICP;
     constexpr bool kGicp = M == Method::kGICP || kVoxels;
     constexpr bool kPlane = M == Method::kPointToPlane || M == Method::kSymmetric ||
@@ -117,12 +125,17 @@ Normal linearize_model(const Problem& P, const Eigen::Isometry3d& T, std::vector
     const GaussianVoxels* vox = P.voxels;
     const int64_t n = src.points.rows();
     const bool find = associate_sq_dist > 0;
-    TRIPOD_PHASE(find ? "linearize: P assoc+lin" : (with_jacobian ? "linearize: P lin" : "linearize: P eval"));
+    TRIPOD_PHASE(prev ? "linearize: P eval+assoc+lin"
+                      : (find ? "linearize: P assoc+lin"
+                              : (with_jacobian ? "linearize: P lin" : "linearize: P eval")));
     // the previous iteration's matches (if any) warm-start the nearest-neighbour searches
     if (corr.size() != static_cast<size_t>(n)) corr.assign(n, -1);
     const bool store_M = kGicp && mahalanobis && with_jacobian;
     const bool reuse_M = kGicp && mahalanobis && !with_jacobian &&
                          mahalanobis->size() == static_cast<size_t>(n);
+    // the previous pairs' weights, as a cost-only pass given them would reuse them
+    const bool prev_M = kGicp && prev && prev->mahalanobis &&
+                        prev->mahalanobis->size() == static_cast<size_t>(n);
     if (store_M) mahalanobis->resize(n);
     const Eigen::Matrix3d R = T.linear();
     const Eigen::Vector3d t = T.translation();
@@ -144,15 +157,63 @@ Normal linearize_model(const Problem& P, const Eigen::Isometry3d& T, std::vector
     constexpr int64_t kChunk = 128;
     const int64_t num_chunks = (m + kChunk - 1) / kChunk;
     std::vector<Normal> parts(num_chunks);
+    std::vector<double> prev_parts(prev ? num_chunks : 0);
+    // Cost of the previous pair (i, jp) at this pose, exactly as the cost-only pass below
+    // computes it (0 for a pair that pass skips).
+    auto prev_cost = [&](int64_t i, int jp, const Eigen::Vector3d& Tp) {
+        Eigen::Vector3d q;
+        if constexpr (kVoxels)
+            q = vox->mean(jp);
+        else
+            q = tgt.points.row(jp).transpose().cast<double>();
+        const Eigen::Vector3d e = q - Tp;
+        double w = 0, rho = 0;
+        if constexpr (kGicp) {
+            Eigen::Matrix3d W;
+            if (prev_M) {
+                W = (*prev->mahalanobis)[i];
+            } else if (!kVoxels && plane_form) {
+                W = plane_information(tgt.normals.row(jp).transpose(),
+                                      R * src.normals.row(i).transpose(), aq, ap, a);
+            } else {
+                const Eigen::Matrix3d& Cq = kVoxels ? vox->covariance(jp) : tgt.covariances[jp];
+                const Eigen::Matrix3d C = Cq + R * src.covariances[i] * R.transpose();
+                W = C.inverse();
+            }
+            const Eigen::Vector3d We = W * e;
+            kernel(e.dot(We), w, rho);
+        } else if constexpr (kPlane) {
+            if (!tgt.normal_valid[jp]) return 0.0;
+            Eigen::Vector3d nrm = tgt.normals.row(jp).transpose();
+            if (src.normal_valid[i]) {
+                Eigen::Vector3d ns = R * src.normals.row(i).transpose();
+                if (!oriented && ns.dot(nrm) < 0) ns = -ns;
+                if (!(ns.dot(nrm) >= min_cos)) return 0.0;
+                if constexpr (M == Method::kSymmetric) nrm = (nrm + ns).normalized();
+            } else if (oriented || M == Method::kSymmetric) {
+                return 0.0;
+            }
+            const double s = nrm.dot(e);
+            kernel(s * s * inv_s2, w, rho);
+        } else {
+            kernel(e.squaredNorm() * inv_s2, w, rho);
+        }
+        return rho;
+    };
     parallel_chunks(P.num_threads, num_chunks, [&](int64_t chunk) {
         Normal acc;
         GicpSums gicp;
+        double prev_error = 0;
         const int64_t end = std::min(m, (chunk + 1) * kChunk);
         for (int64_t k = chunk * kChunk; k < end; ++k) {
             const int64_t i = P.rows[k];
             const Eigen::Vector3d Rp = R * src.points.row(i).transpose().cast<double>();
             const Eigen::Vector3d Tp = Rp + t;
             int j = corr[i];
+            if (prev) {
+                j = prev->corr[i];  // the previous match: evaluated here, and the search's hint
+                if (j >= 0) prev_error += prev_cost(i, j, Tp);
+            }
             if (find) {
                 if constexpr (kVoxels) {
                     j = vox->find(Tp);
@@ -232,7 +293,8 @@ Normal linearize_model(const Problem& P, const Eigen::Isometry3d& T, std::vector
         }
         if constexpr (kGicp) gicp.store(acc);
         parts[chunk] = acc;
-    });
+        if (prev) prev_parts[chunk] = prev_error;
+    }, find ? "assoc+lin" : (with_jacobian ? "lin" : "eval"));
     Normal out;
     for (const Normal& p : parts) {
         out.H += p.H;
@@ -243,6 +305,10 @@ Normal linearize_model(const Problem& P, const Eigen::Isometry3d& T, std::vector
         out.sq_res += p.sq_res;
     }
     out.H = out.H.selfadjointView<Eigen::Lower>();
+    if (prev) {
+        prev->error = 0;
+        for (double e : prev_parts) prev->error += e;  // chunk order, as `out.error`
+    }
     return out;
 }
 }  // namespace
@@ -279,6 +345,40 @@ void associate(const Problem& P, const Eigen::Isometry3d& T, double max_sq_dist,
         float d;
         corr[i] = P.tgt.tree->nearest_from(p.data(), static_cast<float>(max_sq_dist), corr[i], &d);
     }
+}
+
+Normal linearize_fused(const Problem& P, const Eigen::Isometry3d& T,
+                       const std::vector<int>& prev_corr,
+                       const std::vector<Eigen::Matrix3d>* prev_mahalanobis, double& prev_error,
+                       std::vector<int>& corr, double associate_sq_dist,
+                       std::vector<Eigen::Matrix3d>* mahalanobis) {
+    PrevPairs prev{prev_corr, prev_mahalanobis};
+    Normal out;
+    switch (P.method) {
+        case Method::kPointToPoint:
+            out = linearize_model<Method::kPointToPoint>(P, T, corr, true, associate_sq_dist,
+                                                         mahalanobis, &prev);
+            break;
+        case Method::kGICP:
+            out = linearize_model<Method::kGICP>(P, T, corr, true, associate_sq_dist,
+                                                 mahalanobis, &prev);
+            break;
+        case Method::kVGICP:
+            out = linearize_model<Method::kVGICP>(P, T, corr, true, associate_sq_dist,
+                                                  mahalanobis, &prev);
+            break;
+        case Method::kSymmetric:
+            out = linearize_model<Method::kSymmetric>(P, T, corr, true, associate_sq_dist,
+                                                      mahalanobis, &prev);
+            break;
+        case Method::kPointToPlane:
+        case Method::kLM:
+            out = linearize_model<Method::kPointToPlane>(P, T, corr, true, associate_sq_dist,
+                                                         mahalanobis, &prev);
+            break;
+    }
+    prev_error = prev.error;
+    return out;
 }
 
 Normal linearize(const Problem& P, const Eigen::Isometry3d& T, std::vector<int>& corr,

@@ -4,6 +4,7 @@
 #include <omp.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <limits>
 #include <memory>
@@ -54,6 +55,49 @@ Keyed* scratch(std::vector<Keyed>& buf, int64_t n) {
 void trim(std::vector<Keyed>& buf) {
     if (static_cast<int64_t>(buf.size()) > kKeepKeyed) std::vector<Keyed>().swap(buf);
 }
+
+/// Rows per chunk of the key/sort pass with several threads (a chunk's keys, 256 KiB, sort in
+/// the core's own cache), and chunks per thread at most (each voxel's merge looks at every
+/// chunk).
+constexpr int64_t kChunkRows = 16384;
+constexpr int kChunksPerThread = 4;
+
+/// Items [0, count) shared out as parallel_chunks does (tripod_core/parallel_chunks.hpp): each
+/// thread first takes those of its own contiguous share (the same share in every pass over the
+/// same items, so what a thread wrote in one pass it reads in the next from its own cache),
+/// then what is left of the others'. A thread woken late, or sharing its core with another
+/// process, no longer holds the team up at the next barrier.
+class Shares {
+public:
+    Shares(int nt, int64_t count) : nt_(nt), s_(new Share[nt]) {
+        for (int u = 0; u < nt; ++u) {
+            s_[u].next.store(count * u / nt, std::memory_order_relaxed);
+            s_[u].end = count * (u + 1) / nt;
+        }
+    }
+    /// Calls fn(item) for the items thread t gets (a team smaller than nt: the others' shares
+    /// are taken over all the same).
+    template <class Fn>
+    void run(int t, Fn&& fn) {
+        for (int k = 0; k < nt_; ++k) {
+            Share& s = s_[(t + k) % nt_];
+            for (;;) {
+                if (s.next.load(std::memory_order_relaxed) >= s.end) break;
+                const int64_t c = s.next.fetch_add(1, std::memory_order_relaxed);
+                if (c >= s.end) break;
+                fn(c);
+            }
+        }
+    }
+
+private:
+    struct alignas(64) Share {
+        std::atomic<int64_t> next;
+        int64_t end;
+    };
+    int nt_;
+    std::unique_ptr<Share[]> s_;
+};
 }  // namespace
 
 PointsXYZ voxel_downsample(const Eigen::Ref<const PointsXYZ>& points, double voxel_size,
@@ -65,22 +109,26 @@ PointsXYZ voxel_downsample(const Eigen::Ref<const PointsXYZ>& points, double vox
     const int64_t n = points.rows();
     const float* xyz = points.data();  // row-major
     const int64_t stride = points.outerStride();
-    // Every pass below splits [0, n) into one contiguous block per thread (all work is O(n),
-    // evenly spread); per-block results are combined in block order, so the output is the
-    // same whatever the thread count.
+    // The rows are cut into chunks (contiguous, in row order), each keyed and sorted by one
+    // thread; the voxels are cut into parts (key ranges, in key order) merged and summed by one
+    // thread each; chunks and parts are shared out dynamically (Shares). Each voxel's centroid
+    // is summed over its points in chunk order and, within a chunk, in row order (a stable
+    // sort): in row order, whatever the cut, so the output is the same bit for bit on any
+    // thread count and any number of chunks.
     const int nt = static_cast<int>(
         std::max<int64_t>(1, std::min<int64_t>({num_threads, n / 4096, kMaxTeam})));
+    const int64_t num_chunks =
+        nt == 1 ? 1
+                : std::max<int64_t>(nt, std::min<int64_t>((n + kChunkRows - 1) / kChunkRows,
+                                                          kChunksPerThread * nt));
+    const int64_t num_parts = nt == 1 ? 1 : kChunksPerThread * nt;
+    auto chunk_begin = [&](int64_t c) { return n * c / num_chunks; };
 
     // 0. lattice origin: either 0 (index offset by kOffset) or Open3D's min_bound - size / 2,
-    // from the bounds of the finite points (each block's, combined in the same parallel region
+    // from the bounds of the finite points (each chunk's, combined in the same parallel region
     // as the rest: every fork, join and barrier may have to wake a sleeping thread, see
     // tripod_processor/__init__.py)
-    std::vector<double> bounds(6 * nt);  // per thread: lo xyz, hi xyz
-    for (int u = 0; u < nt; ++u)
-        for (int k = 0; k < 3; ++k) {
-            bounds[6 * u + k] = std::numeric_limits<double>::infinity();
-            bounds[6 * u + 3 + k] = -std::numeric_limits<double>::infinity();
-        }
+    std::vector<double> bounds(6 * num_chunks);  // per chunk: lo xyz, hi xyz
     // dense voxel key over the occupied box: ((ix - ix0) * ny + (iy - iy0)) * nz + (iz - iz0),
     // lexicographic in (x, y, z) like the index itself, but only as many bits as needed; a
     // non-finite point gets the key one past the last voxel (sorted last, dropped)
@@ -90,14 +138,14 @@ PointsXYZ voxel_downsample(const Eigen::Ref<const PointsXYZ>& points, double vox
         uint64_t invalid = 0;
         bool empty = false, too_big = false;
     };
-    auto lattice = [&](int T) {
+    auto lattice = [&]() {
         Lattice L;
         Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
         Eigen::Vector3d hi = -lo;
-        for (int u = 0; u < T; ++u)
+        for (int64_t c = 0; c < num_chunks; ++c)
             for (int k = 0; k < 3; ++k) {
-                lo[k] = std::min(lo[k], bounds[6 * u + k]);
-                hi[k] = std::max(hi[k], bounds[6 * u + 3 + k]);
+                lo[k] = std::min(lo[k], bounds[6 * c + k]);
+                hi[k] = std::max(hi[k], bounds[6 * c + 3 + k]);
             }
         if (!(lo[0] <= hi[0])) {  // no finite point
             L.empty = true;
@@ -121,31 +169,33 @@ PointsXYZ voxel_downsample(const Eigen::Ref<const PointsXYZ>& points, double vox
         return L;
     };
 
-    // 1. key the points of each thread's block (a contiguous range of rows); 2. each thread
-    // sorts its own block by key (stable LSD radix sort, 11-bit digits, skipping digits no key
-    // differs in), in its own part of the buffers: the data stay with the thread (cache lines
-    // moving between cores cost more than the sort itself); 3. each block's runs of equal keys;
-    // 4. the runs merged by key into voxels and 5. each voxel's centroid, summed over its runs
-    // in block order, i.e. in point order: the same sums, bit for bit, on any thread count.
+    // 1. bounds of each chunk; 2. per chunk: the keys of its points, sorted (stable LSD radix
+    // sort, 11-bit digits, skipping digits none of its keys differ in) in its own part of the
+    // buffers, and its runs of equal keys; 3. per part (a range of keys holding about as many
+    // points as the others, whatever the chunks cover: chunks of a scan's rows each cover a
+    // part of the room): the chunks' runs merged by key into voxels, and each voxel's centroid
+    // summed over its runs in chunk order, i.e. in row order.
     Keyed* A = scratch(tl_keyed_a, n);
     Keyed* B = scratch(tl_keyed_b, n);
-    std::vector<uint64_t> key_or(nt, 0), key_and(nt, ~uint64_t{0});
+    std::vector<uint8_t> in_b(num_chunks, 0);  // a chunk's sorted keys ended up in B
     std::vector<int64_t> hist(static_cast<size_t>(nt) * kDigits);
-    std::vector<std::vector<int64_t>> runs(nt);  // per block: run starts, then the block's end
-    std::vector<std::vector<float>> centroids(nt);  // per thread: x, y, z of its voxels
-    int team = 1;
+    std::vector<std::vector<int64_t>> runs(num_chunks);  // per chunk: run starts, then its end
+    std::vector<std::vector<float>> centroids(num_parts);  // per part: x, y, z of its voxels
+    Shares chunk_shares_1(nt, num_chunks), chunk_shares_2(nt, num_chunks);
+    Shares part_shares(nt, num_parts);
     Lattice lat;
+    TRIPOD_TEAM("voxel grid");
 #pragma omp parallel num_threads(nt)
     {
-        const int T = omp_get_num_threads(), t = omp_get_thread_num();
-        const int64_t b0 = n * t / T, b1 = n * (t + 1) / T;
-        {
+        TRIPOD_TEAM_ENTER();
+        const int t = omp_get_thread_num();
+        chunk_shares_1.run(t, [&](int64_t c) {
             double lo[3], hi[3];
             for (int k = 0; k < 3; ++k) {
                 lo[k] = std::numeric_limits<double>::infinity();
                 hi[k] = -lo[k];
             }
-            for (int64_t i = b0; i < b1; ++i) {
+            for (int64_t i = chunk_begin(c), e = chunk_begin(c + 1); i < e; ++i) {
                 const float* p = xyz + stride * i;
                 if (!finite3(p)) continue;
                 for (int k = 0; k < 3; ++k) {
@@ -154,132 +204,159 @@ PointsXYZ voxel_downsample(const Eigen::Ref<const PointsXYZ>& points, double vox
                 }
             }
             for (int k = 0; k < 3; ++k) {
-                bounds[6 * t + k] = lo[k];
-                bounds[6 * t + 3 + k] = hi[k];
+                bounds[6 * c + k] = lo[k];
+                bounds[6 * c + 3 + k] = hi[k];
             }
-        }
+        });
 #pragma omp barrier
-        // every thread combines the blocks' bounds alike (the same lattice on every thread)
-        const Lattice L = lattice(nt);
+        // every thread combines the chunks' bounds alike (the same lattice on every thread)
+        const Lattice L = lattice();
         if (t == 0) lat = L;
         const Eigen::Vector3d origin = L.origin;
         const int64_t offset = L.offset, *i0 = L.i0, *extent = L.extent;
         const uint64_t kInvalid = L.invalid;
         if (!L.empty && !L.too_big) {
-            // Same arithmetic as Open3D: (p - origin) / size in double, floored, so the two agree
-            // bit for bit in kMinBound mode.
-            uint64_t kor = 0, kand = ~uint64_t{0};
-            for (int64_t i = b0; i < b1; ++i) {
-                const float* p = xyz + stride * i;
-                uint64_t key = kInvalid;
-                if (finite3(p)) {
-                    int64_t dense = 0;
-                    for (int k = 0; k < 3; ++k) {
-                        int64_t idx = floor_i64((p[k] - origin[k]) / voxel_size) + offset - i0[k];
-                        idx = std::clamp<int64_t>(idx, 0, extent[k] - 1);  // rounding at the bounds
-                        dense = dense * extent[k] + idx;
-                    }
-                    key = static_cast<uint64_t>(dense);
-                }
-                A[i] = {key, i};
-                kor |= key;
-                kand &= key;
-            }
-            key_or[t] = kor;
-            key_and[t] = kand;
-#pragma omp barrier
-            // the same digits for every block, so that every sorted block ends up in the same
-            // buffer
-            uint64_t all_or = 0, all_and = ~uint64_t{0};
-            for (int u = 0; u < T; ++u) all_or |= key_or[u], all_and &= key_and[u];
-            const uint64_t diff = all_or & ~all_and;  // the bits some keys differ in
-            Keyed *src = A, *dst = B;
             int64_t* h = hist.data() + static_cast<size_t>(t) * kDigits;
-            for (int shift = 0; shift < 64; shift += kDigitBits) {
-                if (((diff >> shift) & (kDigits - 1)) == 0) continue;
-                std::fill(h, h + kDigits, 0);
-                for (int64_t i = b0; i < b1; ++i) ++h[(src[i].key >> shift) & (kDigits - 1)];
-                int64_t sum = b0;
-                for (int d = 0; d < kDigits; ++d) {
-                    const int64_t k = h[d];
-                    h[d] = sum;
-                    sum += k;
-                }
-                for (int64_t i = b0; i < b1; ++i)
-                    dst[h[(src[i].key >> shift) & (kDigits - 1)]++] = src[i];
-                std::swap(src, dst);
-            }
-            std::vector<int64_t>& r = runs[t];
-            r.reserve((b1 - b0) / 4 + 2);
-            for (int64_t i = b0; i < b1 && src[i].key != kInvalid; ++i)
-                if (i == b0 || src[i].key != src[i - 1].key) r.push_back(i);
-            int64_t e = b0;  // the block's end of finite points
-            while (e < b1 && src[e].key != kInvalid) ++e;
-            r.push_back(e);
-            // 4. merge the blocks' runs by key and 5. sum each voxel's centroid, every thread for
-            // its own share of the keys (split at block 0's runs): a voxel's runs are summed in
-            // block order, i.e. in point order
-#pragma omp barrier
-            auto run_key = [&](int u, size_t j) { return src[runs[u][j]].key; };
-            const size_t n0 = runs[0].size() - 1;  // block 0's voxels
-            const uint64_t k_lo = t == 0 ? 0 : (n0 ? run_key(0, n0 * t / T) : kInvalid);
-            const uint64_t k_hi =
-                t + 1 == T ? kInvalid : (n0 ? run_key(0, n0 * (t + 1) / T) : kInvalid);
-            size_t at[kMaxTeam], stop[kMaxTeam];
-            for (int u = 0; u < T; ++u) {
-                const size_t nu = runs[u].size() - 1;
-                size_t lo = 0, hi = nu;  // first run with key >= k_lo
-                while (lo < hi) {
-                    const size_t mid = (lo + hi) / 2;
-                    if (run_key(u, mid) < k_lo) lo = mid + 1; else hi = mid;
-                }
-                at[u] = lo;
-                hi = nu;  // first run with key >= k_hi
-                while (lo < hi) {
-                    const size_t mid = (lo + hi) / 2;
-                    if (run_key(u, mid) < k_hi) lo = mid + 1; else hi = mid;
-                }
-                stop[u] = lo;
-            }
-            std::vector<float>& c_out = centroids[t];
-            c_out.clear();
-            for (;;) {
-                uint64_t k = kInvalid;
-                for (int u = 0; u < T; ++u)
-                    if (at[u] < stop[u]) k = std::min(k, run_key(u, at[u]));
-                if (k == kInvalid) break;
-                double sx = 0, sy = 0, sz = 0;
-                int64_t c = 0;
-                for (int u = 0; u < T; ++u) {
-                    if (at[u] == stop[u] || run_key(u, at[u]) != k) continue;
-                    const int64_t k0 = runs[u][at[u]], k1 = runs[u][at[u] + 1];
-                    ++at[u];
-                    for (int64_t q = k0; q < k1; ++q) {
-                        const float* p = xyz + stride * src[q].row;
-                        sx += p[0];
-                        sy += p[1];
-                        sz += p[2];
+            chunk_shares_2.run(t, [&](int64_t c) {
+                const int64_t b0 = chunk_begin(c), b1 = chunk_begin(c + 1);
+                // Same arithmetic as Open3D: (p - origin) / size in double, floored, so the two
+                // agree bit for bit in kMinBound mode.
+                uint64_t kor = 0, kand = ~uint64_t{0};
+                for (int64_t i = b0; i < b1; ++i) {
+                    const float* p = xyz + stride * i;
+                    uint64_t key = kInvalid;
+                    if (finite3(p)) {
+                        int64_t dense = 0;
+                        for (int k = 0; k < 3; ++k) {
+                            int64_t idx =
+                                floor_i64((p[k] - origin[k]) / voxel_size) + offset - i0[k];
+                            // rounding at the bounds
+                            idx = std::clamp<int64_t>(idx, 0, extent[k] - 1);
+                            dense = dense * extent[k] + idx;
+                        }
+                        key = static_cast<uint64_t>(dense);
                     }
-                    c += k1 - k0;
+                    A[i] = {key, i};
+                    kor |= key;
+                    kand &= key;
                 }
-                const double cnt = static_cast<double>(c);
-                c_out.push_back(static_cast<float>(sx / cnt));
-                c_out.push_back(static_cast<float>(sy / cnt));
-                c_out.push_back(static_cast<float>(sz / cnt));
-            }
-            if (t == 0) team = T;
+                const uint64_t diff = kor & ~kand;  // the bits some keys differ in
+                Keyed *src = A, *dst = B;
+                for (int shift = 0; shift < 64; shift += kDigitBits) {
+                    if (((diff >> shift) & (kDigits - 1)) == 0) continue;
+                    std::fill(h, h + kDigits, 0);
+                    for (int64_t i = b0; i < b1; ++i) ++h[(src[i].key >> shift) & (kDigits - 1)];
+                    int64_t sum = b0;
+                    for (int d = 0; d < kDigits; ++d) {
+                        const int64_t k = h[d];
+                        h[d] = sum;
+                        sum += k;
+                    }
+                    for (int64_t i = b0; i < b1; ++i)
+                        dst[h[(src[i].key >> shift) & (kDigits - 1)]++] = src[i];
+                    std::swap(src, dst);
+                }
+                in_b[c] = src == B;
+                std::vector<int64_t>& r = runs[c];
+                r.clear();
+                r.reserve((b1 - b0) / 4 + 2);
+                for (int64_t i = b0; i < b1 && src[i].key != kInvalid; ++i)
+                    if (i == b0 || src[i].key != src[i - 1].key) r.push_back(i);
+                int64_t e = b0;  // the chunk's end of finite points
+                while (e < b1 && src[e].key != kInvalid) ++e;
+                r.push_back(e);
+            });
+#pragma omp barrier
+            auto sorted = [&](int64_t c) -> const Keyed* { return in_b[c] ? B : A; };
+            auto run_key = [&](int64_t c, size_t j) { return sorted(c)[runs[c][j]].key; };
+            // points of all chunks with a key below k (each chunk is sorted)
+            auto points_below = [&](uint64_t k) {
+                int64_t below = 0;
+                for (int64_t c = 0; c < num_chunks; ++c) {
+                    const Keyed* first = sorted(c) + chunk_begin(c);
+                    const Keyed* last = sorted(c) + runs[c].back();
+                    below += std::lower_bound(first, last, k, [](const Keyed& a, uint64_t v) {
+                                 return a.key < v;
+                             }) - first;
+                }
+                return below;
+            };
+            int64_t finite = 0;
+            for (int64_t c = 0; c < num_chunks; ++c) finite += runs[c].back() - chunk_begin(c);
+            // the smallest key with at least finite * s / num_parts points below it
+            auto split = [&](int64_t s) {
+                if (s == 0) return uint64_t{0};
+                if (s == num_parts) return kInvalid;
+                const int64_t want = finite * s / num_parts;
+                uint64_t lo = 0, hi = kInvalid;
+                while (lo < hi) {
+                    const uint64_t mid = lo + (hi - lo) / 2;
+                    if (points_below(mid) < want)
+                        lo = mid + 1;
+                    else
+                        hi = mid;
+                }
+                return lo;
+            };
+            std::vector<size_t> at(num_chunks), stop(num_chunks);
+            part_shares.run(t, [&](int64_t part) {
+                const uint64_t k_lo = split(part), k_hi = split(part + 1);
+                for (int64_t c = 0; c < num_chunks; ++c) {
+                    const size_t nc = runs[c].size() - 1;
+                    size_t lo = 0, hi = nc;  // first run with key >= k_lo
+                    while (lo < hi) {
+                        const size_t mid = (lo + hi) / 2;
+                        if (run_key(c, mid) < k_lo) lo = mid + 1; else hi = mid;
+                    }
+                    at[c] = lo;
+                    hi = nc;  // first run with key >= k_hi
+                    while (lo < hi) {
+                        const size_t mid = (lo + hi) / 2;
+                        if (run_key(c, mid) < k_hi) lo = mid + 1; else hi = mid;
+                    }
+                    stop[c] = lo;
+                }
+                std::vector<float>& c_out = centroids[part];
+                c_out.clear();
+                for (;;) {
+                    uint64_t k = kInvalid;
+                    for (int64_t c = 0; c < num_chunks; ++c)
+                        if (at[c] < stop[c]) k = std::min(k, run_key(c, at[c]));
+                    if (k == kInvalid) break;
+                    double sx = 0, sy = 0, sz = 0;
+                    int64_t cnt = 0;
+                    for (int64_t c = 0; c < num_chunks; ++c) {
+                        if (at[c] == stop[c] || run_key(c, at[c]) != k) continue;
+                        const Keyed* srt = sorted(c);
+                        const int64_t k0 = runs[c][at[c]], k1 = runs[c][at[c] + 1];
+                        ++at[c];
+                        for (int64_t q = k0; q < k1; ++q) {
+                            const float* p = xyz + stride * srt[q].row;
+                            sx += p[0];
+                            sy += p[1];
+                            sz += p[2];
+                        }
+                        cnt += k1 - k0;
+                    }
+                    const double dc = static_cast<double>(cnt);
+                    c_out.push_back(static_cast<float>(sx / dc));
+                    c_out.push_back(static_cast<float>(sy / dc));
+                    c_out.push_back(static_cast<float>(sz / dc));
+                }
+            });
         }  // a lattice
+        TRIPOD_TEAM_LEAVE();
     }
     if (lat.too_big)
         throw std::invalid_argument("cloud spans too many voxels (more than 2^21 per axis)");
     if (lat.empty) return PointsXYZ(0, 3);  // no finite point
 
-    // the shares one after the other
+    // the parts one after the other
     int64_t m = 0;
-    for (int u = 0; u < team; ++u) m += static_cast<int64_t>(centroids[u].size()) / 3;
+    for (const auto& c : centroids) m += static_cast<int64_t>(c.size()) / 3;
     PointsXYZ out(m, 3);
     float* o = out.data();
-    for (int u = 0; u < team; ++u) o = std::copy(centroids[u].begin(), centroids[u].end(), o);
+    for (const auto& c : centroids) o = std::copy(c.begin(), c.end(), o);
     trim(tl_keyed_a);
     trim(tl_keyed_b);
     return out;
