@@ -34,6 +34,7 @@
 
 Usage: ``python bench/scene.py [--quick] [--pairs 50] [--pictures] [--only SECTION]
 [--split test|dev|val] [--buildings 3] [--no-lofo] [--lofo-steps N] [--lofo-per-family N]
+[--lofo-models DIR] [--lofo-older-generator] [--weights NPZ]
 [--no-twin] [--pair-split test|dev] [--hm-split S] [--hm-scenes ...] [--pair-source twin|synthetic] [--no-baselines]``
 (``--pictures`` rewrites docs/*.png; ``--quick``: two families, one building each, small
 leave-one-family-out models, the room capture only of the twin, 8 pairs from the first seed,
