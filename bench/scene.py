@@ -34,6 +34,7 @@
 
 Usage: ``python bench/scene.py [--quick] [--pairs 50] [--pictures] [--only SECTION]
 [--split test|dev|val] [--buildings 3] [--no-lofo] [--lofo-steps N] [--lofo-per-family N]
+[--lofo-models DIR] [--lofo-older-generator] [--weights NPZ]
 [--no-twin] [--pair-split test|dev] [--hm-split S] [--hm-scenes ...] [--pair-source twin|synthetic] [--no-baselines]``
 (``--pictures`` rewrites docs/*.png; ``--quick``: two families, one building each, small
 leave-one-family-out models, the room capture only of the twin, 8 pairs from the first seed,
@@ -80,7 +81,8 @@ def _ious_text(c) -> str:
 def bench_procedural(split: str = "test", n_per_family: int = 3, lofo: bool = True,
                      lofo_per_family: int | None = None, lofo_steps: int | None = None,
                      quick: bool = False, only_families=None,
-                     lofo_models: str | None = None) -> None:
+                     lofo_models: str | None = None, lofo_older_generator: bool = False,
+                     weights: str | None = None) -> None:
     """Segmentation on generated buildings (``sim.procedural``) of every layout family:
 
     * the shipped weights on ``n_per_family`` buildings of the split's seeds per family (test:
@@ -89,7 +91,9 @@ def bench_procedural(split: str = "test", n_per_family: int = 3, lofo: bool = Tr
     * leave-one-family-out: for each family a model trained by the shipped recipe
       (``train.RECIPE``, optionally fewer buildings or steps) on the other six families only,
       scored on that family's buildings of the split (``lofo_models``: a folder where each is
-      saved after training and loaded from on later runs, when its recipe matches);
+      saved after training and loaded from on later runs, when its recipe and the generator
+      version, ``procedural.GENERATOR``, match; ``lofo_older_generator``: also when only the
+      generator differs, said in the row);
     * inference throughput on the largest of these clouds: wall and CPU time, load average.
     """
 
@@ -99,7 +103,7 @@ def bench_procedural(split: str = "test", n_per_family: int = 3, lofo: bool = Tr
     from tripod_processor.scene.segmentation.model import load_model, save_weights
     from tripod_processor.scene.segmentation.train import (RECIPE, procedural_features,
                                                            train_on_families)
-    from tripod_processor.sim.procedural import FAMILIES, labelled_scan, split_seeds
+    from tripod_processor.sim.procedural import FAMILIES, GENERATOR, labelled_scan, split_seeds
 
     families = FAMILIES[:2] if quick else (tuple(only_families) if only_families else FAMILIES)
     n_per_family = 1 if quick else n_per_family
@@ -113,7 +117,7 @@ def bench_procedural(split: str = "test", n_per_family: int = 3, lofo: bool = Tr
             p, lab = labelled_scan(fam, sd)
             f, pv, sg = voxel_features(p, return_segments=True)
             clouds[fam].append((p, lab, f, pv, sg))
-    seg = Segmenter()
+    seg = Segmenter(weights)
     total = np.zeros((4, 4), np.int64)
     for fam in families:
         c = sum(confusion(lab, seg.probabilities_of(f, pv, sg).argmax(1))
@@ -134,7 +138,8 @@ def bench_procedural(split: str = "test", n_per_family: int = 3, lofo: bool = Tr
 
         def training_rows():  # every family's rows, computed once and cached
             for fam in FAMILIES:
-                fn = cache / f"train_{fam}_{per}x{RECIPE['copies']}_{RECIPE['keep_per_copy']}.npz"
+                fn = cache / (f"train_{fam}_{per}x{RECIPE['copies']}_{RECIPE['keep_per_copy']}"
+                              f"_g{GENERATOR}.npz")  # generator 1's rows had no suffix
                 z = np.load(fn) if fn.exists() else None
                 if z is None or z["F"].shape[1] != len(FEATURE_NAMES):  # none, or other features
                     F, L = procedural_features([fam], per_family=per)[fam]
@@ -149,13 +154,18 @@ def bench_procedural(split: str = "test", n_per_family: int = 3, lofo: bool = Tr
             saved = Path(lofo_models) / f"lofo_{fam}_{per}x{steps}.npz" if lofo_models else None
             meta = {"held_out": fam, "families": [f for f in FAMILIES if f != fam],
                     "per_family": per, "steps": steps, "recipe": {k: list(v) if isinstance(
-                        v, tuple) else v for k, v in RECIPE.items()}, "seed": 0}
+                        v, tuple) else v for k, v in RECIPE.items()}, "seed": 0,
+                    "generator": GENERATOR}
             model = None
             if saved is not None and saved.is_file():
                 model, got = load_model(saved)
+                got.setdefault("generator", 1)  # models of before the version was recorded
                 how = "loaded"
+                if lofo_older_generator and got["generator"] != GENERATOR:
+                    how = f"loaded, trained on generator {got['generator']}'s rows"
+                    got["generator"] = GENERATOR
                 if {k: got.get(k) for k in meta} != meta:
-                    model = None  # another recipe: train again
+                    model = None  # another recipe or generator: train again
             if model is None:
                 model, _ = train_on_families(feats or training_rows(),
                                              [f for f in FAMILIES if f != fam], steps=steps,
@@ -550,6 +560,12 @@ def main(argv=None) -> int:
     ap.add_argument("--lofo-models", default=None, metavar="DIR",
                     help="leave-one-family-out: save each trained model here and load it on "
                          "later runs (when its recipe matches) instead of training again")
+    ap.add_argument("--lofo-older-generator", action="store_true",
+                    help="leave-one-family-out: also load saved models trained on an older "
+                         "generator's rows (the row says so) instead of training again")
+    ap.add_argument("--weights", default=None, metavar="NPZ",
+                    help="segmentation on generated buildings: these weights instead of the "
+                         "shipped ones")
     ap.add_argument("--no-twin", action="store_true",
                     help="segmentation: skip the digital twin's template captures")
     ap.add_argument("--quick", action="store_true",
@@ -568,7 +584,8 @@ def main(argv=None) -> int:
     if a.only in (None, "segmentation"):
         bench_procedural(a.split if a.split != "val" else "dev", a.buildings, not a.no_lofo,
                          a.lofo_per_family, a.lofo_steps, a.quick,
-                         a.families.split(",") if a.families else None, a.lofo_models)
+                         a.families.split(",") if a.families else None, a.lofo_models,
+                         a.lofo_older_generator, a.weights)
         if not a.no_twin:
             bench_segmentation(a.pictures, a.split, a.quick)
     if a.only == "throughput":  # the inference path alone, 5 runs with all cores and with one

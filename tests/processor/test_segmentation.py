@@ -184,6 +184,20 @@ def test_segment_consistency_outvotes_doubtful_points_only():
     np.testing.assert_array_equal(segment_consistent(probs, np.full(11, -1)), probs)
 
 
+def test_segment_consistency_power_weighs_the_segment_more():
+    # the wall-plane pass squares the plane's mean: a point fairly sure it is other (0.85) on a
+    # plane that says wall is outvoted, one that is very sure (0.99) still is not
+    p = np.tile(np.float32([0.0, 0.0, 0.9, 0.1]), (10, 1))
+    p[8] = [0.0, 0.0, 0.15, 0.85]
+    p[9] = [0.0, 0.0, 0.01, 0.99]
+    seg = np.zeros(10, np.int64)
+    once, twice = segment_consistent(p, seg), segment_consistent(p, seg, power=2.0)
+    np.testing.assert_allclose(twice.sum(1), 1, rtol=1e-5)
+    assert once[8].argmax() == 3 and twice[8].argmax() == 2
+    assert once[9].argmax() == 3 and twice[9].argmax() == 3
+    np.testing.assert_array_equal(segment_consistent(p, seg, power=1.0), once)
+
+
 def test_floor_and_ceiling_heights():
     p, lab, scene, _ = room_scan(4, head_steps=8)
     nz = np.abs(_ext.voxel_local_shape(p, 0.05, 1)[:, 2])

@@ -140,7 +140,8 @@ def planar_segments(points, num_threads: int = 0, voxel: float = SEGMENT_VOXEL,
     return stats, normal_z, segment, res
 
 
-def segment_consistent(probabilities: np.ndarray, segment: np.ndarray) -> np.ndarray:
+def segment_consistent(probabilities: np.ndarray, segment: np.ndarray,
+                       power: float = 1.0) -> np.ndarray:
     """Second stage: make the class probabilities of one planar segment agree.
 
     Each point's probabilities are multiplied by the mean probabilities of its segment and
@@ -150,6 +151,7 @@ def segment_consistent(probabilities: np.ndarray, segment: np.ndarray) -> np.nda
     small segments (furniture, pillar faces) only vote among themselves.
 
     probabilities : (N, C) float32, rows sum to 1; segment : (N,) int, -1 = none (kept as is)
+    power : the segment's mean enters raised to this power (2: its evidence counts twice)
     Returns (N, C) float32.
     """
     p = np.asarray(probabilities, np.float32)
@@ -164,7 +166,7 @@ def segment_consistent(probabilities: np.ndarray, segment: np.ndarray) -> np.nda
     for k in range(p.shape[1]):
         mean[used, k] = np.bincount(s, weights=p[ok, k], minlength=len(cnt))[used] / cnt[used]
     out = p.copy()
-    q = p[ok] * mean[s].astype(np.float32)
+    q = p[ok] * (mean[s] if power == 1.0 else mean[s] ** power).astype(np.float32)
     out[ok] = q / np.maximum(q.sum(1, keepdims=True), 1e-30)
     return out
 
