@@ -103,17 +103,19 @@ def _cal(ell, sigma_mm, residual_m):
 
 
 def test_pick_start_rules():
-    """The same answer from both starts: the lower residual; different answers with clearly
-    different residuals: the lower; different answers the residual cannot tell apart: the
-    prior's, unobservable, with a sigma covering the gap."""
+    """The same answer from both starts: the lower residual, observable. Different answers:
+    the lower residual (the prior's when no residual is lower by ``same_cost_rel``), marked
+    unobservable, with a sigma covering the gap."""
     U = cal_mod._perp_basis(np.array([0.0, 0.0, 1.0]))
     a, b = _cal([0.050, 0.0, 0.0], 1.0, 0.0101), _cal([0.052, 0.0, 0.0], 1.0, 0.0100)
-    assert cal_mod._pick_start(a, b, U, 0.005, 0.01) is b
-    far, near = _cal([0.25, 0.0, 0.0], 1.0, 0.0100), _cal([0.06, 0.0, 0.0], 1.0, 0.0120)
-    got = cal_mod._pick_start(far, near, U, 0.005, 0.01)
-    assert got is far and got.lever_arm_observable
-    far, near = _cal([0.25, 0.0, 0.0], 1.0, 0.01000), _cal([0.06, 0.0, 0.0], 1.0, 0.01002)
-    got = cal_mod._pick_start(far, near, U, 0.005, 0.01)
-    assert got is near and not got.lever_arm_observable
-    assert np.max(got.lever_arm_sigma_m) >= 0.19 - 1e-9
-    assert [r["start"] for r in got.lever_starts] == ["given", "prior"]
+    got = cal_mod._pick_start(a, b, U, 0.005, 0.0)
+    assert got is b and got.lever_arm_observable
+    for given_res, prior_res, rel, want in [(0.0100, 0.0102, 0.0, "given"),
+                                            (0.0102, 0.0100, 0.0, "prior"),
+                                            (0.0100, 0.01002, 0.01, "prior")]:
+        far, near = _cal([0.25, 0.0, 0.0], 1.0, given_res), _cal([0.06, 0.0, 0.0], 1.0, prior_res)
+        got = cal_mod._pick_start(far, near, U, 0.005, rel)
+        assert got is (far if want == "given" else near)
+        assert not got.lever_arm_observable
+        assert np.max(got.lever_arm_sigma_m) >= 0.19 - 1e-9
+        assert [r["start"] for r in got.lever_starts] == ["given", "prior"]

@@ -473,7 +473,7 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
                    points_per_station: int = 80_000, voxel_m: float = 0.25,
                    min_separation_s: float = 0.3, iterations: int = 8,
                    max_range: float = 60.0, sigma_inflation: float = 3.0,
-                   lever_start_tol_m: float = 0.005, same_cost_rel: float = 0.01,
+                   lever_start_tol_m: float = 0.005, same_cost_rel: float = 0.0,
                    num_threads: int = 0) -> SelfCalibration:
     """Lever arm, IMU time offset and mount rotation that make every station self-consistent.
 
@@ -500,9 +500,8 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
     The lever arm is fitted from two starts: ``ext``'s (hand-eye's rough one) and the prior (none
     across the pan axis); where the surfaces carry little of it (a mount on its side panned
     slowly in a hall: few surfaces seen from opposite sides) the fit stays near its start, so
-    the two are compared (:func:`_pick_start`): the same answer, or a clearly lower residual,
-    is kept; two answers the data cannot tell apart give the prior's, marked unobservable, its
-    sigma covering the gap.
+    the two are compared (:func:`_pick_start`): the same answer is kept as it is; two answers
+    give the one of lower residual, marked unobservable, its sigma covering the gap.
 
     The stations' sampling and residuals run side by side on ``num_threads`` threads (0: every
     core), one station a thread, gathered in station order: the same result on any count.
@@ -524,7 +523,7 @@ def self_calibrate_samples(data: list[tuple[np.ndarray, np.ndarray]], use: list[
                            fit_time: bool = True, fit_rotation: bool = True,
                            voxel_m: float = 0.25, min_separation_s: float = 0.3,
                            iterations: int = 8, sigma_inflation: float = 3.0,
-                           lever_start_tol_m: float = 0.005, same_cost_rel: float = 0.01,
+                           lever_start_tol_m: float = 0.005, same_cost_rel: float = 0.0,
                            num_threads: int = 0) -> SelfCalibration:
     """:func:`self_calibrate` on the stations' sampled points: ``data[k]`` = (xyz (N, 3) [m]
     lidar frame, time_ns (N,) lidar clock) of station ``use[k]``."""
@@ -561,10 +560,10 @@ def _pick_start(given: "SelfCalibration", prior: "SelfCalibration", U_l: np.ndar
     across the pan axis).
 
     Both land on one lever arm (within ``tol_m`` or 3 sigma): the data pin it, the lower robust
-    residual wins. They land apart: the stations' surfaces did not move the lever arm from
-    where it started. A fit whose residual is lower by more than ``same_cost_rel`` (relative)
-    wins; else the data cannot tell them apart, so the prior's fit is kept, the lever arm is
-    marked unobservable and its sigma covers the gap between the two."""
+    residual wins. They land apart: the fit stayed near where it started (the surfaces carry
+    little of the lever arm), so the lever arm is marked unobservable and its sigma covers the
+    gap between the two; the fit whose residual is lower by more than ``same_cost_rel``
+    (relative) is kept, else (no residual can tell them apart) the prior's."""
     d = U_l.T @ (given.lever_arm_m - prior.lever_arm_m)  # (2,) across the pan axis [m]
     sig = np.hypot(given.lever_arm_sigma_m, prior.lever_arm_sigma_m)
     rows = [_start_row("given", given, U_l), _start_row("prior", prior, U_l)]
@@ -573,15 +572,9 @@ def _pick_start(given: "SelfCalibration", prior: "SelfCalibration", U_l: np.ndar
         out.lever_starts = rows
         return out
     rel = (prior.residual_m - given.residual_m) / max(prior.residual_m, 1e-12)
-    if rel > same_cost_rel:
-        out, unsure = given, False
-    elif rel < -same_cost_rel:
-        out, unsure = prior, False
-    else:
-        out, unsure = prior, True
-    if unsure:
-        out.lever_arm_sigma_m = np.maximum(out.lever_arm_sigma_m, np.abs(d))
-        out.lever_arm_observable = False
+    out = given if rel > same_cost_rel else prior
+    out.lever_arm_sigma_m = np.maximum(out.lever_arm_sigma_m, np.abs(d))
+    out.lever_arm_observable = False
     out.lever_starts = rows
     return out
 
