@@ -471,7 +471,7 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
                    ext: Extrinsic, *, fit_lever: bool = True, fit_time: bool = True,
                    fit_rotation: bool = True, max_stations: int = 4,
                    points_per_station: int = 80_000, voxel_m: float = 0.25,
-                   min_separation_s: float = 0.3, iterations: int = 8,
+                   min_separation_s: float = 0.3, iterations: int = 12,
                    max_range: float = 60.0, sigma_inflation: float = 3.0,
                    lever_start_tol_m: float = 0.005, same_cost_rel: float = 0.0,
                    num_threads: int = 0) -> SelfCalibration:
@@ -522,7 +522,7 @@ def self_calibrate_samples(data: list[tuple[np.ndarray, np.ndarray]], use: list[
                            orient: ImuOrientation, ext: Extrinsic, *, fit_lever: bool = True,
                            fit_time: bool = True, fit_rotation: bool = True,
                            voxel_m: float = 0.25, min_separation_s: float = 0.3,
-                           iterations: int = 8, sigma_inflation: float = 3.0,
+                           iterations: int = 12, sigma_inflation: float = 3.0,
                            lever_start_tol_m: float = 0.005, same_cost_rel: float = 0.0,
                            num_threads: int = 0) -> SelfCalibration:
     """:func:`self_calibrate` on the stations' sampled points: ``data[k]`` = (xyz (N, 3) [m]
