@@ -9,7 +9,6 @@ the axis. Ray-cast points (1 cm range noise), no simulator: a few seconds.
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-
 from tripod_processor.reconstruction import calibration as cal_mod
 from tripod_processor.reconstruction.calibration import self_calibrate_samples
 from tripod_processor.reconstruction.inputs import ImuTrack

@@ -529,9 +529,9 @@ def self_calibrate_samples(data: list[tuple[np.ndarray, np.ndarray]], use: list[
     lidar frame, time_ns (N,) lidar clock) of station ``use[k]``."""
     workers = thread_workers(num_threads, len(use))
     b = pan_axis_in_imu(orient, use)
-    fit = dict(fit_lever=fit_lever, fit_time=fit_time, fit_rotation=fit_rotation,
-               voxel_m=voxel_m, sep_ns=int(min_separation_s * 1e9), iterations=iterations,
-               sigma_inflation=sigma_inflation, workers=workers)
+    fit = {"fit_lever": fit_lever, "fit_time": fit_time, "fit_rotation": fit_rotation,
+           "voxel_m": voxel_m, "sep_ns": int(min_separation_s * 1e9), "iterations": iterations,
+           "sigma_inflation": sigma_inflation, "workers": workers}
     first = _fit_from(data, use, b, orient, ext, **fit)
     if not fit_lever:
         return first
@@ -548,14 +548,14 @@ def self_calibrate_samples(data: list[tuple[np.ndarray, np.ndarray]], use: list[
     return _pick_start(first, second, U_l, lever_start_tol_m, same_cost_rel)
 
 
-def _start_row(name: str, cal: "SelfCalibration", U_l: np.ndarray) -> dict:
+def _start_row(name: str, cal: SelfCalibration, U_l: np.ndarray) -> dict:
     return {"start": name, "lever_arm_m": cal.lever_arm_m.tolist(),
             "lever_arm_across_m": (U_l.T @ cal.lever_arm_m).tolist(),
             "residual_m": cal.residual_m, "pairs": cal.pairs}
 
 
-def _pick_start(given: "SelfCalibration", prior: "SelfCalibration", U_l: np.ndarray,
-                tol_m: float, same_cost_rel: float) -> "SelfCalibration":
+def _pick_start(given: SelfCalibration, prior: SelfCalibration, U_l: np.ndarray,
+                tol_m: float, same_cost_rel: float) -> SelfCalibration:
     """One of two fits of the same stations, from the given lever arm and from the prior (none
     across the pan axis).
 

@@ -335,9 +335,14 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
         if cal.lever_arm_observable:
             pass
         else:
+            gap = ""
+            if len(cal.lever_starts) == 2:
+                g = np.subtract(*[r["lever_arm_across_m"] for r in cal.lever_starts])
+                gap = (f"; the fits from hand-eye's lever arm and from none ended "
+                       f"{np.linalg.norm(g) * 1000:.0f} mm apart")
             notes.append("WARNING: lever arm poorly observable (σ "
                          f"{np.max(cal.lever_arm_sigma_m) * 1000:.1f} mm): few surfaces seen "
-                         "from opposite sides of the pan")
+                         f"from opposite sides of the pan{gap}")
     off = orient.time_offset_ns
     if turn is not None:
         # the surfaces' estimate joins the turns' when it is sure and agrees (inverse-variance
