@@ -16,6 +16,10 @@ Within a station the head turns about a fixed pivot c, so the lidar's pose at ti
 A station's fragment is expressed in the lidar frame at its middle time t_m, where c cancels::
 
     x_frag = R_world_lidar(t_m)ᵀ · ( R_world_imu(t)·(R_imu_lidar·x + ℓ) − R_world_imu(t_m)·ℓ )
+
+where R_world_imu(t_m), the station's *anchor*, is fitted over all of the station's IMU samples
+(:func:`station_anchor_rotation`) rather than slerped between two: one sample's white noise
+would turn the whole station.
 """
 
 from __future__ import annotations
