@@ -267,3 +267,87 @@ def test_fragment_on_the_fitted_anchor_is_the_slerped_one_moved_rigidly(rig):
         return f.points.astype(np.float64) @ f.R_world_lidar.T + R_wi @ ext.lever_arm_m
 
     assert np.abs(world(f0) - world(f1)).max() < 1e-5  # [m]: float32 at ~10 m
+
+
+def _serial_merge_runs(runs, ctx, max_gap_s=10.0):
+    """The gap-by-gap, vote-by-vote merge that ``stations._merge_runs`` replaced (each gap's
+    two votes now side by side on threads); also the number of votes cast."""
+    from tripod_processor.reconstruction import stations as S
+
+    def same_place(i, j):
+        out = []
+        for k in (i, j):
+            t = ctx.times[k]
+            a, b = np.searchsorted(ctx.lidar.lidar_ns, [t, t + ctx.win])
+            out.append(S._window_cloud(ctx.lidar, int(a), int(b), ctx.orient, ctx.ext,
+                                       ctx.n_points, ctx.rng)[0])
+        if len(out[0]) < 50 or len(out[1]) < 50:
+            return None
+        fit = S.pivot_shift_fit(out[0], out[1][: ctx.n_query])
+        if fit is None:
+            return None
+        d, P = fit
+        if np.linalg.matrix_rank(P) < 2:
+            return None
+        r = np.linalg.norm(P @ (d - (ctx.R_w[j] - ctx.R_w[i]) @ ctx.e))
+        return bool(r < ctx.cfg.still_threshold)
+
+    step_ns = int(ctx.times[1] - ctx.times[0])
+    pan = S._pan_angle(ctx.R_w, ctx.axis)
+    out, merged, cast = [runs[0]], 0, 0
+    for k, e in runs[1:]:
+        pk, pe = out[-1]
+        if (ctx.times[k] - ctx.times[pe]) * 1e-9 > max_gap_s:
+            out.append((k, e))
+            continue
+        sw = S._swing_deg(ctx.R_w[pe:pe + 1], ctx.R_w[k:k + 1], ctx.axis)[0]
+        sw_gap = S._swing_deg(np.repeat(ctx.R_w[pe:pe + 1], k - pe + 1, axis=0),
+                              ctx.R_w[pe:k + 1], ctx.axis).max()
+        if sw > ctx.cfg.still_tilt_deg or sw_gap > 2 * ctx.cfg.still_tilt_deg:
+            out.append((k, e))
+            continue
+        ii = np.arange(max(pk, pe - int(5e9 / step_ns)), pe + 1)
+        jj = np.arange(k, min(e, k + int(5e9 / step_ns)) + 1)
+        dphi = np.abs(np.angle(np.exp(1j * (pan[ii][:, None] - pan[jj][None, :]))))
+        order = np.argsort(dphi, axis=None)[:2]
+        votes = [same_place(int(ii[o // len(jj)]), int(jj[o % len(jj)])) for o in order]
+        cast += len(votes)
+        votes = [v for v in votes if v is not None]
+        if votes and all(votes):
+            out[-1] = (pk, e)
+            merged += 1
+        else:
+            out.append((k, e))
+    return out, merged, cast
+
+
+def test_station_run_merge_is_the_serial_one_on_threads(rig, monkeypatch):
+    """The splitter's merge of still runs across a gap where the pivot did not move (each gap's
+    two votes on threads) gives the serial loop's runs and leaves the random draws where it
+    did, on 1 and 2 threads (the capture's first pass, mount unknown: its runs are broken)."""
+    import copy
+
+    from tripod_processor.reconstruction import stations as S
+
+    _, rec, orient = rig
+    ext = Extrinsic.from_config(None, None)
+    cfg = ReconstructConfig().stations
+    seen = []
+    real = S._merge_runs
+
+    def spy(runs, ctx, *a, **kw):
+        before = copy.deepcopy(ctx.rng.bit_generator.state)
+        out = real(runs, ctx, *a, **kw)
+        seen.append((list(runs), ctx, before, out, copy.deepcopy(ctx.rng.bit_generator.state)))
+        return out
+
+    monkeypatch.setattr(S, "_merge_runs", spy)
+    for n in (1, 2):
+        segment_stations(rec.lidar, orient, ext, cfg, num_threads=n)
+    (runs, ctx, before, out1, after1), (_, _, _, out2, after2) = seen
+    assert out1 == out2 and after1 == after2
+    ctx.rng.bit_generator.state = before
+    want, merged, cast = _serial_merge_runs(runs, ctx)
+    assert cast >= 2  # votes were cast
+    assert (want, merged) == out1
+    assert ctx.rng.bit_generator.state == after1

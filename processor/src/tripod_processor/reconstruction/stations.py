@@ -357,7 +357,8 @@ def segment_stations(lidar: LidarPackets, orient: ImuOrientation, ext: Extrinsic
     still[: len(still) - gap] |= still_pair[gap:]
 
     runs = _runs(still)
-    ctx = _Ctx(lidar, orient, ext, times, win, R_w, axis, e, cfg, rng, n_points, n_query)
+    ctx = _Ctx(lidar, orient, ext, times, win, R_w, axis, e, cfg, rng, n_points, n_query,
+               num_threads)
     runs, merged = _merge_runs(runs, ctx)
     marks = sorted(marks_lidar_ns or []) if cfg.use_marks else []
     runs = _split_by_marks(runs, marks, times, win)
@@ -510,27 +511,38 @@ class _Ctx:
     rng: np.random.Generator
     n_points: int
     n_query: int
+    num_threads: int = 1  # 0: all cores
 
 
-def _same_place(ctx: _Ctx, i: int, j: int) -> bool | None:
-    """Did the pivot stay put between windows i and j (lever-arm correction applied)? None
-    when the two windows share too little view to say."""
-    out = []
-    for k in (i, j):
-        t = ctx.times[k]
-        a, b = np.searchsorted(ctx.lidar.lidar_ns, [t, t + ctx.win])
-        out.append(_window_cloud(ctx.lidar, int(a), int(b), ctx.orient, ctx.ext, ctx.n_points,
-                                 ctx.rng)[0])
-    if len(out[0]) < 50 or len(out[1]) < 50:
-        return None
-    fit = pivot_shift_fit(out[0], out[1][: ctx.n_query])
-    if fit is None:
-        return None
-    d, P = fit
-    if np.linalg.matrix_rank(P) < 2:
-        return None
-    r = np.linalg.norm(P @ (d - (ctx.R_w[j] - ctx.R_w[i]) @ ctx.e))
-    return bool(r < ctx.cfg.still_threshold)
+def _same_place(ctx: _Ctx, pairs: list[tuple[int, int]], pool) -> list[bool | None]:
+    """For each pair of windows (i, j): did the pivot stay put between them (lever-arm
+    correction applied)? None when the two share too little view to say.
+
+    The windows are decoded side by side on ``pool``, their random subsets drawn from
+    ``ctx.rng`` in pair order (i before j, as one pair after the other would), then each pair
+    placed and fitted side by side: the votes do not depend on the threads."""
+    wins = [k for ij in pairs for k in ij]
+    ab = [np.searchsorted(ctx.lidar.lidar_ns, [ctx.times[k], ctx.times[k] + ctx.win])
+          for k in wins]
+    pts = list(pool.map(lambda x: _window_points(ctx.lidar, int(x[0]), int(x[1])), ab))
+    samples = [_window_sample(p, _window_subset(len(p[0]), ctx.n_points, ctx.rng)) for p in pts]
+
+    def vote(m: int) -> bool | None:
+        i, j = pairs[m]
+        out = [_place_window(ctx.lidar, int(ab[2 * m + n][0]), samples[2 * m + n], ctx.orient,
+                             ctx.ext)[0] for n in (0, 1)]
+        if len(out[0]) < 50 or len(out[1]) < 50:
+            return None
+        fit = pivot_shift_fit(out[0], out[1][: ctx.n_query])
+        if fit is None:
+            return None
+        d, P = fit
+        if np.linalg.matrix_rank(P) < 2:
+            return None
+        r = np.linalg.norm(P @ (d - (ctx.R_w[j] - ctx.R_w[i]) @ ctx.e))
+        return bool(r < ctx.cfg.still_threshold)
+
+    return list(pool.map(vote, range(len(pairs))))
 
 
 def _pan_angle(R_w: np.ndarray, axis: np.ndarray) -> np.ndarray:
@@ -550,6 +562,15 @@ def _merge_runs(runs: list[tuple[int, int]], ctx: _Ctx, max_gap_s: float = 10.0
     angle (a station is never cut in two by a noisy moment)."""
     if len(runs) < 2:
         return runs, 0
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max(1, ctx.num_threads or (os.cpu_count() or 1))) as pool:
+        return _merge_runs_on(runs, ctx, max_gap_s, pool)
+
+
+def _merge_runs_on(runs: list[tuple[int, int]], ctx: _Ctx, max_gap_s: float, pool
+                   ) -> tuple[list[tuple[int, int]], int]:
+    """:func:`_merge_runs` with each gap's two votes side by side on ``pool``."""
     step_ns = int(ctx.times[1] - ctx.times[0]) if len(ctx.times) > 1 else 1
     pan = _pan_angle(ctx.R_w, ctx.axis)
     out = [runs[0]]
@@ -573,7 +594,8 @@ def _merge_runs(runs: list[tuple[int, int]], ctx: _Ctx, max_gap_s: float = 10.0
         jj = np.arange(k, min(e, k + int(5e9 / step_ns)) + 1)
         dphi = np.abs(np.angle(np.exp(1j * (pan[ii][:, None] - pan[jj][None, :]))))
         order = np.argsort(dphi, axis=None)[:2]
-        votes = [_same_place(ctx, int(ii[o // len(jj)]), int(jj[o % len(jj)])) for o in order]
+        votes = _same_place(ctx, [(int(ii[o // len(jj)]), int(jj[o % len(jj)])) for o in order],
+                            pool)
         votes = [v for v in votes if v is not None]
         if votes and all(votes):
             out[-1] = (pk, e)
