@@ -158,3 +158,196 @@ def test_reconstruction_does_not_depend_on_the_threads(rig, tmp_path):
     assert [(e.i, e.j, e.kind) for e in a.slam.edges] == [(e.i, e.j, e.kind) for e in b.slam.edges]
     np.testing.assert_allclose(a.slam.T_odometry, b.slam.T_odometry, atol=1e-9)
     np.testing.assert_allclose(a.slam.T_optimized, b.slam.T_optimized, atol=1e-6)
+
+
+def _serial_offset_tolerant(lidar, times, win, gap, orient, ext, e, motion, todo, cfg,
+                            n_points, n_query, n_grid=5):
+    """The one-window-at-a-time refit that ``stations._offset_tolerant_motion`` replaced (its
+    windows and offsets now side by side on threads), for the windows ``todo``."""
+    from tripod_processor.reconstruction import stations as S
+
+    out = motion.copy()
+    dmax_ns = int(cfg.max_time_offset_error_ms * 1e6)
+    ab = np.searchsorted(lidar.lidar_ns, np.stack([times, times + win], axis=1))
+    samples = {}
+
+    def sample(k):
+        if k not in samples:
+            pts = S._window_points(lidar, int(ab[k, 0]), int(ab[k, 1]))
+            rng = np.random.default_rng([0x5EED, k])
+            samples[k] = S._window_sample(pts, S._window_subset(len(pts[0]), n_points, rng))
+        return samples[k]
+
+    for k in todo:
+        j = k - gap
+        sj, sk = sample(j), sample(k)
+        if len(sj[0]) <= 50 or len(sk[0]) <= 50:
+            continue
+
+        def shift(d_ns):
+            o = orient.with_offset(orient.time_offset_ns + int(d_ns))
+            ref, a_j = S._place_window(lidar, int(ab[j, 0]), sj, o, ext)
+            c, a_k = S._place_window(lidar, int(ab[k, 0]), sk, o, ext)
+            fit = S.pivot_shift_fit(ref, c[:n_query])
+            if fit is None:
+                return float("inf")
+            R_j, R_k = o.rotation_at(np.array([a_j, a_k]))
+            d, P = fit
+            return float(np.linalg.norm(P @ (d - (R_k - R_j) @ e)))
+
+        grid = np.linspace(-dmax_ns, dmax_ns, n_grid).astype(np.int64)
+        vals = [shift(int(t)) for t in grid]
+        step = int(2 * dmax_ns // (n_grid - 1))
+        best = int(grid[int(np.argmin(vals))])
+        fine = [shift(best + int(t)) for t in np.linspace(-step, step, n_grid + 2)[1:-1]]
+        out[k] = min(float(out[k]), min(vals), min(fine))
+    return out
+
+
+def test_station_refit_is_the_serial_one_on_threads(rig, monkeypatch):
+    """The splitter's refit of windows where the pan rate changes (``_offset_tolerant_motion``,
+    here with the IMU time offset 8 ms off so that the capture's pause and reversal need it)
+    gives the serial loop's motions exactly, on 1 and 2 threads and in blocks of any size."""
+    from tripod_processor.reconstruction import stations as S
+
+    _, rec, orient = rig
+    orient = orient.with_offset(8_000_000)
+    ext = Extrinsic.from_config(None, None)
+    cfg = ReconstructConfig().stations
+    calls = []
+    real = S._offset_tolerant_motion
+
+    def spy(*args, **kw):
+        out = real(*args, **kw)
+        calls.append((args, kw, out.copy()))  # the splitter fills its gaps in place
+        return out
+
+    monkeypatch.setattr(S, "_offset_tolerant_motion", spy)
+    segs = [segment_stations(rec.lidar, orient, ext, cfg, num_threads=n) for n in (1, 2)]
+    assert [(s.start_ns, s.end_ns) for s in segs[0].stations] == \
+        [(s.start_ns, s.end_ns) for s in segs[1].stations]
+    (args, kw, out1), (_, _, out2) = calls
+    lidar, times, win, gap, o, ex, axis, e, motion, imu_still, c, n_points, n_query = args
+    refit = np.flatnonzero(out1 != motion)
+    assert len(refit) >= 3  # the refit did run, and lowered some windows' motion
+    assert np.array_equal(out1, out2)
+    todo = np.flatnonzero(np.isfinite(motion) & (motion >= c.still_threshold) & imu_still)
+    todo = [k for k in todo.tolist() if k >= gap]
+    want = _serial_offset_tolerant(lidar, times, win, gap, o, ex, e, motion, todo, c,
+                                   n_points, n_query)
+    # the serial loop on every candidate; the threaded one skips those whose pan rate does not
+    # change (their refit cannot lower the motion)
+    assert np.array_equal(out1[refit], want[refit])
+    small = real(*args, num_threads=2, block=2)
+    assert np.array_equal(small, out1)
+
+
+def test_fragment_on_the_fitted_anchor_is_the_slerped_one_moved_rigidly(rig):
+    """A fragment anchored on the fitted attitude (``placement.anchor_fit``) holds the same
+    world points as the slerped one: only its frame differs, by a small rotation."""
+    from scipy.spatial.transform import Rotation
+
+    from tripod_processor.reconstruction.fragments import build_fragment
+    from tripod_processor.reconstruction.stations import Station
+
+    _, rec, orient = rig
+    ext = Extrinsic.from_config([0.97, 0.1, 0.2, 0.05], [0.03, 0.08, 0.01])
+    t0 = int(rec.lidar.lidar_ns[0])
+    s_ns, e_ns = t0 + 1_000_000_000, t0 + 4_000_000_000
+    a, b = np.searchsorted(rec.lidar.lidar_ns, [s_ns, e_ns])
+    st = Station(0, s_ns, e_ns, int(a), int(b))
+    f0 = build_fragment(rec.lidar, st, orient, ext, 0.05, 0.4, 100.0, 2, anchor_fit=False)
+    f1 = build_fragment(rec.lidar, st, orient, ext, 0.05, 0.4, 100.0, 2, anchor_fit=True)
+    assert len(f0.points) == len(f1.points) > 1000
+    dR = Rotation.from_matrix(f0.R_world_lidar.T @ f1.R_world_lidar).magnitude()
+    assert 0 < np.degrees(dR) < 0.3  # the sample's noise, no more
+
+    def world(f):
+        R_wi = f.R_world_lidar @ ext.R_imu_lidar.T
+        return f.points.astype(np.float64) @ f.R_world_lidar.T + R_wi @ ext.lever_arm_m
+
+    assert np.abs(world(f0) - world(f1)).max() < 1e-5  # [m]: float32 at ~10 m
+
+
+def _serial_merge_runs(runs, ctx, max_gap_s=10.0):
+    """The gap-by-gap, vote-by-vote merge that ``stations._merge_runs`` replaced (each gap's
+    two votes now side by side on threads); also the number of votes cast."""
+    from tripod_processor.reconstruction import stations as S
+
+    def same_place(i, j):
+        out = []
+        for k in (i, j):
+            t = ctx.times[k]
+            a, b = np.searchsorted(ctx.lidar.lidar_ns, [t, t + ctx.win])
+            out.append(S._window_cloud(ctx.lidar, int(a), int(b), ctx.orient, ctx.ext,
+                                       ctx.n_points, ctx.rng)[0])
+        if len(out[0]) < 50 or len(out[1]) < 50:
+            return None
+        fit = S.pivot_shift_fit(out[0], out[1][: ctx.n_query])
+        if fit is None:
+            return None
+        d, P = fit
+        if np.linalg.matrix_rank(P) < 2:
+            return None
+        r = np.linalg.norm(P @ (d - (ctx.R_w[j] - ctx.R_w[i]) @ ctx.e))
+        return bool(r < ctx.cfg.still_threshold)
+
+    step_ns = int(ctx.times[1] - ctx.times[0])
+    pan = S._pan_angle(ctx.R_w, ctx.axis)
+    out, merged, cast = [runs[0]], 0, 0
+    for k, e in runs[1:]:
+        pk, pe = out[-1]
+        if (ctx.times[k] - ctx.times[pe]) * 1e-9 > max_gap_s:
+            out.append((k, e))
+            continue
+        sw = S._swing_deg(ctx.R_w[pe:pe + 1], ctx.R_w[k:k + 1], ctx.axis)[0]
+        sw_gap = S._swing_deg(np.repeat(ctx.R_w[pe:pe + 1], k - pe + 1, axis=0),
+                              ctx.R_w[pe:k + 1], ctx.axis).max()
+        if sw > ctx.cfg.still_tilt_deg or sw_gap > 2 * ctx.cfg.still_tilt_deg:
+            out.append((k, e))
+            continue
+        ii = np.arange(max(pk, pe - int(5e9 / step_ns)), pe + 1)
+        jj = np.arange(k, min(e, k + int(5e9 / step_ns)) + 1)
+        dphi = np.abs(np.angle(np.exp(1j * (pan[ii][:, None] - pan[jj][None, :]))))
+        order = np.argsort(dphi, axis=None)[:2]
+        votes = [same_place(int(ii[o // len(jj)]), int(jj[o % len(jj)])) for o in order]
+        cast += len(votes)
+        votes = [v for v in votes if v is not None]
+        if votes and all(votes):
+            out[-1] = (pk, e)
+            merged += 1
+        else:
+            out.append((k, e))
+    return out, merged, cast
+
+
+def test_station_run_merge_is_the_serial_one_on_threads(rig, monkeypatch):
+    """The splitter's merge of still runs across a gap where the pivot did not move (each gap's
+    two votes on threads) gives the serial loop's runs and leaves the random draws where it
+    did, on 1 and 2 threads (the capture's first pass, mount unknown: its runs are broken)."""
+    import copy
+
+    from tripod_processor.reconstruction import stations as S
+
+    _, rec, orient = rig
+    ext = Extrinsic.from_config(None, None)
+    cfg = ReconstructConfig().stations
+    seen = []
+    real = S._merge_runs
+
+    def spy(runs, ctx, *a, **kw):
+        before = copy.deepcopy(ctx.rng.bit_generator.state)
+        out = real(runs, ctx, *a, **kw)
+        seen.append((list(runs), ctx, before, out, copy.deepcopy(ctx.rng.bit_generator.state)))
+        return out
+
+    monkeypatch.setattr(S, "_merge_runs", spy)
+    for n in (1, 2):
+        segment_stations(rec.lidar, orient, ext, cfg, num_threads=n)
+    (runs, ctx, before, out1, after1), (_, _, _, out2, after2) = seen
+    assert out1 == out2 and after1 == after2
+    ctx.rng.bit_generator.state = before
+    want, merged, cast = _serial_merge_runs(runs, ctx)
+    assert cast >= 2  # votes were cast
+    assert (want, merged) == out1
+    assert ctx.rng.bit_generator.state == after1

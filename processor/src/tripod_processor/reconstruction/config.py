@@ -34,6 +34,11 @@ class PlacementConfig(StrictModel):
     #: angle error of two from 0.128/0.123° to 0.103/0.097° but left three others worse (see the
     #: README's rig benchmark), so it is not yet shown to help
     imu_smooth_s: float = Field(default=0.0, ge=0, le=1.0)
+    #: a station's frame (its fragment's, its pose's) at the IMU attitude fitted over all of
+    #: the station's samples (``placement.station_anchor_rotation``: the tilt averaged over the
+    #: station, the pan angle fitted around the middle time) instead of the one slerped between
+    #: two samples, whose white noise (0.05° per axis) would turn the whole station
+    anchor_fit: bool = True
     #: search range of the time-offset estimate [s] (± this)
     time_offset_search_s: float = Field(default=0.08, gt=0)
     min_range_m: float = Field(default=0.4, ge=0)

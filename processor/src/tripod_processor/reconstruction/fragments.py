@@ -11,7 +11,8 @@ import numpy as np
 from ..decode.timed import decode_xyz_time
 from ..preprocess import lookup_keys, voxel_downsample, voxel_keys, voxel_sums
 from .inputs import LidarPackets
-from .placement import Extrinsic, ImuOrientation, place_points, pose_world_lidar
+from .placement import (Extrinsic, ImuOrientation, place_points, pose_world_lidar,
+                        station_anchor_rotation)
 from .stations import Station
 
 
@@ -23,7 +24,8 @@ class Fragment:
     ----------
     station : Station
     points : (N, 3) float32 [m], lidar frame at ``station.mid_ns``, voxel-filtered
-    R_world_lidar : (3, 3) IMU attitude of that frame (yaw from the drifting IMU)
+    R_world_lidar : (3, 3) IMU attitude of that frame (yaw from the drifting IMU; fitted over
+        the station's samples, :func:`~.placement.station_anchor_rotation`, unless asked not to)
     raw_points : int, points placed before the voxel filter
     intensity : (N,) float32 or None, mean reflectivity (0–255) of each point's voxel (NaN: a
         centroid on a voxel face that missed its voxel); built only when asked (survey outputs)
@@ -44,14 +46,18 @@ class Fragment:
 def build_fragment(lidar: LidarPackets, station: Station, orient: ImuOrientation, ext: Extrinsic,
                    voxel_m: float, min_range: float, max_range: float,
                    num_threads: int = 0, chunk: int = 1000, max_points: int = 6_000_000,
-                   with_intensity: bool = False) -> Fragment:
+                   with_intensity: bool = False, anchor_fit: bool = True) -> Fragment:
     """Decode, place and voxel-filter one station's packets.
 
     Decodes and places the station in chunks of ``chunk`` packets, then voxel-filters all its
     placed points at once (a 10 s station is ~3 M points, 36 MB); a long station is bounded by
     filtering what has gathered at half the voxel whenever it passes ``max_points``.
     ``with_intensity``: also the mean intensity of each output voxel (from every placed point;
-    per-voxel sums are kept per chunk and merged at the end).
+    per-voxel sums are kept per chunk and merged at the end). ``anchor_fit``: the fragment's
+    frame is the lidar's at the IMU attitude fitted over the station's samples
+    (:func:`~.placement.station_anchor_rotation`) rather than slerped at its middle time, whose
+    white noise would turn the whole station; the points are placed at the slerped attitude and
+    moved rigidly onto the fitted one.
     """
     parts, raw = [], 0
     key_parts = []
@@ -77,7 +83,8 @@ def build_fragment(lidar: LidarPackets, station: Station, orient: ImuOrientation
         down = voxel_downsample(np.concatenate(parts), voxel_m, num_threads)
     else:
         down = np.zeros((0, 3), np.float32)
-    R = pose_world_lidar(orient, ext, np.array([station.mid_ns]))[0, :3, :3]
+    T = pose_world_lidar(orient, ext, np.array([station.mid_ns]))[0]
+    R = T[:3, :3]
     intensity = None
     if with_intensity:
         if key_parts:
@@ -86,4 +93,12 @@ def build_fragment(lidar: LidarPackets, station: Station, orient: ImuOrientation
                                     np.float32(np.nan))
         else:
             intensity = np.zeros(0, np.float32)
+    if anchor_fit:
+        # x_fit = R_fitᵀ·(R_slerp·x + R_wi·ℓ − R_wi_fit·ℓ): the frame the fitted attitude gives
+        R_wi = station_anchor_rotation(orient, station.start_ns, station.end_ns, station.mid_ns)
+        R_fit = R_wi @ ext.R_imu_lidar
+        C = R_fit.T @ R
+        o = R_fit.T @ (T[:3, 3] - R_wi @ ext.lever_arm_m)
+        down = (down.astype(np.float64) @ C.T + o).astype(np.float32)
+        R = R_fit
     return Fragment(station, down, R, raw, intensity)

@@ -183,7 +183,8 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
     eng = engine if engine is not None and len(seg.stations) >= engine_min_stations else None
     with _Stage(times, "fragments", len(seg.stations), quiet) as bar:
         frags = build_fragments(eng, rec.lidar, seg.stations, orient, ext, cfg.fragments.voxel_m,
-                                pc.min_range_m, pc.max_range_m, threads, survey, bar)
+                                pc.min_range_m, pc.max_range_m, threads, survey, bar,
+                                anchor_fit=pc.anchor_fit)
 
     # 6. odometry
     cache = CloudCache(cfg.odometry.point_sigma_m, threads)
@@ -239,8 +240,13 @@ def trajectory(res: ReconstructResult, orient: ImuOrientation, hz: float
     main = [k for k in range(len(res.fragments)) if res.slam.component[k] == 0]
     if not main:
         return t[:0], T_imu[:0]
-    mids = np.array([res.fragments[k].station.mid_ns for k in main])
-    T_mid = pose_world_lidar(orient, res.extrinsic, mids)
+    # each station's frame as its fragment has it (the anchor attitude, fitted or slerped)
+    ext = res.extrinsic
+    T_mid = np.tile(np.eye(4), (len(main), 1, 1))
+    for i, k in enumerate(main):
+        R_wl = res.fragments[k].R_world_lidar
+        T_mid[i, :3, :3] = R_wl
+        T_mid[i, :3, 3] = R_wl @ ext.R_imu_lidar.T @ ext.lever_arm_m
     # correction C_k with T_map_lidar(t) = C_k · T_imu(t) inside station k
     C = np.array([res.slam.T_optimized[k] @ inv(T_mid[i]) for i, k in enumerate(main)])
     from scipy.spatial.transform import Rotation, Slerp

@@ -16,6 +16,10 @@ Within a station the head turns about a fixed pivot c, so the lidar's pose at ti
 A station's fragment is expressed in the lidar frame at its middle time t_m, where c cancels::
 
     x_frag = R_world_lidar(t_m)ᵀ · ( R_world_imu(t)·(R_imu_lidar·x + ℓ) − R_world_imu(t_m)·ℓ )
+
+where R_world_imu(t_m), the station's *anchor*, is fitted over all of the station's IMU samples
+(:func:`station_anchor_rotation`) rather than slerped between two: one sample's white noise
+would turn the whole station.
 """
 
 from __future__ import annotations
@@ -307,6 +311,75 @@ class ImuOrientation:
         Ra = Rotation.from_quat(self.quat_at(t - dt_ns // 2)[:, [1, 2, 3, 0]])
         Rb = Rotation.from_quat(self.quat_at(t + dt_ns // 2)[:, [1, 2, 3, 0]])
         return (Ra.inv() * Rb).magnitude() / (dt_ns * 1e-9)
+
+
+def station_anchor_rotation(orient: ImuOrientation, start_ns: int, end_ns: int, anchor_ns: int,
+                            spans_s: tuple[float, ...] = (1.0, 0.5, 0.25)) -> np.ndarray:
+    """R_world_imu (3, 3) at ``anchor_ns`` fitted over the IMU samples of a station [start_ns,
+    end_ns) instead of slerped from the two samples around it.
+
+    A station's fragment is expressed in the lidar frame at one moment; the IMU's white noise
+    at that moment (0.05° per axis on the IMU Brick 2.0) would turn the whole station. While
+    the tripod stands, the head only turns about its pan axis, fixed both in the IMU (a_i) and
+    in the world (a_w): R_k = Exp(φ_k·a_w)·R_m for every sample k. So
+
+    1. a_i is the dominant axis of the turns between samples 1 s apart (eigenvector of
+       Σ v vᵀ, v = log(R_kᵀ R_{k+s})), and a_w the mean of R_k·a_i over *all* the station's
+       samples: the tilt of the anchor (2 of its 3 angles, gravity in particular) is averaged
+       over the whole station;
+    2. the pan angle φ_k of each sample (a direction across a_i, seen in the plane across a_w)
+       is fitted by a quadratic in time around the anchor, over the longest of ``spans_s``
+       whose residuals match the samples' own noise (a hand's speed change or a reversal near
+       the anchor takes a shorter span); φ(anchor) is the fit's value there.
+
+    R_m maps the IMU frame (u_i, a_i×u_i, a_i) onto the world's (u(φ), a_w×u(φ), a_w). A head
+    that does not turn fits too (a_i is then arbitrary and R_k·a_i constant). With fewer than
+    10 samples, the slerped attitude is returned.
+    """
+    t = orient.t_ns
+    i0, i1 = np.searchsorted(t, [int(start_ns), int(end_ns)])
+    if i1 - i0 < 10 or not (t[i0] <= anchor_ns <= t[i1 - 1]):
+        return orient.rotation_at(np.array([int(anchor_ns)]))[0]
+    ts = t[i0:i1]
+    R = Rotation.from_quat(orient._q[i0:i1][:, [1, 2, 3, 0]])
+    Rm = R.as_matrix()
+    # 1. the pan axis in the IMU frame, then in the world
+    dt_med = float(np.median(np.diff(ts)))
+    s = int(np.clip(round(1e9 / max(dt_med, 1.0)), 1, max(1, len(ts) // 2)))
+    v = (R[:-s].inv() * R[s:]).as_rotvec()
+    _, V = np.linalg.eigh(v.T @ v)
+    a_i = V[:, -1]
+    a_w = (Rm @ a_i).mean(axis=0)
+    a_w /= np.linalg.norm(a_w)
+    # 2. pan angles about a_w of a direction across a_i
+    u_i = np.cross(a_i, [1.0, 0.0, 0.0] if abs(a_i[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u_i /= np.linalg.norm(u_i)
+    e1 = np.cross(a_w, [1.0, 0.0, 0.0] if abs(a_w[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(a_w, e1)
+    d = Rm @ u_i
+    phi = np.unwrap(np.arctan2(d @ e2, d @ e1))
+    x = (ts - int(anchor_ns)).astype(np.float64) * 1e-9  # [s]
+    # the samples' own noise from second differences (a turn's rate changes far less in 10 ms)
+    dd = np.diff(phi, 2)
+    sigma = 1.4826 * float(np.median(np.abs(dd - np.median(dd)))) / np.sqrt(6.0) + 1e-12
+    phi_m = None
+    for span in spans_s:
+        sel = np.abs(x) <= 0.5 * span
+        if sel.sum() < 7:
+            continue
+        A = np.stack([np.ones(int(sel.sum())), x[sel], x[sel] ** 2], axis=1)
+        c, *_ = np.linalg.lstsq(A, phi[sel], rcond=None)
+        rms = float(np.sqrt(np.mean((phi[sel] - A @ c) ** 2)))
+        phi_m = float(c[0])
+        if rms <= 1.3 * sigma:
+            break
+    if phi_m is None:
+        return orient.rotation_at(np.array([int(anchor_ns)]))[0]
+    u_w = np.cos(phi_m) * e1 + np.sin(phi_m) * e2
+    B_i = np.stack([u_i, np.cross(a_i, u_i), a_i], axis=1)
+    B_w = np.stack([u_w, np.cross(a_w, u_w), a_w], axis=1)
+    return B_w @ B_i.T
 
 
 def pose_world_lidar(orient: ImuOrientation, ext: Extrinsic, t_ns) -> np.ndarray:

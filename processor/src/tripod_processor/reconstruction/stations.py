@@ -340,7 +340,8 @@ def segment_stations(lidar: LidarPackets, orient: ImuOrientation, ext: Extrinsic
     # centimetres of apparent shift; those windows are placed again with the offset free (a
     # carry's shift stays)
     motion = _offset_tolerant_motion(lidar, times, win, gap, orient, ext, axis, e, motion,
-                                     ~moving_imu, cfg, n_points, n_query)
+                                     ~moving_imu, cfg, n_points, n_query,
+                                     num_threads=num_threads)
     # unknown (too little shared view): take the neighbours' verdict
     bad = ~np.isfinite(motion)
     if bad.any() and (~bad).any():
@@ -356,7 +357,8 @@ def segment_stations(lidar: LidarPackets, orient: ImuOrientation, ext: Extrinsic
     still[: len(still) - gap] |= still_pair[gap:]
 
     runs = _runs(still)
-    ctx = _Ctx(lidar, orient, ext, times, win, R_w, axis, e, cfg, rng, n_points, n_query)
+    ctx = _Ctx(lidar, orient, ext, times, win, R_w, axis, e, cfg, rng, n_points, n_query,
+               num_threads)
     runs, merged = _merge_runs(runs, ctx)
     marks = sorted(marks_lidar_ns or []) if cfg.use_marks else []
     runs = _split_by_marks(runs, marks, times, win)
@@ -403,8 +405,8 @@ def _pan_rate(orient: ImuOrientation, axis: np.ndarray, t_ns: np.ndarray,
 def _offset_tolerant_motion(lidar: LidarPackets, times: np.ndarray, win: int, gap: int,
                             orient: ImuOrientation, ext: Extrinsic, axis: np.ndarray,
                             e: np.ndarray, motion: np.ndarray, imu_still: np.ndarray,
-                            cfg: StationConfig, n_points: int, n_query: int, n_grid: int = 5
-                            ) -> np.ndarray:
+                            cfg: StationConfig, n_points: int, n_query: int, n_grid: int = 5,
+                            num_threads: int = 1, block: int = 32) -> np.ndarray:
     """``motion`` with the windows that look moving only where the pan rate changes refitted.
 
     A window k the IMU calls still, whose shift exceeds ``still_threshold`` while the pan rate
@@ -415,7 +417,9 @@ def _offset_tolerant_motion(lidar: LidarPackets, times: np.ndarray, win: int, ga
     axis by δ·ω(t) — a turn of one window against the other, and a twist inside a window where
     the rate changes — and nothing else; a carry moves the pivot, which no δ explains. Each
     window's points are drawn with its own seed (the result does not depend on the order or
-    the threads)."""
+    the threads; ``num_threads`` windows and offsets side by side, 0: all cores)."""
+    from concurrent.futures import ThreadPoolExecutor
+
     K = len(times)
     out = motion.copy()
     dmax_ns = int(cfg.max_time_offset_error_ms * 1e6)
@@ -433,38 +437,47 @@ def _offset_tolerant_motion(lidar: LidarPackets, times: np.ndarray, win: int, ga
     if not len(todo):
         return out
     ab = np.searchsorted(lidar.lidar_ns, np.stack([times, times + win], axis=1))
-    samples: dict[int, tuple] = {}
 
     def sample(k: int) -> tuple:
-        if k not in samples:
-            pts = _window_points(lidar, int(ab[k, 0]), int(ab[k, 1]))
-            rng = np.random.default_rng([0x5EED, k])
-            samples[k] = _window_sample(pts, _window_subset(len(pts[0]), n_points, rng))
-        return samples[k]
+        pts = _window_points(lidar, int(ab[k, 0]), int(ab[k, 1]))
+        rng = np.random.default_rng([0x5EED, k])
+        return _window_sample(pts, _window_subset(len(pts[0]), n_points, rng))
 
-    for k in todo.tolist():
-        j = k - gap
-        sj, sk = sample(j), sample(k)
-        if len(sj[0]) <= 50 or len(sk[0]) <= 50:
-            continue
+    def shift(sj: tuple, sk: tuple, j: int, k: int, d_ns: int) -> float:
+        o = orient.with_offset(orient.time_offset_ns + int(d_ns))
+        ref, a_j = _place_window(lidar, int(ab[j, 0]), sj, o, ext)
+        c, a_k = _place_window(lidar, int(ab[k, 0]), sk, o, ext)
+        fit = pivot_shift_fit(ref, c[:n_query])
+        if fit is None:
+            return float("inf")
+        R_j, R_k = o.rotation_at(np.array([a_j, a_k]))
+        d, P = fit
+        return float(np.linalg.norm(P @ (d - (R_k - R_j) @ e)))
 
-        def shift(d_ns: int) -> float:
-            o = orient.with_offset(orient.time_offset_ns + int(d_ns))
-            ref, a_j = _place_window(lidar, int(ab[j, 0]), sj, o, ext)
-            c, a_k = _place_window(lidar, int(ab[k, 0]), sk, o, ext)
-            fit = pivot_shift_fit(ref, c[:n_query])
-            if fit is None:
-                return float("inf")
-            R_j, R_k = o.rotation_at(np.array([a_j, a_k]))
-            d, P = fit
-            return float(np.linalg.norm(P @ (d - (R_k - R_j) @ e)))
+    grid = np.linspace(-dmax_ns, dmax_ns, n_grid).astype(np.int64)
+    step = int(2 * dmax_ns // (n_grid - 1))
+    fine = np.linspace(-step, step, n_grid + 2)[1:-1].astype(np.int64)
+    # every window's samples, then every (window, offset) placement and fit, side by side on
+    # threads (decode, placement and k-d trees run without the GIL; each value is computed
+    # alone, so the result does not depend on the threads); blocks bound the samples kept
+    workers = max(1, num_threads or (os.cpu_count() or 1))
+    with ThreadPoolExecutor(workers) as pool:
+        for b in range(0, len(todo), block):
+            ks = todo[b:b + block].tolist()
+            need = sorted(set(ks) | {k - gap for k in ks})
+            samples = dict(zip(need, pool.map(sample, need)))
+            ks = [k for k in ks if len(samples[k - gap][0]) > 50 and len(samples[k][0]) > 50]
 
-        grid = np.linspace(-dmax_ns, dmax_ns, n_grid).astype(np.int64)
-        vals = [shift(int(t)) for t in grid]
-        step = int(2 * dmax_ns // (n_grid - 1))
-        best = int(grid[int(np.argmin(vals))])
-        fine = [shift(best + int(t)) for t in np.linspace(-step, step, n_grid + 2)[1:-1]]
-        out[k] = min(float(out[k]), min(vals), min(fine))
+            def run(tasks: list[tuple[int, int]]) -> list[float]:
+                return list(pool.map(lambda kd: shift(samples[kd[0] - gap], samples[kd[0]],
+                                                      kd[0] - gap, kd[0], kd[1]), tasks))
+
+            vals = np.array(run([(k, int(g)) for k in ks for g in grid])).reshape(len(ks), -1)
+            best = grid[np.argmin(vals, axis=1)] if len(ks) else grid[:0]
+            vf = np.array(run([(k, int(c) + int(f)) for k, c in zip(ks, best)
+                               for f in fine])).reshape(len(ks), -1)
+            for i, k in enumerate(ks):
+                out[k] = min(float(out[k]), float(vals[i].min()), float(vf[i].min()))
     return out
 
 
@@ -498,27 +511,38 @@ class _Ctx:
     rng: np.random.Generator
     n_points: int
     n_query: int
+    num_threads: int = 1  # 0: all cores
 
 
-def _same_place(ctx: _Ctx, i: int, j: int) -> bool | None:
-    """Did the pivot stay put between windows i and j (lever-arm correction applied)? None
-    when the two windows share too little view to say."""
-    out = []
-    for k in (i, j):
-        t = ctx.times[k]
-        a, b = np.searchsorted(ctx.lidar.lidar_ns, [t, t + ctx.win])
-        out.append(_window_cloud(ctx.lidar, int(a), int(b), ctx.orient, ctx.ext, ctx.n_points,
-                                 ctx.rng)[0])
-    if len(out[0]) < 50 or len(out[1]) < 50:
-        return None
-    fit = pivot_shift_fit(out[0], out[1][: ctx.n_query])
-    if fit is None:
-        return None
-    d, P = fit
-    if np.linalg.matrix_rank(P) < 2:
-        return None
-    r = np.linalg.norm(P @ (d - (ctx.R_w[j] - ctx.R_w[i]) @ ctx.e))
-    return bool(r < ctx.cfg.still_threshold)
+def _same_place(ctx: _Ctx, pairs: list[tuple[int, int]], pool) -> list[bool | None]:
+    """For each pair of windows (i, j): did the pivot stay put between them (lever-arm
+    correction applied)? None when the two share too little view to say.
+
+    The windows are decoded side by side on ``pool``, their random subsets drawn from
+    ``ctx.rng`` in pair order (i before j, as one pair after the other would), then each pair
+    placed and fitted side by side: the votes do not depend on the threads."""
+    wins = [k for ij in pairs for k in ij]
+    ab = [np.searchsorted(ctx.lidar.lidar_ns, [ctx.times[k], ctx.times[k] + ctx.win])
+          for k in wins]
+    pts = list(pool.map(lambda x: _window_points(ctx.lidar, int(x[0]), int(x[1])), ab))
+    samples = [_window_sample(p, _window_subset(len(p[0]), ctx.n_points, ctx.rng)) for p in pts]
+
+    def vote(m: int) -> bool | None:
+        i, j = pairs[m]
+        out = [_place_window(ctx.lidar, int(ab[2 * m + n][0]), samples[2 * m + n], ctx.orient,
+                             ctx.ext)[0] for n in (0, 1)]
+        if len(out[0]) < 50 or len(out[1]) < 50:
+            return None
+        fit = pivot_shift_fit(out[0], out[1][: ctx.n_query])
+        if fit is None:
+            return None
+        d, P = fit
+        if np.linalg.matrix_rank(P) < 2:
+            return None
+        r = np.linalg.norm(P @ (d - (ctx.R_w[j] - ctx.R_w[i]) @ ctx.e))
+        return bool(r < ctx.cfg.still_threshold)
+
+    return list(pool.map(vote, range(len(pairs))))
 
 
 def _pan_angle(R_w: np.ndarray, axis: np.ndarray) -> np.ndarray:
@@ -538,6 +562,15 @@ def _merge_runs(runs: list[tuple[int, int]], ctx: _Ctx, max_gap_s: float = 10.0
     angle (a station is never cut in two by a noisy moment)."""
     if len(runs) < 2:
         return runs, 0
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max(1, ctx.num_threads or (os.cpu_count() or 1))) as pool:
+        return _merge_runs_on(runs, ctx, max_gap_s, pool)
+
+
+def _merge_runs_on(runs: list[tuple[int, int]], ctx: _Ctx, max_gap_s: float, pool
+                   ) -> tuple[list[tuple[int, int]], int]:
+    """:func:`_merge_runs` with each gap's two votes side by side on ``pool``."""
     step_ns = int(ctx.times[1] - ctx.times[0]) if len(ctx.times) > 1 else 1
     pan = _pan_angle(ctx.R_w, ctx.axis)
     out = [runs[0]]
@@ -561,7 +594,8 @@ def _merge_runs(runs: list[tuple[int, int]], ctx: _Ctx, max_gap_s: float = 10.0
         jj = np.arange(k, min(e, k + int(5e9 / step_ns)) + 1)
         dphi = np.abs(np.angle(np.exp(1j * (pan[ii][:, None] - pan[jj][None, :]))))
         order = np.argsort(dphi, axis=None)[:2]
-        votes = [_same_place(ctx, int(ii[o // len(jj)]), int(jj[o % len(jj)])) for o in order]
+        votes = _same_place(ctx, [(int(ii[o // len(jj)]), int(jj[o % len(jj)])) for o in order],
+                            pool)
         votes = [v for v in votes if v is not None]
         if votes and all(votes):
             out[-1] = (pk, e)
