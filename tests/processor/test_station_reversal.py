@@ -64,3 +64,14 @@ def test_without_the_offset_freedom_the_reversal_cuts_the_station(hall):
     """What the fix is for: the old test (no offset freedom) cuts a station at -10 ms."""
     sc, _ = _score(hall, -10.0, max_time_offset_error_ms=0.0)
     assert sc["found"] > 3 and sc["tp"] < 3
+
+
+def test_the_offset_freedom_does_not_move_a_station_s_ends(hall):
+    """The refit bridges a reversal inside a station and never extends one at its ends (where
+    the pan ramps as the tripod settles or is lifted; issue 13: a station that took in the
+    settle's sway broke odometry by 2.4 m): at the true offset the stations' ends are the same
+    with the offset freedom as without it."""
+    _, with_ = _score(hall, 0.0)
+    _, without = _score(hall, 0.0, max_time_offset_error_ms=0.0)
+    ends = [[(s.start_ns, s.end_ns) for s in seg.stations] for seg in (with_, without)]
+    assert ends[0] == ends[1]
