@@ -437,7 +437,7 @@ def _offset_tolerant_motion(lidar: LidarPackets, times: np.ndarray, win: int, ga
     # took in the sway's points: a 2.4 m odometry break in the building's 02-east-south)
     moved = np.isfinite(motion) & (motion >= cfg.still_threshold)
     keep = []
-    for run in np.split(todo, np.flatnonzero(np.diff(todo) > 1) + 1):
+    for run in np.split(todo, np.flatnonzero(np.diff(todo) > 1) + 1) if len(todo) else []:
         a, b = int(run[0]) - 1, int(run[-1]) + 1
         if a >= gap and b < K and not moved[a] and not moved[b]:
             keep.append(run)
