@@ -64,3 +64,21 @@ def test_without_the_offset_freedom_the_reversal_cuts_the_station(hall):
     """What the fix is for: the old test (no offset freedom) cuts a station at -10 ms."""
     sc, _ = _score(hall, -10.0, max_time_offset_error_ms=0.0)
     assert sc["found"] > 3 and sc["tp"] < 3
+
+
+
+@pytest.mark.parametrize("err_ms", [-10.0, 0.0])
+def test_the_offset_freedom_keeps_stations_inside_the_still_spans(hall, err_ms):
+    """The refit bridges a reversal inside a station and never extends one at its ends (where
+    the pan ramps as the tripod settles or is lifted; issue 13: a station that took in the
+    settle's sway broke odometry by 2.4 m): every station found lies inside its true span
+    (within 0.2 s: the splitter's windows)."""
+    from tripod_processor.sim.truth import true_station_spans
+
+    rec, truth, _, _ = hall
+    _, seg = _score(hall, err_ms)
+    true_iv = true_station_spans(truth)
+    for s in seg.stations:
+        tol = int(0.2e9)
+        inside = (true_iv[:, 0] - tol <= s.start_ns) & (s.end_ns <= true_iv[:, 1] + tol)
+        assert inside.any(), ((s.start_ns, s.end_ns), true_iv.tolist())

@@ -126,6 +126,9 @@ class OdometryConfig(StrictModel):
     #: a pair that respects free space is registered down to this overlap (a station round a
     #: corridor's corner shares little with the one before it)
     min_fitness_free_space: float = Field(default=0.15, ge=0, le=1)
+    #: when no candidate respects free space, the one with the best overlap less this x its
+    #: violation beyond ``max_free_space_violation`` wins (0: the best overlap)
+    free_space_weight: float = Field(default=10.0, ge=0)
 
 
 class SlamConfig(StrictModel):

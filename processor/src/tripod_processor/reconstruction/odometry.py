@@ -333,7 +333,13 @@ def register_fragments(source: np.ndarray, target: np.ndarray, R_world_source: n
                 best = r
                 break
         # respecting free space ranks first when the overlap is worth keeping at all
-        key = (consistent and r.fitness >= cfg.min_fitness_free_space, r.fitness, -r.rmse)
+        # among violators, the overlap less ``free_space_weight`` x the violation beyond the
+        # limit: a station in a doorway sees ~5 % false violations at the right pose (its
+        # lidar swings off the pan axis at the jambs), a wrong one 20 % (nothing changes
+        # among the candidates that respect free space)
+        excess = max(0.0, r.violation - cfg.max_free_space_violation) if check else 0.0
+        score = r.fitness - cfg.free_space_weight * (excess if np.isfinite(excess) else 0.0)
+        key = (consistent and r.fitness >= cfg.min_fitness_free_space, score, -r.rmse)
         if best is None or key > best_key:
             best, best_key = r, key
     assert best is not None

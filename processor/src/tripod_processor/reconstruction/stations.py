@@ -434,6 +434,18 @@ def _offset_tolerant_motion(lidar: LidarPackets, times: np.ndarray, win: int, ga
     todo = np.flatnonzero(np.isfinite(motion) & (motion >= cfg.still_threshold) & imu_still
                           & (spread * dmax_ns * 1e-9 > np.radians(0.01)))
     todo = todo[todo >= gap]
+    # only a stretch of such windows with a window that looks still (or unknown) on either side
+    # is placed again: the refit bridges a reversal or pause inside a station, and never
+    # extends a station at its ends, where the pan ramps up or down as the tripod settles or
+    # is lifted (a settle's sway there is partly explained by a turn, and the station then
+    # took in the sway's points: a 2.4 m odometry break in the building's 02-east-south)
+    moved = np.isfinite(motion) & (motion >= cfg.still_threshold)
+    keep = []
+    for run in np.split(todo, np.flatnonzero(np.diff(todo) > 1) + 1) if len(todo) else []:
+        a, b = int(run[0]) - 1, int(run[-1]) + 1
+        if a >= gap and b < K and not moved[a] and not moved[b]:
+            keep.append(run)
+    todo = np.concatenate(keep) if keep else todo[:0]
     if not len(todo):
         return out
     ab = np.searchsorted(lidar.lidar_ns, np.stack([times, times + win], axis=1))
