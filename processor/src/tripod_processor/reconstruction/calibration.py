@@ -331,8 +331,6 @@ class SelfCalibration:
     residual_m: float
     pairs: int
     iterations: list[dict] = field(default_factory=list)
-    #: the lever arm each start of the fit reached (:func:`_pick_start`)
-    lever_starts: list[dict] = field(default_factory=list)
     #: where the time offset came from: "surfaces" (this fit) or "turns"
     #: (:func:`time_offset_from_turns`, whose diagnostics ``turns`` holds)
     time_offset_method: str = "surfaces"
@@ -366,7 +364,6 @@ class SelfCalibration:
                            "time_offset": self.time_offset_observable,
                            "mount_rotation": self.rotation_observable},
             "stations": self.stations, "residual_m": self.residual_m, "pairs": self.pairs,
-            **({"lever_arm_starts": self.lever_starts} if self.lever_starts else {}),
         }
 
 
@@ -471,9 +468,8 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
                    ext: Extrinsic, *, fit_lever: bool = True, fit_time: bool = True,
                    fit_rotation: bool = True, max_stations: int = 4,
                    points_per_station: int = 80_000, voxel_m: float = 0.25,
-                   min_separation_s: float = 0.3, iterations: int = 12,
+                   min_separation_s: float = 0.3, iterations: int = 8,
                    max_range: float = 60.0, sigma_inflation: float = 3.0,
-                   lever_start_tol_m: float = 0.005, same_cost_rel: float = 0.0,
                    num_threads: int = 0) -> SelfCalibration:
     """Lever arm, IMU time offset and mount rotation that make every station self-consistent.
 
@@ -497,99 +493,22 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
     rate changes (the pan's start and stop, a hand-turned head); at a constant rate it only
     turns the fragment, and its sigma says so.
 
-    The lever arm is fitted from two starts: ``ext``'s (hand-eye's rough one) and the prior (none
-    across the pan axis); where the surfaces carry little of it (a mount on its side panned
-    slowly in a hall: few surfaces seen from opposite sides) the fit stays near its start, so
-    the two are compared (:func:`_pick_start`): the same answer is kept as it is; two answers
-    give the one of lower residual, marked unobservable, its sigma covering the gap.
-
     The stations' sampling and residuals run side by side on ``num_threads`` threads (0: every
     core), one station a thread, gathered in station order: the same result on any count.
     """
-    use = _pick_stations(stations, orient, max_stations)
-    workers = thread_workers(num_threads, len(use))
-    data = _threaded_map(_station_points, [
-        (lidar, st, points_per_station, 11 + k, max_range, orient if fit_time else None)
-        for k, st in enumerate(use)], workers)
-    return self_calibrate_samples(
-        data, use, orient, ext, fit_lever=fit_lever, fit_time=fit_time,
-        fit_rotation=fit_rotation, voxel_m=voxel_m, min_separation_s=min_separation_s,
-        iterations=iterations, sigma_inflation=sigma_inflation,
-        lever_start_tol_m=lever_start_tol_m, same_cost_rel=same_cost_rel, num_threads=num_threads)
-
-
-def self_calibrate_samples(data: list[tuple[np.ndarray, np.ndarray]], use: list[Station],
-                           orient: ImuOrientation, ext: Extrinsic, *, fit_lever: bool = True,
-                           fit_time: bool = True, fit_rotation: bool = True,
-                           voxel_m: float = 0.25, min_separation_s: float = 0.3,
-                           iterations: int = 12, sigma_inflation: float = 3.0,
-                           lever_start_tol_m: float = 0.005, same_cost_rel: float = 0.0,
-                           num_threads: int = 0) -> SelfCalibration:
-    """:func:`self_calibrate` on the stations' sampled points: ``data[k]`` = (xyz (N, 3) [m]
-    lidar frame, time_ns (N,) lidar clock) of station ``use[k]``."""
-    workers = thread_workers(num_threads, len(use))
-    b = pan_axis_in_imu(orient, use)
-    fit = {"fit_lever": fit_lever, "fit_time": fit_time, "fit_rotation": fit_rotation,
-           "voxel_m": voxel_m, "sep_ns": int(min_separation_s * 1e9), "iterations": iterations,
-           "sigma_inflation": sigma_inflation, "workers": workers}
-    first = _fit_from(data, use, b, orient, ext, **fit)
-    if not fit_lever:
-        return first
-    # a second start with no lever arm across the pan axis (the prior): hand-eye's lever arm,
-    # from short sweeps' translations, can be far off (tens of cm) on a mount on its side, and
-    # where the stations' surfaces carry little of the lever arm the fit stays near its start
-    U_l = _perp_basis(b)
-    ell0 = ext.lever_arm_m.astype(np.float64)
-    ell0 = ell0 - U_l @ (U_l.T @ ell0)
-    if np.linalg.norm(ext.lever_arm_m - ell0) < lever_start_tol_m:
-        first.lever_starts = [_start_row("given", first, U_l)]
-        return first
-    second = _fit_from(data, use, b, orient, Extrinsic(ext.R_imu_lidar, ell0, ext.source), **fit)
-    return _pick_start(first, second, U_l, lever_start_tol_m, same_cost_rel)
-
-
-def _start_row(name: str, cal: SelfCalibration, U_l: np.ndarray) -> dict:
-    return {"start": name, "lever_arm_m": cal.lever_arm_m.tolist(),
-            "lever_arm_across_m": (U_l.T @ cal.lever_arm_m).tolist(),
-            "residual_m": cal.residual_m, "pairs": cal.pairs}
-
-
-def _pick_start(given: SelfCalibration, prior: SelfCalibration, U_l: np.ndarray,
-                tol_m: float, same_cost_rel: float) -> SelfCalibration:
-    """One of two fits of the same stations, from the given lever arm and from the prior (none
-    across the pan axis).
-
-    Both land on one lever arm (within ``tol_m`` or 3 sigma): the data pin it, the lower robust
-    residual wins. They land apart: the fit stayed near where it started (the surfaces carry
-    little of the lever arm), so the lever arm is marked unobservable and its sigma covers the
-    gap between the two; the fit whose residual is lower by more than ``same_cost_rel``
-    (relative) is kept, else (no residual can tell them apart) the prior's."""
-    d = U_l.T @ (given.lever_arm_m - prior.lever_arm_m)  # (2,) across the pan axis [m]
-    sig = np.hypot(given.lever_arm_sigma_m, prior.lever_arm_sigma_m)
-    rows = [_start_row("given", given, U_l), _start_row("prior", prior, U_l)]
-    if np.all(np.abs(d) <= np.maximum(tol_m, 3 * sig)):
-        out = given if given.residual_m <= prior.residual_m else prior
-        out.lever_starts = rows
-        return out
-    rel = (prior.residual_m - given.residual_m) / max(prior.residual_m, 1e-12)
-    out = given if rel > same_cost_rel else prior
-    out.lever_arm_sigma_m = np.maximum(out.lever_arm_sigma_m, np.abs(d))
-    out.lever_arm_observable = False
-    out.lever_starts = rows
-    return out
-
-
-def _fit_from(data, use, b, orient: ImuOrientation, ext: Extrinsic, *, fit_lever: bool,
-              fit_time: bool, fit_rotation: bool, voxel_m: float, sep_ns: int, iterations: int,
-              sigma_inflation: float, workers: int) -> SelfCalibration:
-    """The Gauss–Newton of :func:`self_calibrate` from ``ext`` and ``orient``'s offset, on the
-    stations' sampled points ``data``."""
     from scipy.spatial.transform import Rotation
 
+    use = _pick_stations(stations, orient, max_stations)
+    workers = thread_workers(num_threads, len(use))
+    b = pan_axis_in_imu(orient, use)
     U_l = _perp_basis(b)  # lever arm directions across the pan axis (IMU frame)
     R_il = ext.R_imu_lidar.copy()
     ell = ext.lever_arm_m.astype(np.float64).copy()
     off = orient.time_offset_ns
+    data = _threaded_map(_station_points, [
+        (lidar, st, points_per_station, 11 + k, max_range, orient if fit_time else None)
+        for k, st in enumerate(use)], workers)
+    sep_ns = int(min_separation_s * 1e9)
     cols = (["l1", "l2"] if fit_lever else []) + (["dt"] if fit_time else []) + (
         ["r1", "r2"] if fit_rotation else [])
     n_p = len(cols)

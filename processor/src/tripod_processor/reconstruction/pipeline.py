@@ -337,7 +337,13 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
         notes.append(f"self-calibration failed ({exc}): the lever arm and time offset stay at "
                      "their priors")
         return ext, orient, None
-    surf_off = cal.time_offset_ns  # the offset the lever arm and tilts were fitted at
+    if fit_lever:
+        if cal.lever_arm_observable:
+            pass
+        else:
+            notes.append("WARNING: lever arm poorly observable (σ "
+                         f"{np.max(cal.lever_arm_sigma_m) * 1000:.1f} mm): few surfaces seen "
+                         "from opposite sides of the pan")
     off = orient.time_offset_ns
     if turn is not None:
         # the surfaces' estimate joins the turns' when it is sure and agrees (inverse-variance
@@ -365,32 +371,6 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
             notes.append(f"WARNING: IMU time offset not observable (σ "
                          f"{cal.time_offset_sigma_ms:.1f} ms): kept at "
                          f"{orient.time_offset_ns * 1e-6:.2f} ms")
-    if fit_time_surf and (fit_lever or fit_rot) and abs(surf_off - off) > 1_000_000:
-        # the surfaces' own offset is not the one applied (too uncertain, or the turns' one
-        # won): the lever arm and the tilts fitted beside it would carry its error (on a mount
-        # on its side panned slowly the offset wandered tens of ms and dragged the lever arm);
-        # fit them again at the offset applied
-        try:
-            keep = cal
-            cal = self_calibrate(rec.lidar, seg.stations, orient.with_offset(off), ext,
-                                 fit_lever=fit_lever, fit_time=False, fit_rotation=fit_rot,
-                                 max_stations=cc.max_stations, num_threads=cfg.num_threads)
-            cal.time_offset_ns = keep.time_offset_ns
-            cal.time_offset_sigma_ms = keep.time_offset_sigma_ms
-            cal.time_offset_observable, cal.time_offset_method = (keep.time_offset_observable,
-                                                                  keep.time_offset_method)
-            cal.turns = keep.turns
-        except ValueError:
-            cal = keep
-    if fit_lever and not cal.lever_arm_observable:
-        gap = ""
-        if len(cal.lever_starts) == 2:
-            g = np.subtract(*[r["lever_arm_across_m"] for r in cal.lever_starts])
-            gap = (f"; the fits from hand-eye's lever arm and from none ended "
-                   f"{np.linalg.norm(g) * 1000:.0f} mm apart")
-        notes.append("WARNING: lever arm poorly observable (σ "
-                     f"{np.max(cal.lever_arm_sigma_m) * 1000:.1f} mm): few surfaces seen "
-                     f"from opposite sides of the pan{gap}")
     R = cal.R_imu_lidar if fit_rot else ext.R_imu_lidar
     ell = cal.lever_arm_m if fit_lever else ext.lever_arm_m
     src = ext.source if not fit_lever else (
