@@ -192,7 +192,8 @@ def wall_planes(points, segment) -> np.ndarray:
     :data:`PLANE_MAX_ANGLE_DEG` and their offsets within :data:`PLANE_MAX_OFFSET`; groups of two
     or more segments are planes. Voxels of small segments within :data:`PLANE_SNAP` of a plane
     and inside its extent join it; member voxels farther than :data:`PLANE_GATE` from it (a
-    board on the wall) are left out. O(S^2) in the segments taking part (hundreds).
+    board on the wall) are left out. The pairs are found by one sort on the offsets
+    (:func:`_coplanar_pairs`), not by the S x S matrix of all pairs.
 
     points : (M, 3) [m] voxel centroids, z up; segment : (M,) int planar segment of each
     (:func:`planar_segments`, -1 none). Returns (M,) int64 plane id, -1 for no plane.
@@ -230,11 +231,7 @@ def wall_planes(points, segment) -> np.ndarray:
     th = np.arctan2(n[:, 1], n[:, 0]) % np.pi
     n2 = np.stack([np.cos(th), np.sin(th)], 1)
     off = (n2 * mean[big, :2]).sum(1)
-    dth = np.abs(th[:, None] - th[None, :])
-    wrap = dth > np.pi / 2  # angles near 0 and near pi: the same plane, the offset flips sign
-    dth = np.where(wrap, np.pi - dth, dth)
-    doff = np.abs(off[:, None] - np.where(wrap, -off[None, :], off[None, :]))
-    a, b = np.nonzero(np.triu((dth < np.deg2rad(PLANE_MAX_ANGLE_DEG)) & (doff < PLANE_MAX_OFFSET), 1))
+    a, b = _coplanar_pairs(th, off)
     k = len(big)
     _, comp = connected_components(coo_matrix((np.ones(len(a), np.int8), (a, b)), shape=(k, k)),
                                    directed=False)
@@ -249,8 +246,14 @@ def wall_planes(points, segment) -> np.ndarray:
     best_d = np.full(len(cand), np.inf)
     best_g = np.full(len(cand), -1, np.int64)
     xc = c[cand]
+    # the members of each plane (ascending, as np.flatnonzero(g == pid) gives them) from one
+    # sort, and the candidates by x: each plane looks only at those within its extent's x range
+    by_plane = np.argsort(g, kind="stable")
+    first = np.searchsorted(g[by_plane], np.arange(-1, int(g.max()) + 2))
+    by_x = np.argsort(xc[:, 0], kind="stable")
+    xs = xc[by_x, 0]
     for pid in np.unique(g[g >= 0]):
-        mem = np.flatnonzero(g == pid)
+        mem = by_plane[first[pid + 1]:first[pid + 2]]
         q = c[mem]
         mu = q[:, :2].mean(0)
         qc = q[:, :2] - mu
@@ -258,13 +261,55 @@ def wall_planes(points, segment) -> np.ndarray:
         nrm, tan = vec[:, 0], vec[:, 1]
         g[mem[np.abs(qc @ nrm) > PLANE_GATE]] = -1
         tm = qc @ tan
-        dist = np.abs((xc[:, :2] - mu) @ nrm)
-        tt = (xc[:, :2] - mu) @ tan
-        inside = ((dist < PLANE_SNAP) & (tt > tm.min() - PLANE_MARGIN)
-                  & (tt < tm.max() + PLANE_MARGIN) & (xc[:, 2] > q[:, 2].min() - PLANE_MARGIN)
-                  & (xc[:, 2] < q[:, 2].max() + PLANE_MARGIN) & (dist < best_d))
-        best_d[inside] = dist[inside]
-        best_g[inside] = pid
+        # the x range of the band (|dist| < PLANE_SNAP, tt within the extent + PLANE_MARGIN),
+        # widened by a micrometre: the candidates outside it cannot pass the test below
+        t_lo, t_hi = tm.min() - PLANE_MARGIN, tm.max() + PLANE_MARGIN
+        corners = mu[0] + np.array([t_lo, t_hi])[:, None] * tan[0] + np.array(
+            [-PLANE_SNAP, PLANE_SNAP])[None, :] * nrm[0]
+        sel = np.sort(by_x[np.searchsorted(xs, corners.min() - 1e-6):
+                           np.searchsorted(xs, corners.max() + 1e-6, side="right")])
+        xq = xc[sel]
+        dist = np.abs((xq[:, :2] - mu) @ nrm)
+        tt = (xq[:, :2] - mu) @ tan
+        inside = ((dist < PLANE_SNAP) & (tt > t_lo) & (tt < t_hi)
+                  & (xq[:, 2] > q[:, 2].min() - PLANE_MARGIN)
+                  & (xq[:, 2] < q[:, 2].max() + PLANE_MARGIN) & (dist < best_d[sel]))
+        best_d[sel[inside]] = dist[inside]
+        best_g[sel[inside]] = pid
     g[cand] = best_g
     out[idx] = g
     return out
+
+
+def _coplanar_pairs(th: np.ndarray, off: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(a, b), a < b, in row-major order: the pairs of vertical planes whose normal angles
+    ``th`` [rad, in [0, pi)] agree within :data:`PLANE_MAX_ANGLE_DEG` (angles near 0 and near pi
+    are the same plane with the offset's sign flipped) and whose offsets ``off`` [m] agree
+    within :data:`PLANE_MAX_OFFSET`. The same test as on the full k x k matrix, but only on the
+    pairs whose offsets (or offset and flipped offset) are that close, found by one sort: a
+    building's wall segments share a few angles (all pairs would pass the angle test) but
+    spread over many offsets."""
+    k = len(off)
+    order = np.argsort(off, kind="stable")
+    so = off[order]
+    pos = np.arange(k)
+    pairs = []
+    for centre in (so, -so):  # |off_a - off_b| small (no wrap), |off_a + off_b| small (wrap)
+        lo = np.searchsorted(so, centre - PLANE_MAX_OFFSET - 1e-9)
+        hi = np.searchsorted(so, centre + PLANE_MAX_OFFSET + 1e-9, side="right")
+        n = hi - lo
+        i = np.repeat(pos, n)
+        j = lo.repeat(n) + (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n))
+        pairs.append((order[i], order[j]))
+    a = np.concatenate([p[0] for p in pairs])
+    b = np.concatenate([p[1] for p in pairs])
+    a, b = np.minimum(a, b), np.maximum(a, b)
+    key = np.unique(a[a < b] * np.int64(k) + b[a < b])  # sorted: row-major order
+    a, b = key // k, key % k
+    # the test of the k x k matrix, pair by pair (the same arithmetic, so the same pairs)
+    dth = np.abs(th[a] - th[b])
+    wrap = dth > np.pi / 2  # angles near 0 and near pi: the same plane, the offset flips sign
+    dth = np.where(wrap, np.pi - dth, dth)
+    doff = np.abs(off[a] - np.where(wrap, -off[b], off[b]))
+    keep = (dth < np.deg2rad(PLANE_MAX_ANGLE_DEG)) & (doff < PLANE_MAX_OFFSET)
+    return a[keep], b[keep]
