@@ -247,11 +247,12 @@ def wall_planes(points, segment) -> np.ndarray:
     best_g = np.full(len(cand), -1, np.int64)
     xc = c[cand]
     # the members of each plane (ascending, as np.flatnonzero(g == pid) gives them) from one
-    # sort, and the candidates by x: each plane looks only at those within its extent's x range
+    # sort, and the candidates sorted by x and by y: each plane looks only at those within its
+    # band's range along the axis where that range is shorter
     by_plane = np.argsort(g, kind="stable")
     first = np.searchsorted(g[by_plane], np.arange(-1, int(g.max()) + 2))
-    by_x = np.argsort(xc[:, 0], kind="stable")
-    xs = xc[by_x, 0]
+    by_axis = [np.argsort(xc[:, ax], kind="stable") for ax in (0, 1)]
+    sorted_axis = [xc[by_axis[ax], ax] for ax in (0, 1)]
     for pid in np.unique(g[g >= 0]):
         mem = by_plane[first[pid + 1]:first[pid + 2]]
         q = c[mem]
@@ -261,13 +262,15 @@ def wall_planes(points, segment) -> np.ndarray:
         nrm, tan = vec[:, 0], vec[:, 1]
         g[mem[np.abs(qc @ nrm) > PLANE_GATE]] = -1
         tm = qc @ tan
-        # the x range of the band (|dist| < PLANE_SNAP, tt within the extent + PLANE_MARGIN),
-        # widened by a micrometre: the candidates outside it cannot pass the test below
+        # the band's (|dist| < PLANE_SNAP, tt within the extent + PLANE_MARGIN) range along x
+        # and y, widened by a micrometre: the candidates outside it cannot pass the test below
         t_lo, t_hi = tm.min() - PLANE_MARGIN, tm.max() + PLANE_MARGIN
-        corners = mu[0] + np.array([t_lo, t_hi])[:, None] * tan[0] + np.array(
-            [-PLANE_SNAP, PLANE_SNAP])[None, :] * nrm[0]
-        sel = np.sort(by_x[np.searchsorted(xs, corners.min() - 1e-6):
-                           np.searchsorted(xs, corners.max() + 1e-6, side="right")])
+        corners = mu + (np.array([t_lo, t_hi])[:, None, None] * tan
+                        + np.array([-PLANE_SNAP, PLANE_SNAP])[None, :, None] * nrm).reshape(4, 2)
+        lo, hi = corners.min(0) - 1e-6, corners.max(0) + 1e-6
+        ax = int(np.argmin(hi - lo))
+        sel = np.sort(by_axis[ax][np.searchsorted(sorted_axis[ax], lo[ax]):
+                                  np.searchsorted(sorted_axis[ax], hi[ax], side="right")])
         xq = xc[sel]
         dist = np.abs((xq[:, :2] - mu) @ nrm)
         tt = (xq[:, :2] - mu) @ tan
