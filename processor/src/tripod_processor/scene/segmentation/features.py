@@ -168,15 +168,16 @@ def point_features(points, num_threads: int = 0, return_segments: bool = False):
         cs, cs_nz, coarse, cres = planar_segments(p, 1, voxel=COARSE_SEGMENT_VOXEL,
                                                   max_offset=COARSE_SEGMENT_OFFSET, residual=True)
     else:
-        # the planar segments (numpy, one core) run on a second thread while the C++ core
-        # computes local shape and column context (OpenMP, GIL released) on this one
+        # the 10 cm segments and wall planes (numpy, one core) run on a second thread while
+        # the C++ core computes local shape and column context (OpenMP, GIL released) on this
+        # one, which then does the 25 cm segments (the second thread's share is the longer)
         with ThreadPoolExecutor(1) as pool:
             fine = pool.submit(_fine_segments_and_planes, p, 1)
-            coarse_job = pool.submit(planar_segments, p, 1, voxel=COARSE_SEGMENT_VOXEL,
-                                     max_offset=COARSE_SEGMENT_OFFSET, residual=True)
             z_floor, z_ceil = _shape_and_context(p, nt, f)
+            cs, cs_nz, coarse, cres = planar_segments(p, 1, voxel=COARSE_SEGMENT_VOXEL,
+                                                      max_offset=COARSE_SEGMENT_OFFSET,
+                                                      residual=True)
             seg, seg_nz, segment, res, planes = fine.result()
-            cs, cs_nz, coarse, cres = coarse_job.result()
     # the planar segment of the point: a wall's runs for metres, floor to ceiling (segments.py)
     f[:, 23:29] = _segment_description(seg, seg_nz, z_floor, z_ceil)
     # is the plane as a whole the boundary of the scanned space?
