@@ -197,7 +197,16 @@ def bench_throughput(family: str = "rooms", seed: int = 1_000_000, repeats: int 
     from tripod_processor.scene.segmentation import Segmenter
     from tripod_processor.sim.procedural import labelled_scan
 
+    from tripod_processor.preprocess import voxel_assign
+    from tripod_processor.scene.segmentation.features import LABEL_VOXEL
+
     p, _ = labelled_scan(family, seed, n_stations=3, head_steps=40)
+    # points per second depend on the cloud: the network and the features run per occupied
+    # 4 cm voxel, and a tall building (generator 2) spreads the same points over more of them
+    n_vox = len(voxel_assign(p, LABEL_VOXEL, 1)[0])
+    row("segmentation", f"  throughput cloud: {family} seed {seed}, {len(p) / 1e6:.2f} M pts in "
+        f"{n_vox / 1e3:.0f} k voxels of {LABEL_VOXEL * 100:.0f} cm, {np.ptp(p[:, 2]):.1f} m tall",
+        f"{len(p) / n_vox:.1f} pts/voxel")
     cores = os.cpu_count() or 1
     for threads in ((cores, 1) if repeats > 1 and cores > 1 else (cores,)):
         seg = Segmenter(num_threads=threads)
@@ -217,6 +226,8 @@ def bench_throughput(family: str = "rooms", seed: int = 1_000_000, repeats: int 
         row("segmentation", f"  (median of {repeats}, best {len(p) / min(walls) / 1e6:.2f} M pts/s; "
             f"load average {min(loads):.1f}-{max(loads + [os.getloadavg()[0]]):.1f})",
             f"{walls[k]:.2f} s wall, {cpus[k]:.2f} s CPU")
+        row("segmentation", "  per voxel: wall [M voxels/s], CPU [M voxels per CPU-s]",
+            f"{n_vox / walls[k] / 1e6:.3f}, {n_vox / cpus[k] / 1e6:.3f}")
     torch.set_num_threads(cores)
 
 
