@@ -194,11 +194,10 @@ def bench_throughput(family: str = "rooms", seed: int = 1_000_000, repeats: int 
     wall and CPU time per run with all cores and with one, the load average around each."""
     import torch
 
-    from tripod_processor.scene.segmentation import Segmenter
-    from tripod_processor.sim.procedural import labelled_scan
-
     from tripod_processor.preprocess import voxel_assign
+    from tripod_processor.scene.segmentation import Segmenter
     from tripod_processor.scene.segmentation.features import LABEL_VOXEL
+    from tripod_processor.sim.procedural import labelled_scan
 
     p, _ = labelled_scan(family, seed, n_stations=3, head_steps=40)
     # points per second depend on the cloud: the network and the features run per occupied
