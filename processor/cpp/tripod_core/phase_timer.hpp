@@ -7,7 +7,9 @@
 // flag test per scope) unless the variable is set.
 // TRIPOD_TEAM("name") / TRIPOD_TEAM_ENTER / TRIPOD_TEAM_LEAVE time a parallel region's team: how
 // long after the fork each thread started and how long each waited at the join for the last
-// one (summed over threads and calls, printed with the phases as "team: name").
+// one (summed over threads and calls, printed with the phases as "team: name"), and the CPU time
+// the threads spent in it (work: compare 1 and n threads for the work a team adds; a thread's
+// spin at an inner barrier counts as work).
 #pragma once
 
 #include <omp.h>
@@ -46,6 +48,7 @@ struct Totals {
     std::map<std::string, Entry> by_name;
     struct TeamEntry {
         double late_ms = 0, idle_ms = 0, busy_ms = 0;  // summed over threads other than none
+        double work_ms = 0;                             // CPU time, summed over threads
         long calls = 0, threads = 0;
     };
     std::map<std::string, TeamEntry> teams;
@@ -57,11 +60,12 @@ struct Totals {
             std::fprintf(stderr, "%-28s %8ld %10.3f %10.3f %10.4f\n", k.c_str(), e.calls,
                          e.wall_ms, e.cpu_ms, e.median());
         if (teams.empty()) return;
-        std::fprintf(stderr, "%-28s %8s %10s %10s %10s %8s\n", "team", "calls", "late ms",
-                     "idle ms", "busy ms", "threads");
+        std::fprintf(stderr, "%-28s %8s %10s %10s %10s %10s %8s\n", "team", "calls", "late ms",
+                     "idle ms", "busy ms", "work ms", "threads");
         for (const auto& [k, e] : teams)
-            std::fprintf(stderr, "team: %-22s %8ld %10.3f %10.3f %10.3f %8ld\n", k.c_str(),
-                         e.calls, e.late_ms, e.idle_ms, e.busy_ms, e.threads);
+            std::fprintf(stderr, "team: %-22s %8ld %10.3f %10.3f %10.3f %10.3f %8ld\n",
+                         k.c_str(), e.calls, e.late_ms, e.idle_ms, e.busy_ms, e.work_ms,
+                         e.threads);
     }
 };
 
@@ -113,10 +117,14 @@ public:
         if (name_) fork_ = now_ms(CLOCK_MONOTONIC);
     }
     void enter(int t) {
-        if (name_ && t < kMax) enter_[t] = now_ms(CLOCK_MONOTONIC);
+        if (!name_ || t >= kMax) return;
+        enter_[t] = now_ms(CLOCK_MONOTONIC);
+        cpu_[t] = now_ms(CLOCK_THREAD_CPUTIME_ID);
     }
     void leave(int t) {
-        if (name_ && t < kMax) leave_[t] = now_ms(CLOCK_MONOTONIC);
+        if (!name_ || t >= kMax) return;
+        leave_[t] = now_ms(CLOCK_MONOTONIC);
+        cpu_[t] = now_ms(CLOCK_THREAD_CPUTIME_ID) - cpu_[t];
     }
     ~Team() {
         if (!name_) return;
@@ -132,6 +140,7 @@ public:
             e.late_ms += enter_[t] - fork_;
             e.idle_ms += last - leave_[t];
             e.busy_ms += leave_[t] - enter_[t];
+            e.work_ms += cpu_[t];
         }
     }
     Team(const Team&) = delete;
@@ -139,7 +148,7 @@ public:
 
 private:
     const char* name_;
-    double fork_ = 0, enter_[kMax] = {}, leave_[kMax] = {};
+    double fork_ = 0, enter_[kMax] = {}, leave_[kMax] = {}, cpu_[kMax] = {};
 };
 
 }  // namespace tripod::prof

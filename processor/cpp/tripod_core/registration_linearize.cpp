@@ -112,14 +112,105 @@ struct PrevPairs {
     double error = 0;
 };
 
+/// One pair's residual under a model: what both the linearisation and the cost-only evaluation
+/// of the previous pairs need (fields a model does not use are never written).
+struct PairResidual {
+    Eigen::Vector3d e;    ///< q - T p [m]
+    Eigen::Matrix3d W;    ///< GICP/VGICP: (C_q + R C_p R^T)^-1 [1/m^2]
+    Eigen::Vector3d We;   ///< GICP/VGICP: W e
+    Eigen::Vector3d nrm;  ///< plane family: the residual's normal
+    double s = 0;         ///< plane family: n . e [m]
+    double w = 0, rho = 0;  ///< robust weight and cost
+};
+
+/// The residual model of method M (lm: point-to-plane) over one problem at one pose: the
+/// per-method kernel of the hot loop, shared by the linearisation and by the fused cost of the
+/// previous pairs (the same code, so the same bits).
+template <Method M>
+struct Model {
+    static constexpr bool kVoxels = M == Method::kVGICP;
+    static constexpr bool kGicp = M == Method::kGICP || kVoxels;
+    static constexpr bool kPlane =
+        M == Method::kPointToPlane || M == Method::kSymmetric || M == Method::kLM;
+
+    const PreparedCloud& src;
+    const PreparedCloud& tgt;
+    const GaussianVoxels* vox;
+    Eigen::Matrix3d R;
+    double inv_s2;
+    Kernel kernel;
+    bool oriented;
+    double min_cos;
+    // GICP over plane-form covariances: C = a I - aq n_q n_q^T - ap (R n_p)(R n_p)^T
+    bool plane_form;
+    double aq, ap, a;
+
+    Model(const Problem& P, const Eigen::Isometry3d& T)
+        : src(P.src),
+          tgt(P.tgt),
+          vox(P.voxels),
+          R(T.linear()),
+          inv_s2(1.0 / (P.opt.point_sigma * P.opt.point_sigma)),
+          kernel{P.opt.loss, std::pow(P.opt.loss_scale / P.opt.point_sigma, 2)},
+          oriented(P.opt.oriented),
+          min_cos(P.opt.min_normal_cos),
+          plane_form(P.tgt.cov_scale > 0 && P.src.cov_scale > 0),
+          aq(P.tgt.cov_scale * P.tgt.cov_plane),
+          ap(P.src.cov_scale * P.src.cov_plane),
+          a(P.tgt.cov_scale + P.src.cov_scale) {}
+
+    /// Residual of source row i (transformed: Tp) against target j (VGICP: voxel j) into r;
+    /// false for a pair the model drops (plane family: no normal, incompatible normals).
+    /// GICP: `W_known`, when given, is the pair's weight (else computed here).
+    [[gnu::always_inline]] bool residual(int64_t i, int j, const Eigen::Vector3d& Tp,
+                                         const Eigen::Matrix3d* W_known,
+                                         PairResidual& r) const {
+        if constexpr (kVoxels)
+            r.e = vox->mean(j) - Tp;
+        else
+            r.e = tgt.points.row(j).transpose().cast<double>() - Tp;
+        if constexpr (kGicp) {
+            if (W_known) {
+                r.W = *W_known;
+            } else if (!kVoxels && plane_form) {
+                r.W = plane_information(tgt.normals.row(j).transpose(),
+                                        R * src.normals.row(i).transpose(), aq, ap, a);
+            } else {
+                const Eigen::Matrix3d& Cq = kVoxels ? vox->covariance(j) : tgt.covariances[j];
+                const Eigen::Matrix3d C = Cq + R * src.covariances[i] * R.transpose();
+                r.W = C.inverse();
+            }
+            r.We = r.W * r.e;
+            kernel(r.e.dot(r.We), r.w, r.rho);
+        } else if constexpr (kPlane) {
+            if (!tgt.normal_valid[j]) return false;
+            r.nrm = tgt.normals.row(j).transpose();
+            if (src.normal_valid[i]) {
+                Eigen::Vector3d ns = R * src.normals.row(i).transpose();
+                // sign-free: a normal seen from the other side is the same surface
+                if (!oriented && ns.dot(r.nrm) < 0) ns = -ns;
+                // normal compatibility: a pair on different surfaces (a wall point matched to
+                // the floor near a corner) pulls the wrong way: drop it
+                if (!(ns.dot(r.nrm) >= min_cos)) return false;
+                if constexpr (M == Method::kSymmetric) r.nrm = (r.nrm + ns).normalized();
+            } else if (oriented || M == Method::kSymmetric) {
+                return false;
+            }
+            r.s = r.nrm.dot(r.e);
+            kernel(r.s * r.s * inv_s2, r.w, r.rho);
+        } else {  // point-to-point
+            kernel(r.e.squaredNorm() * inv_s2, r.w, r.rho);
+        }
+        return true;
+    }
+};
+
 template <Method M>
 Normal linearize_model(const Problem& P, const Eigen::Isometry3d& T, std::vector<int>& corr,
                        bool with_jacobian, double associate_sq_dist,
-                       std::vector<Eigen::Matrix3d>* mahalanobis, PrevPairs* prev = nullptr) {
-    constexpr bool kVoxels = M == Method::kVGICP;
-    constexpr bool kGicp = M == Method::kGICP || kVoxels;
-    constexpr bool kPlane = M == Method::kPointToPlane || M == Method::kSymmetric ||
-                            M == Method::kLM;
+                       std::vector<Eigen::Matrix3d>* mahalanobis, PrevPairs* prev) {
+    using Mo = Model<M>;
+    const Mo model(P, T);
     const PreparedCloud& src = P.src;
     const PreparedCloud& tgt = P.tgt;
     const GaussianVoxels* vox = P.voxels;
@@ -130,24 +221,17 @@ Normal linearize_model(const Problem& P, const Eigen::Isometry3d& T, std::vector
                               : (with_jacobian ? "linearize: P lin" : "linearize: P eval")));
     // the previous iteration's matches (if any) warm-start the nearest-neighbour searches
     if (corr.size() != static_cast<size_t>(n)) corr.assign(n, -1);
-    const bool store_M = kGicp && mahalanobis && with_jacobian;
-    const bool reuse_M = kGicp && mahalanobis && !with_jacobian &&
+    const bool store_M = Mo::kGicp && mahalanobis && with_jacobian;
+    const bool reuse_M = Mo::kGicp && mahalanobis && !with_jacobian &&
                          mahalanobis->size() == static_cast<size_t>(n);
     // the previous pairs' weights, as a cost-only pass given them would reuse them
-    const bool prev_M = kGicp && prev && prev->mahalanobis &&
+    const bool prev_M = Mo::kGicp && prev && prev->mahalanobis &&
                         prev->mahalanobis->size() == static_cast<size_t>(n);
     if (store_M) mahalanobis->resize(n);
-    const Eigen::Matrix3d R = T.linear();
+    const Eigen::Matrix3d& R = model.R;
     const Eigen::Vector3d t = T.translation();
     const float max_sq = static_cast<float>(associate_sq_dist);
-    const double inv_s2 = 1.0 / (P.opt.point_sigma * P.opt.point_sigma);
-    const Kernel kernel{P.opt.loss, std::pow(P.opt.loss_scale / P.opt.point_sigma, 2)};
-    const bool oriented = P.opt.oriented;
-    // GICP over plane-form covariances: C = a I - aq n_q n_q^T - ap (R n_p)(R n_p)^T
-    const bool plane_form = tgt.cov_scale > 0 && src.cov_scale > 0;
-    const double aq = tgt.cov_scale * tgt.cov_plane, ap = src.cov_scale * src.cov_plane;
-    const double a = tgt.cov_scale + src.cov_scale;
-    const double min_cos = P.opt.min_normal_cos;
+    const double inv_s2 = model.inv_s2;
     const int64_t m = static_cast<int64_t>(P.rows.size());
     // Fixed chunks, each with its own partial sum, added in chunk order afterwards (the same
     // sums on any thread count). Each thread takes the same contiguous run of chunks at every
@@ -158,52 +242,11 @@ Normal linearize_model(const Problem& P, const Eigen::Isometry3d& T, std::vector
     const int64_t num_chunks = (m + kChunk - 1) / kChunk;
     std::vector<Normal> parts(num_chunks);
     std::vector<double> prev_parts(prev ? num_chunks : 0);
-    // Cost of the previous pair (i, jp) at this pose, exactly as the cost-only pass below
-    // computes it (0 for a pair that pass skips).
-    auto prev_cost = [&](int64_t i, int jp, const Eigen::Vector3d& Tp) {
-        Eigen::Vector3d q;
-        if constexpr (kVoxels)
-            q = vox->mean(jp);
-        else
-            q = tgt.points.row(jp).transpose().cast<double>();
-        const Eigen::Vector3d e = q - Tp;
-        double w = 0, rho = 0;
-        if constexpr (kGicp) {
-            Eigen::Matrix3d W;
-            if (prev_M) {
-                W = (*prev->mahalanobis)[i];
-            } else if (!kVoxels && plane_form) {
-                W = plane_information(tgt.normals.row(jp).transpose(),
-                                      R * src.normals.row(i).transpose(), aq, ap, a);
-            } else {
-                const Eigen::Matrix3d& Cq = kVoxels ? vox->covariance(jp) : tgt.covariances[jp];
-                const Eigen::Matrix3d C = Cq + R * src.covariances[i] * R.transpose();
-                W = C.inverse();
-            }
-            const Eigen::Vector3d We = W * e;
-            kernel(e.dot(We), w, rho);
-        } else if constexpr (kPlane) {
-            if (!tgt.normal_valid[jp]) return 0.0;
-            Eigen::Vector3d nrm = tgt.normals.row(jp).transpose();
-            if (src.normal_valid[i]) {
-                Eigen::Vector3d ns = R * src.normals.row(i).transpose();
-                if (!oriented && ns.dot(nrm) < 0) ns = -ns;
-                if (!(ns.dot(nrm) >= min_cos)) return 0.0;
-                if constexpr (M == Method::kSymmetric) nrm = (nrm + ns).normalized();
-            } else if (oriented || M == Method::kSymmetric) {
-                return 0.0;
-            }
-            const double s = nrm.dot(e);
-            kernel(s * s * inv_s2, w, rho);
-        } else {
-            kernel(e.squaredNorm() * inv_s2, w, rho);
-        }
-        return rho;
-    };
     parallel_chunks(P.num_threads, num_chunks, [&](int64_t chunk) {
         Normal acc;
         GicpSums gicp;
         double prev_error = 0;
+        PairResidual r;
         const int64_t end = std::min(m, (chunk + 1) * kChunk);
         for (int64_t k = chunk * kChunk; k < end; ++k) {
             const int64_t i = P.rows[k];
@@ -212,10 +255,13 @@ Normal linearize_model(const Problem& P, const Eigen::Isometry3d& T, std::vector
             int j = corr[i];
             if (prev) {
                 j = prev->corr[i];  // the previous match: evaluated here, and the search's hint
-                if (j >= 0) prev_error += prev_cost(i, j, Tp);
+                // the cost-only pass's terms exactly (a pair it skips adds nothing)
+                if (j >= 0 &&
+                    model.residual(i, j, Tp, prev_M ? &(*prev->mahalanobis)[i] : nullptr, r))
+                    prev_error += r.rho;
             }
             if (find) {
-                if constexpr (kVoxels) {
+                if constexpr (Mo::kVoxels) {
                     j = vox->find(Tp);
                     if (j >= 0 && (vox->mean(j) - Tp).squaredNorm() > associate_sq_dist) j = -1;
                 } else {
@@ -226,58 +272,24 @@ Normal linearize_model(const Problem& P, const Eigen::Isometry3d& T, std::vector
                 corr[i] = j;
             }
             if (j < 0) continue;
-            Eigen::Vector3d q;
-            if constexpr (kVoxels)
-                q = vox->mean(j);
-            else
-                q = tgt.points.row(j).transpose().cast<double>();
-            const Eigen::Vector3d e = q - Tp;
-            double w = 0, rho = 0;
-            if constexpr (kGicp) {
-                Eigen::Matrix3d W;  // (C_q + R C_p R^T)^-1
-                if (reuse_M) {
-                    W = (*mahalanobis)[i];
-                } else if (!kVoxels && plane_form) {
-                    W = plane_information(tgt.normals.row(j).transpose(),
-                                          R * src.normals.row(i).transpose(), aq, ap, a);
-                } else {
-                    const Eigen::Matrix3d& Cq = kVoxels ? vox->covariance(j) : tgt.covariances[j];
-                    const Eigen::Matrix3d C = Cq + R * src.covariances[i] * R.transpose();
-                    W = C.inverse();
-                }
-                if (store_M) (*mahalanobis)[i] = W;
-                const Eigen::Vector3d We = W * e;
-                kernel(e.dot(We), w, rho);
-                if (with_jacobian) gicp.add(w, W, We, Rp);
-            } else if constexpr (kPlane) {
-                if (!tgt.normal_valid[j]) continue;
-                Eigen::Vector3d nrm = tgt.normals.row(j).transpose();
-                if (src.normal_valid[i]) {
-                    Eigen::Vector3d ns = R * src.normals.row(i).transpose();
-                    // sign-free: a normal seen from the other side is the same surface
-                    if (!oriented && ns.dot(nrm) < 0) ns = -ns;
-                    // normal compatibility: a pair on different surfaces (a wall point
-                    // matched to the floor near a corner) pulls the wrong way: drop it
-                    if (!(ns.dot(nrm) >= min_cos)) continue;
-                    if constexpr (M == Method::kSymmetric) nrm = (nrm + ns).normalized();
-                } else if (oriented || M == Method::kSymmetric) {
-                    continue;
-                }
-                const double s = nrm.dot(e);
-                acc.sq_res += s * s;
-                kernel(s * s * inv_s2, w, rho);
+            if (!model.residual(i, j, Tp, reuse_M ? &(*mahalanobis)[i] : nullptr, r)) continue;
+            const Eigen::Vector3d& e = r.e;
+            if constexpr (Mo::kGicp) {
+                if (store_M) (*mahalanobis)[i] = r.W;
+                if (with_jacobian) gicp.add(r.w, r.W, r.We, Rp);
+            } else if constexpr (Mo::kPlane) {
+                acc.sq_res += r.s * r.s;
                 if (with_jacobian) {
                     Vec6 Jn;
-                    Jn.head<3>() = nrm.cross(Rp);
-                    Jn.tail<3>() = -nrm;
-                    const double c = w * inv_s2;
+                    Jn.head<3>() = r.nrm.cross(Rp);
+                    Jn.tail<3>() = -r.nrm;
+                    const double c = r.w * inv_s2;
                     acc.H.noalias() += (c * Jn) * Jn.transpose();
-                    acc.b.noalias() += (c * s) * Jn;
+                    acc.b.noalias() += (c * r.s) * Jn;
                 }
             } else {  // point-to-point
-                kernel(e.squaredNorm() * inv_s2, w, rho);
                 if (with_jacobian) {
-                    const double c = w * inv_s2;
+                    const double c = r.w * inv_s2;
                     const Eigen::Matrix3d S = skew(Rp);
                     acc.H.topLeftCorner<3, 3>().noalias() -= c * (S * S);
                     acc.H.bottomLeftCorner<3, 3>() -= c * S;
@@ -286,12 +298,12 @@ Normal linearize_model(const Problem& P, const Eigen::Isometry3d& T, std::vector
                     acc.b.tail<3>() -= c * e;
                 }
             }
-            acc.error += rho;
+            acc.error += r.rho;
             acc.count += 1;
             acc.sq_dist += e.squaredNorm();
-            if constexpr (!kPlane) acc.sq_res += e.squaredNorm();
+            if constexpr (!Mo::kPlane) acc.sq_res += e.squaredNorm();
         }
-        if constexpr (kGicp) gicp.store(acc);
+        if constexpr (Mo::kGicp) gicp.store(acc);
         parts[chunk] = acc;
         if (prev) prev_parts[chunk] = prev_error;
     }, find ? "assoc+lin" : (with_jacobian ? "lin" : "eval"));
@@ -310,6 +322,32 @@ Normal linearize_model(const Problem& P, const Eigen::Isometry3d& T, std::vector
         for (double e : prev_parts) prev->error += e;  // chunk order, as `out.error`
     }
     return out;
+}
+
+/// The one method dispatch of the linearisation: linearize_model of P.method's residual model
+/// (lm: point-to-plane's), with or without the previous pairs' cost (`prev`).
+Normal linearize_any(const Problem& P, const Eigen::Isometry3d& T, std::vector<int>& corr,
+                     bool with_jacobian, double associate_sq_dist,
+                     std::vector<Eigen::Matrix3d>* mahalanobis, PrevPairs* prev) {
+    switch (P.method) {
+        case Method::kPointToPoint:
+            return linearize_model<Method::kPointToPoint>(P, T, corr, with_jacobian,
+                                                          associate_sq_dist, mahalanobis, prev);
+        case Method::kGICP:
+            return linearize_model<Method::kGICP>(P, T, corr, with_jacobian, associate_sq_dist,
+                                                  mahalanobis, prev);
+        case Method::kVGICP:
+            return linearize_model<Method::kVGICP>(P, T, corr, with_jacobian, associate_sq_dist,
+                                                   mahalanobis, prev);
+        case Method::kSymmetric:
+            return linearize_model<Method::kSymmetric>(P, T, corr, with_jacobian,
+                                                       associate_sq_dist, mahalanobis, prev);
+        case Method::kPointToPlane:
+        case Method::kLM:
+            break;
+    }
+    return linearize_model<Method::kPointToPlane>(P, T, corr, with_jacobian, associate_sq_dist,
+                                                  mahalanobis, prev);
 }
 }  // namespace
 
@@ -353,30 +391,7 @@ Normal linearize_fused(const Problem& P, const Eigen::Isometry3d& T,
                        std::vector<int>& corr, double associate_sq_dist,
                        std::vector<Eigen::Matrix3d>* mahalanobis) {
     PrevPairs prev{prev_corr, prev_mahalanobis};
-    Normal out;
-    switch (P.method) {
-        case Method::kPointToPoint:
-            out = linearize_model<Method::kPointToPoint>(P, T, corr, true, associate_sq_dist,
-                                                         mahalanobis, &prev);
-            break;
-        case Method::kGICP:
-            out = linearize_model<Method::kGICP>(P, T, corr, true, associate_sq_dist,
-                                                 mahalanobis, &prev);
-            break;
-        case Method::kVGICP:
-            out = linearize_model<Method::kVGICP>(P, T, corr, true, associate_sq_dist,
-                                                  mahalanobis, &prev);
-            break;
-        case Method::kSymmetric:
-            out = linearize_model<Method::kSymmetric>(P, T, corr, true, associate_sq_dist,
-                                                      mahalanobis, &prev);
-            break;
-        case Method::kPointToPlane:
-        case Method::kLM:
-            out = linearize_model<Method::kPointToPlane>(P, T, corr, true, associate_sq_dist,
-                                                         mahalanobis, &prev);
-            break;
-    }
+    Normal out = linearize_any(P, T, corr, true, associate_sq_dist, mahalanobis, &prev);
     prev_error = prev.error;
     return out;
 }
@@ -384,25 +399,7 @@ Normal linearize_fused(const Problem& P, const Eigen::Isometry3d& T,
 Normal linearize(const Problem& P, const Eigen::Isometry3d& T, std::vector<int>& corr,
                  bool with_jacobian, double associate_sq_dist,
                  std::vector<Eigen::Matrix3d>* mahalanobis) {
-    switch (P.method) {
-        case Method::kPointToPoint:
-            return linearize_model<Method::kPointToPoint>(P, T, corr, with_jacobian,
-                                                          associate_sq_dist, mahalanobis);
-        case Method::kGICP:
-            return linearize_model<Method::kGICP>(P, T, corr, with_jacobian, associate_sq_dist,
-                                                  mahalanobis);
-        case Method::kVGICP:
-            return linearize_model<Method::kVGICP>(P, T, corr, with_jacobian, associate_sq_dist,
-                                                   mahalanobis);
-        case Method::kSymmetric:
-            return linearize_model<Method::kSymmetric>(P, T, corr, with_jacobian,
-                                                       associate_sq_dist, mahalanobis);
-        case Method::kPointToPlane:
-        case Method::kLM:
-            break;
-    }
-    return linearize_model<Method::kPointToPlane>(P, T, corr, with_jacobian, associate_sq_dist,
-                                                  mahalanobis);
+    return linearize_any(P, T, corr, with_jacobian, associate_sq_dist, mahalanobis, nullptr);
 }
 
 }  // namespace tripod::detail
