@@ -142,7 +142,10 @@ def batch_command(
             return
         if mbar is None:
             bar.close()
-            mbar = tqdm(total=total, desc="merge pairs", unit="pair", dynamic_ncols=True)
+            mbar = tqdm(total=total, desc=f"merge {step}", unit="pair", dynamic_ncols=True)
+        if mbar.desc != f"merge {step}":  # the hypotheses of every pair, then the shortlisted
+            mbar.set_description(f"merge {step}")
+            mbar.total = total
         mbar.n = done
         mbar.refresh()
 
