@@ -136,15 +136,17 @@ def batch_command(
             bar.write(f"failed: {o['name']}: {o['error']}")
 
     mbar = None
+    mstep = ""
 
     def on_merge(step: str, done: int, total: int) -> None:
-        nonlocal mbar
+        nonlocal mbar, mstep
         if quiet:
             return
         if mbar is None:
             bar.close()
             mbar = tqdm(total=total, desc=f"merge {step}", unit="pair", dynamic_ncols=True)
-        if mbar.desc != f"merge {step}":  # the hypotheses of every pair, then the shortlisted
+        if step != mstep:  # the hypotheses of every pair, then the shortlisted pairs
+            mstep = step
             mbar.set_description(f"merge {step}")
             mbar.total = total
         mbar.n = done
