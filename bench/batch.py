@@ -108,12 +108,20 @@ def building_config(calibration: Path):
         "placement.extrinsic.q_imu_lidar": q, "placement.extrinsic.lever_arm_m": lever})
 
 
+def merge_config(args):
+    """The building's merge settings: ``--workers`` threads, ``--shortlist-k`` when given."""
+    from tripod_processor.reconstruction.merge import MergeConfig
+
+    extra = {} if args.shortlist_k is None else {"shortlist_k": args.shortlist_k}
+    return MergeConfig(num_threads=args.workers, **extra)
+
+
 def building(args, con) -> None:
     from rich.table import Table
 
     from tripod_processor.batch import batch_reconstruct, discover, merged_folder
     from tripod_processor.reconstruction.evaluation import evaluate_merge
-    from tripod_processor.reconstruction.merge import MergeConfig, merge_summary
+    from tripod_processor.reconstruction.merge import merge_summary
     from tripod_processor.sim.survey_building import simulate_survey
 
     survey = args.survey or args.work / f"building-{args.building}"
@@ -136,13 +144,13 @@ def building(args, con) -> None:
 
         done = [r for r in recs if (out / r.name / "result.json").is_file()]
         merge = merge_recordings([out / r.name for r in done], merged_folder(out, recs),
-                                 MergeConfig(num_threads=args.workers),
+                                 merge_config(args),
                                  names=[r.name for r in done])
         outcomes = [{"name": r.name, "status": "reused", "summary": json.loads(
             (out / r.name / "result.json").read_text())} for r in done]
     else:
         res = batch_reconstruct(recs, out, cfg, workers=args.workers, force=args.force,
-                                merge=MergeConfig(num_threads=args.workers))
+                                merge=merge_config(args))
         merge, outcomes = res.merge, res.outcomes
     wall = time.perf_counter() - t0
     # the merge runs in this process (the reconstructions in Ray workers): its peak RSS
@@ -154,6 +162,9 @@ def building(args, con) -> None:
                         {d.name: d for d in dirs})
     rec_cpu = sum(o["summary"].get("processing_cpu_s", 0.0) for o in outcomes)
     n_st = ms["stations"]
+    # recording pairs the shortlist left out although they share true links
+    lost_true = sum(1 for x in ev["pairs"].values()
+                    if not x.get("shortlisted", True) and x["true_links"])
     t = Table(title=f"merged building ({args.building}): {len(recs)} recordings, {n_st} stations "
                     f"reconstructed; batch {args.workers} workers", header_style="bold")
     t.add_column("figure")
@@ -171,6 +182,9 @@ def building(args, con) -> None:
         ("link recall / precision", f"{ev['link_recall']:.3f} / {ev['link_precision']:.3f}"),
         ("recording pairs joined / all",
          f"{ms['recording_pairs_joined']} / {len(ms['recording_pairs'])}"),
+        ("recording pairs shortlisted / left out (true pairs left out)",
+         f"{ms['recording_pairs_shortlisted']} / {ms['recording_pairs_left_out']} "
+         f"({lost_true})"),
         ("reconstruction CPU s (Σ recordings) / per station", f"{rec_cpu:.0f} / "
          f"{rec_cpu / max(n_st, 1):.2f}"),
         ("merge CPU s / wall s", f"{ms['processing_cpu_s']:.0f} / {ms['processing_s']:.0f}"),
@@ -217,6 +231,8 @@ def detail_tables(con, ev: dict) -> None:
     for ab, x in ev["pairs"].items():
         tw = x.get("twin", {})
         joined = (x.get("accepted") or "-") if not tw.get("cycle") else "cycle-unjoined"
+        if not x.get("shortlisted", True):
+            joined = f"left out ({x.get('score', 0):.2f})"
         if tw.get("ambiguous"):
             joined = "ambiguous"
         err = (f"{x['hyp_err_m']:.2f} / {x['hyp_err_deg']:.2f}" if "hyp_err_m" in x else "-")
@@ -429,6 +445,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--merge-only", action="store_true",
                     help="building: merge the reconstructions already in WORK/building-SIZE-out "
                          "again (whatever config made them; no batch): for a change to the merge")
+    ap.add_argument("--shortlist-k", type=int, default=None,
+                    help="building: merge.shortlist_k (each recording's best partners verified; "
+                         "0: every pair; default the merge's)")
     ap.add_argument("--growth", action="store_true",
                     help="instead of the building's score: cost growth of the reconstruction "
                          "and the merge for ~50, ~100, ~200 and all stations")

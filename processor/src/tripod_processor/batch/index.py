@@ -49,6 +49,8 @@ def write_index(outdir: Path, outcomes: list[dict], meta: dict) -> dict[str, Pat
         text = (f"merged model: {m['merged_stations']} of {m['stations']} stations, "
                 f"{len(comps[0]['recordings']) if comps else 0} recordings joined by "
                 f"{m['links_kept']} links; {len(comps)} component(s)")
+        if m.get("recording_pairs_left_out"):
+            text += f"; {m['recording_pairs_left_out']} recording pairs left out by the shortlist"
         merged_md = f"{text}: [report]({rel})\n\n"
         merged_html = f'<p>{html.escape(text)}: <a href="{html.escape(rel)}">report</a></p>'
     md = ["# tripod batch", "", head, "", merged_md + "| " + " | ".join(COLUMNS) + " |",

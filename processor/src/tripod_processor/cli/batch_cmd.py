@@ -53,7 +53,8 @@ def merge_table(mres):
 
     s = merge_summary(mres)
     t = Table(title=f"merged model ({mres.outdir}): {s['links_kept']} links between recordings, "
-                    f"{s['recording_pairs_joined']} recording pairs joined, "
+                    f"{s['recording_pairs_joined']} recording pairs joined "
+                    f"({s['recording_pairs_left_out']} left out by the shortlist), "
                     f"{s['processing_s']:.1f} s", header_style="bold")
     for c in ("component", "recordings", "stations", "folder"):
         t.add_column(c, justify="right" if c in ("component", "stations") else "left")
@@ -135,14 +136,19 @@ def batch_command(
             bar.write(f"failed: {o['name']}: {o['error']}")
 
     mbar = None
+    mstep = ""
 
     def on_merge(step: str, done: int, total: int) -> None:
-        nonlocal mbar
+        nonlocal mbar, mstep
         if quiet:
             return
         if mbar is None:
             bar.close()
-            mbar = tqdm(total=total, desc="merge pairs", unit="pair", dynamic_ncols=True)
+            mbar = tqdm(total=total, desc=f"merge {step}", unit="pair", dynamic_ncols=True)
+        if step != mstep:  # the hypotheses of every pair, then the shortlisted pairs
+            mstep = step
+            mbar.set_description(f"merge {step}")
+            mbar.total = total
         mbar.n = done
         mbar.refresh()
 

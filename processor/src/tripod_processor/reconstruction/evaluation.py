@@ -369,7 +369,8 @@ def evaluate_merge(merged_dir, recording_dirs: dict, sim_dirs: dict, *, true_ove
                    "false": len(fs), "weak": len(fd - ab - fs)}
             p = hyp.get((names[A], names[B]))
             if p is not None:
-                row.update(accepted=p.get("accepted", ""), twin=p.get("twin", {}))
+                row.update(accepted=p.get("accepted", ""), twin=p.get("twin", {}),
+                           shortlisted=p.get("shortlisted", True), score=p.get("score"))
                 if p.get("T_a_b") is not None:
                     H = np.asarray(p["T_a_b"], dtype=np.float64)
                     H_true = np.linalg.inv(T_world_rec[names[A]]) @ T_world_rec[names[B]]

@@ -14,6 +14,11 @@ Steps, for every pair of recordings (A, B):
    translation, :func:`registration.pairwise.register_global`), and when its hypothesis does
    not verify, plan-heightmap registration (:mod:`scene.heightmap_registration`; ~20x the
    cost);
+1a. **the shortlist**: the global hypotheses of every pair come first; each recording keeps
+   its ``shortlist_k`` best partners by the pair's overlap score (:func:`pair_score`), plus
+   the recordings before and after it in capture time, and only those pairs go on to the
+   steps below (they cost ~90 % of the merge and grow with the square of the recordings);
+   a pair left out is counted in ``result.json`` and the report, never joined;
 2. **verification, like loop closures**: B's stations placed by a hypothesis; the station pairs
    whose fragments would overlap there (share of coarse points within ``overlap_distance_m``
    of the other, at least ``min_overlap``) are registered from that guess (coarse-to-fine
@@ -123,6 +128,17 @@ class MergeConfig(StrictModel):
     cycle_check: bool = True
     cycle_m: float = Field(default=0.5, gt=0)
     cycle_deg: float = Field(default=3.0, gt=0)
+    #: the shortlist of recording pairs: after the global hypotheses of every pair (the cheap
+    #: step), each recording keeps its ``shortlist_k`` best partners by the pair's overlap
+    #: score (:func:`pair_score`; a pair stays when either of its recordings keeps it), and
+    #: only those pairs are verified, linked and twin-checked (the steps that cost ~90 % and
+    #: grow with the square of the recordings). Buildings of <= k + 1 recordings keep every
+    #: pair; 0: every pair. A pair left out is counted in result.json and the report
+    shortlist_k: int = Field(default=4, ge=0)
+    #: also keep the pairs of recordings adjacent in capture time (by their first station):
+    #: a recording usually starts where the one before stopped; these may get the heightmap
+    #: hypothesis when the global one found nothing (N - 1 pairs)
+    shortlist_time_neighbours: bool = True
     num_threads: int = Field(default=0, ge=0)
 
 
@@ -417,6 +433,43 @@ def heightmap_hypothesis(map_A: np.ndarray, map_B: np.ndarray, labels_A, labels_
     return ("heightmap", h.T_target_source, float(h.structure_fitness))
 
 
+# ---- the shortlist of recording pairs ----------------------------------------------------------
+def pair_score(hyp: tuple[str, np.ndarray, float] | None, n_A: int, n_B: int) -> float:
+    """How much two recordings share, from their global hypothesis (map B onto map A): the
+    matched share of B's map (the registration's fitness) x |B| / min(|A|, |B|), i.e. the
+    share of the smaller map that overlaps the other (in [0, 1]; 0 without a hypothesis).
+    Symmetric in the sense that matters: a small recording inside a large one scores high
+    whichever is the source."""
+    if hyp is None or n_A <= 0 or n_B <= 0:
+        return 0.0
+    return float(min(1.0, max(0.0, hyp[2]) * n_B / min(n_A, n_B)))
+
+
+def shortlist_pairs(n: int, scores: dict[tuple[int, int], float], k: int,
+                    start_ns: list[int] | None = None) -> set[tuple[int, int]]:
+    """The recording pairs (A < B) kept for verification: every recording's ``k`` best partners
+    by ``scores[(A, B)]`` (a pair is kept when either of its recordings ranks it among its k;
+    ties broken by the partners' distance in capture order, then by index, so the result does
+    not depend on the order of ``scores``), plus, when ``start_ns`` (each recording's start,
+    ns) is given, the pairs of recordings adjacent in capture time. Pairs missing from
+    ``scores`` score 0. ``k`` = 0, or ``k`` >= n - 1: every pair."""
+    every = {(A, B) for A in range(n) for B in range(A + 1, n)}
+    if k <= 0 or k >= n - 1:
+        return every
+    order = (sorted(range(n), key=lambda r: (start_ns[r], r)) if start_ns is not None
+             else list(range(n)))
+    rank = {r: i for i, r in enumerate(order)}
+    keep: set[tuple[int, int]] = set()
+    for A in range(n):
+        partners = [B for B in range(n) if B != A]
+        partners.sort(key=lambda B: (-scores.get((min(A, B), max(A, B)), 0.0),
+                                     abs(rank[A] - rank[B]), B))
+        keep |= {(min(A, B), max(A, B)) for B in partners[:k]}
+    if start_ns is not None:
+        keep |= {(min(a, b), max(a, b)) for a, b in zip(order, order[1:])}
+    return keep
+
+
 # ---- links of a hypothesis, and its turned twins ---------------------------------------------
 def all_links(recs, cache, coarse, A: int, B: int, H: np.ndarray, src: str, cfg: MergeConfig,
               limit: int | None = None) -> tuple[list[Link], list[float]]:
@@ -683,6 +736,10 @@ class PairOutcome:
     twin: dict = field(default_factory=dict)
     #: the hypothesis T_A_B that came out of the pair's checks (None when none verified)
     T_A_B: np.ndarray | None = None
+    #: the shortlist: the pair's score (:func:`pair_score`) and whether it was kept (a pair
+    #: left out is neither verified nor joined)
+    score: float = 0.0
+    shortlisted: bool = True
 
 
 @dataclass
@@ -745,25 +802,47 @@ def merge_recordings(outdirs: list, outdir: str | os.PathLike, cfg: MergeConfig 
         maps = [submap(r, cfg.submap_voxel_m, cfg.num_threads) for r in recs]
         labels: list = [None] * nrec  # segmented when a heightmap registration needs them
 
-    # 1.-2. hypotheses and their verification, for every pair of recordings
+    # 1. the global hypothesis of every pair of recordings (the cheap step), then the shortlist
+    #    of the pairs that go on to verification, links and twins
     pairs: list[PairOutcome] = []
     links: list[Link] = []
     accepted: dict[tuple[int, int], np.ndarray] = {}
     todo = [(A, B) for A in range(nrec) for B in range(A + 1, nrec)]
+    glob: dict[tuple[int, int], tuple | None] = {}
     for n_done, (A, B) in enumerate(todo):
-        po = PairOutcome(A, B, [])
+        with _Timer(times, "hypotheses"):
+            glob[(A, B)] = global_hypothesis(maps[A], maps[B], cfg)
+        if progress is not None:
+            progress("hypotheses", n_done + 1, len(todo))
+    scores = {(A, B): pair_score(glob[(A, B)], len(maps[A]), len(maps[B])) for A, B in todo}
+    start_ns = [int(r.t_ns.min()) if len(r.t_ns) else 0 for r in recs]
+    keep = shortlist_pairs(nrec, scores, cfg.shortlist_k,
+                           start_ns if cfg.shortlist_time_neighbours else None)
+    if len(keep) < len(todo):
+        notes.append(f"shortlist (k = {cfg.shortlist_k}): {len(todo) - len(keep)} of "
+                     f"{len(todo)} recording pairs left out (not verified, not joined)")
+
+    # 2. the shortlisted pairs' hypotheses verified, linked, twin-checked
+    for n_done, (A, B) in enumerate(todo):
+        po = PairOutcome(A, B, [], score=scores[(A, B)], shortlisted=(A, B) in keep)
+        if not po.shortlisted:
+            pairs.append(po)
+            if progress is not None:
+                progress("pairs", n_done + 1, len(todo))
+            continue
         best = None
         # global registration first; the heightmaps only when it joins nothing (they cost ~20x)
         for source in ("global", "heightmap"):
             if best is not None or (source == "heightmap" and not cfg.heightmaps):
                 break
-            with _Timer(times, "hypotheses"):
-                if source == "heightmap":
+            if source == "global":
+                hyp = glob[(A, B)]
+            else:
+                with _Timer(times, "hypotheses"):
                     for r in (A, B):
                         if labels[r] is None and len(maps[r]):
                             labels[r] = _labels([maps[r]], cfg.num_threads)[0]
-                hyp = (global_hypothesis(maps[A], maps[B], cfg) if source == "global" else
-                       heightmap_hypothesis(maps[A], maps[B], labels[A], labels[B], cfg))
+                    hyp = heightmap_hypothesis(maps[A], maps[B], labels[A], labels[B], cfg)
             if hyp is None:
                 po.tried.append((source, 0, 0))
                 continue
@@ -1015,7 +1094,11 @@ def merge_summary(mres: MergeResult) -> dict:
         "links_verified": len(mres.links),
         "links_kept": int(sum(lk.kept for lk in mres.links)),
         "recording_pairs_joined": int(sum(bool(p.accepted) for p in mres.pairs)),
-        "recording_pairs": [{"a": recs[p.A].name, "b": recs[p.B].name, "tried": p.tried,
+        "recording_pairs_shortlisted": int(sum(p.shortlisted for p in mres.pairs)),
+        "recording_pairs_left_out": int(sum(not p.shortlisted for p in mres.pairs)),
+        "recording_pairs": [{"a": recs[p.A].name, "b": recs[p.B].name,
+                             "score": round(p.score, 4), "shortlisted": p.shortlisted,
+                             "tried": p.tried,
                              "accepted": p.accepted, "links": p.links, "twin": p.twin,
                              "T_a_b": None if p.T_A_B is None else
                              np.round(p.T_A_B, 6).tolist()}
@@ -1039,7 +1122,9 @@ def merge_report(mres: MergeResult, summ: dict) -> str:
           f"{len(summ['components'][0]['recordings']) if summ['components'] else 0} recordings; "
           f"{summ['links_kept']} links between recordings kept "
           f"({summ['links_verified']} verified); {len(summ['components'])} component(s); "
-          f"{summ['processing_s']:.1f} s", "",
+          f"{summ['processing_s']:.1f} s; {summ['recording_pairs_shortlisted']} of "
+          f"{len(mres.pairs)} recording pairs shortlisted, "
+          f"{summ['recording_pairs_left_out']} left out", "",
           "## Components", "", "| component | recordings | stations | folder |", "|---|---|---|---|"]
     for c in summ["components"]:
         folder = "." if c["component"] == 0 else f"component-{c['component']}/"
@@ -1051,13 +1136,17 @@ def merge_report(mres: MergeResult, summ: dict) -> str:
         nl = sum(lk.kept and r in (lk.A, lk.B) for lk in mres.links)
         ln.append(f"| {rec.name} | {len(rec.t_ns)} | {mres.component[r]} | {nl} |")
     ln += ["", "## Recording pairs", "",
-           "Hypotheses (source: candidate station pairs, verified probes); the accepted one and "
+           "The pair's score (the overlap share of its global hypothesis; the shortlist keeps "
+           "each recording's best partners), hypotheses (source: candidate station pairs, "
+           "verified probes); the accepted one and "
            "its kept links; the twin check (score of the hypothesis and of its twins turned by "
            "180/90/270 deg or shifted along a repeated structure (m@axis yaw); runner-up / "
            "winner; ambiguous pairs are not joined).", "",
-           "| a | b | hypotheses | accepted | links | twins |", "|---|---|---|---|---|---|"]
+           "| a | b | score | hypotheses | accepted | links | twins |",
+           "|---|---|---|---|---|---|---|"]
     for p in mres.pairs:
-        tried = "; ".join(f"{s}: {n}, {v} ok" for s, n, v in p.tried) or "none"
+        tried = ("; ".join(f"{s}: {n}, {v} ok" for s, n, v in p.tried) or "none"
+                 if p.shortlisted else "not shortlisted")
         tw = []
         if "scores" in p.twin:
             tw.append(", ".join(f"{k}{'°' if k.isdigit() else ''}: {v:.2f}"
@@ -1067,7 +1156,8 @@ def merge_report(mres: MergeResult, summ: dict) -> str:
         if p.twin.get("cycle"):
             tw.append("**breaks cycles**")
         tw = "; ".join(tw) or "–"
-        ln.append(f"| {recs[p.A].name} | {recs[p.B].name} | {tried} | {p.accepted or '–'} | "
+        ln.append(f"| {recs[p.A].name} | {recs[p.B].name} | {p.score:.2f} | {tried} | "
+                  f"{p.accepted or '–'} | "
                   f"{p.links} | {tw} |")
     cpu = summ["stage_cpu_s"]
     ln += ["", "## Stages", "", "| stage | wall s | CPU s |", "|---|---|---|"]
