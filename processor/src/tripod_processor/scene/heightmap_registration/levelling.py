@@ -47,8 +47,8 @@ def structure_up(planes, *, prior_sigma_deg: float = 0.25, min_sigma_deg: float 
     Each wall (normal within 10 deg of horizontal) asks n . u = 0, each floor or ceiling (within
     10 deg of vertical) u parallel to n; with u = (a, b, 1) these are linear in (a, b). Each
     plane counts as one measurement, weighted by its points (at most 20 000; weights of mean
-    1); planes more than ``outlier_deg`` off the structure's own fit are dropped and the fit
-    repeated. The structure's tilt is
+    1); planes more than ``outlier_deg`` off the prior, then off the structure's own fit, are
+    dropped and the fit repeated. The structure's tilt is
     then **fused with the prior by their uncertainties**: the structure's from the scatter of
     its planes about the fit (``s``, at least ``min_sigma_deg``: what the planes disagree by is
     what they are worth), the prior's ``prior_sigma_deg`` (a station's static IMU gravity,
@@ -72,7 +72,11 @@ def structure_up(planes, *, prior_sigma_deg: float = 0.25, min_sigma_deg: float 
     if not rows:
         return np.array([0.0, 0.0, 1.0])
     A, y, wt = np.asarray(rows), np.asarray(rhs), np.asarray(w)
-    keep = np.ones(len(y), bool)
+    # the prior is right to ~1 deg (a static IMU's gravity): a plane that says more is no level
+    # wall, floor or ceiling (furniture sides, sloped or mislabelled surfaces)
+    keep = np.abs(y) < np.radians(outlier_deg)
+    if not keep.any():
+        return np.array([0.0, 0.0, 1.0])
     prior_info = 1.0 / np.radians(prior_sigma_deg) ** 2
     ab = np.zeros(2)
     for _ in range(2):
