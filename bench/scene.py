@@ -542,8 +542,8 @@ def main(argv=None) -> int:
     ap.add_argument("--hm-split", choices=("dev", "dev2", "test", "test2", "test3"), default=None,
                     help="heightmap pairs of reconstruct's fragments: dev / dev2 (seeds 301 / "
                          "302, looked at while developing), test (seed 331, run once for the "
-                         "first figure), test2 (seed 332, run once for the second); default: "
-                         "--pair-split's")
+                         "first figure), test2 (seed 332, run once for the second), test3 "
+                         "(seed 333, fresh for the third); default: --pair-split's")
     ap.add_argument("--hm-scenes", nargs="+", default=None,
                     help="heightmap pairs: scenes (default: all five)")
     ap.add_argument("--buildings", type=int, default=3,
