@@ -549,11 +549,11 @@ def main(argv=None) -> int:
     ap.add_argument("--pair-split", choices=("test", "dev"), default="test",
                     help="registration pairs: test (seeds 231-233, draw 1, reported) or dev "
                          "(seeds 201-203, draw 0: the pairs the method was developed on)")
-    ap.add_argument("--hm-split", choices=("dev", "dev2", "test", "test2"), default=None,
+    ap.add_argument("--hm-split", choices=("dev", "dev2", "test", "test2", "test3"), default=None,
                     help="heightmap pairs of reconstruct's fragments: dev / dev2 (seeds 301 / "
                          "302, looked at while developing), test (seed 331, run once for the "
-                         "first figure), test2 (seed 332, run once for the second); default: "
-                         "--pair-split's")
+                         "first figure), test2 (seed 332, run once for the second), test3 "
+                         "(seed 333, fresh for the third); default: --pair-split's")
     ap.add_argument("--hm-scenes", nargs="+", default=None,
                     help="heightmap pairs: scenes (default: all five)")
     ap.add_argument("--buildings", type=int, default=3,

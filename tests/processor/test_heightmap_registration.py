@@ -222,3 +222,44 @@ def test_walls_correct_an_imu_up_that_is_off():
         lv = hr.level_scan(P, lab, gravity=True)
         up_est = lv.T_level_scan[2, :3]
         assert np.degrees(np.arccos(np.clip(up_est @ (R @ [0, 0, 1.0]), -1, 1))) < 0.2
+
+
+def test_structure_up_is_fused_with_the_prior_by_uncertainty():
+    """``structure_up`` in a frame whose +z is the IMU's up: walls that agree correct a prior
+    that is 0.8 deg off; walls that scatter by ~1 deg barely move a prior that is right; a
+    mislabelled plane 7 deg off (a sloped surface called wall) and a structure that alone says
+    2 deg are not trusted."""
+    from types import SimpleNamespace
+
+    from tripod_processor.scene.heightmap_registration.levelling import structure_up
+    from tripod_processor.scene.planes import FLOOR, WALL
+
+    def wall(azimuth_deg, up, n_points=10_000):
+        a = np.radians(azimuth_deg)
+        h = np.array([np.cos(a), np.sin(a), 0.0])
+        n = h - (h @ up) * up  # vertical for ``up``: n . up = 0
+        return SimpleNamespace(label=WALL, normal=n / np.linalg.norm(n),
+                               indices=np.arange(n_points))
+
+    def angle(u, v):
+        return float(np.degrees(np.arccos(np.clip(u @ v / np.linalg.norm(v), -1, 1))))
+
+    true_up = _tipped(30.0, 0.8) @ [0.0, 0.0, 1.0]  # the IMU (+z) is 0.8 deg off
+    walls = [wall(az, true_up) for az in (0, 90, 180, 270, 45, 135)]
+    assert angle(structure_up(walls), true_up) < 0.1
+    # the prior is right; the walls scatter by ~1 deg (noisy, mislabelled): little moves
+    z = np.array([0.0, 0.0, 1.0])
+    rng = np.random.default_rng(3)
+    noisy = [wall(az, _tipped(rng.uniform(0, 360), rng.uniform(0.3, 0.9)) @ z)
+             for az in (0, 90, 180, 270, 45, 135)]
+    assert angle(structure_up(noisy), z) < 0.3
+    # one sloped "wall" 7 deg off among good ones is dropped
+    sloped = wall(10.0, _tipped(100.0, 7.0) @ z, 20_000)
+    assert angle(structure_up([*walls, sloped]), true_up) < 0.1
+    # a structure that says 2 deg (the prior is right to ~1 deg): the walls that say > 1 deg
+    # are dropped, the two left (0.7 deg each, no scatter to judge them by) barely move it
+    off = _tipped(200.0, 2.0) @ z
+    assert angle(structure_up([wall(az, off) for az in (0, 90, 180, 270)]), z) < 0.1
+    # a floor tilted with the true up agrees with the walls
+    floor = SimpleNamespace(label=FLOOR, normal=true_up, indices=np.arange(20_000))
+    assert angle(structure_up([*walls, floor]), true_up) < 0.1
