@@ -332,7 +332,8 @@ def station_anchor_rotation(orient: ImuOrientation, start_ns: int, end_ns: int, 
     2. the pan angle φ_k of each sample (a direction across a_i, seen in the plane across a_w)
        is fitted by a quadratic in time over a window centred on the anchor (the longest of
        ``spans_s`` that the station holds on both sides) whose residuals are the samples' own
-       white noise: their RMS within 1.3 σ and their lag-1 autocorrelation within 3/√n (a
+       white noise: their RMS within 1.3 σ (2 σ for the shortest span) and their lag-1
+       autocorrelation within 3/√n (a
        hand's speed change or a reversal near the anchor leaves a smooth, correlated misfit
        and takes a shorter span). σ is the smaller of two estimates: from the pan angle's
        second differences (which a hand's jerks inflate) and from the tilt's scatter about a_w
@@ -399,7 +400,9 @@ def station_anchor_rotation(orient: ImuOrientation, start_ns: int, end_ns: int, 
         r = phi[sel] - A @ c
         rms = float(np.sqrt(np.mean(r**2)))
         rho1 = float(r[1:] @ r[:-1]) / max(float(r @ r), 1e-30)
-        if rms <= 1.3 * sigma and rho1 <= 3.0 / np.sqrt(n):
+        # the shortest span: a mild misfit (within 2 σ) still beats one sample's noise
+        k_rms = 2.0 if span == spans_s[-1] else 1.3
+        if rms <= k_rms * sigma and rho1 <= 3.0 / np.sqrt(n):
             phi_m = float(c[0])
             break
     if phi_m is None:  # no window fits as white noise: the pan angle where the samples put it
