@@ -39,6 +39,10 @@ class PlacementConfig(StrictModel):
     #: station, the pan angle fitted around the middle time) instead of the one slerped between
     #: two samples, whose white noise (0.05° per axis) would turn the whole station
     anchor_fit: bool = True
+    #: the fitted anchor may differ from the slerped one by at most this [deg] (the slerped
+    #: sample's noise is 0.05° per axis): else the station keeps the slerped attitude (counted
+    #: in the report's notes)
+    anchor_max_deviation_deg: float = Field(default=0.3, gt=0)
     #: search range of the time-offset estimate [s] (± this)
     time_offset_search_s: float = Field(default=0.08, gt=0)
     min_range_m: float = Field(default=0.4, ge=0)

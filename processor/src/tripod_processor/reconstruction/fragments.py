@@ -29,6 +29,9 @@ class Fragment:
     raw_points : int, points placed before the voxel filter
     intensity : (N,) float32 or None, mean reflectivity (0–255) of each point's voxel (NaN: a
         centroid on a voxel face that missed its voxel); built only when asked (survey outputs)
+    anchor : how the anchor attitude came ("slerped": not fitted; else the fit's ``outcome``,
+        :func:`~.placement.station_anchor_rotation`: "fit", "fit, pan slerped", or why the
+        slerped one was kept, e.g. "off by 0.41°")
     """
 
     station: Station
@@ -36,6 +39,7 @@ class Fragment:
     R_world_lidar: np.ndarray
     raw_points: int
     intensity: np.ndarray | None = None
+    anchor: str = "slerped"
 
     @property
     def up_in_lidar(self) -> np.ndarray:
@@ -46,7 +50,8 @@ class Fragment:
 def build_fragment(lidar: LidarPackets, station: Station, orient: ImuOrientation, ext: Extrinsic,
                    voxel_m: float, min_range: float, max_range: float,
                    num_threads: int = 0, chunk: int = 1000, max_points: int = 6_000_000,
-                   with_intensity: bool = False, anchor_fit: bool = True) -> Fragment:
+                   with_intensity: bool = False, anchor_fit: bool = True,
+                   anchor_max_deviation_deg: float = 0.3) -> Fragment:
     """Decode, place and voxel-filter one station's packets.
 
     Decodes and places the station in chunks of ``chunk`` packets, then voxel-filters all its
@@ -57,7 +62,8 @@ def build_fragment(lidar: LidarPackets, station: Station, orient: ImuOrientation
     frame is the lidar's at the IMU attitude fitted over the station's samples
     (:func:`~.placement.station_anchor_rotation`) rather than slerped at its middle time, whose
     white noise would turn the whole station; the points are placed at the slerped attitude and
-    moved rigidly onto the fitted one.
+    moved rigidly onto the fitted one. A fit more than ``anchor_max_deviation_deg`` from the
+    slerped attitude is not used (``Fragment.anchor`` says why).
     """
     parts, raw = [], 0
     key_parts = []
@@ -93,12 +99,16 @@ def build_fragment(lidar: LidarPackets, station: Station, orient: ImuOrientation
                                     np.float32(np.nan))
         else:
             intensity = np.zeros(0, np.float32)
+    how = "slerped"
     if anchor_fit:
         # x_fit = R_fitᵀ·(R_slerp·x + R_wi·ℓ − R_wi_fit·ℓ): the frame the fitted attitude gives
-        R_wi = station_anchor_rotation(orient, station.start_ns, station.end_ns, station.mid_ns)
+        info: dict = {}
+        R_wi = station_anchor_rotation(orient, station.start_ns, station.end_ns, station.mid_ns,
+                                       max_deviation_deg=anchor_max_deviation_deg, info=info)
+        how = info["outcome"]
         R_fit = R_wi @ ext.R_imu_lidar
         C = R_fit.T @ R
         o = R_fit.T @ (T[:3, 3] - R_wi @ ext.lever_arm_m)
         down = (down.astype(np.float64) @ C.T + o).astype(np.float32)
         R = R_fit
-    return Fragment(station, down, R, raw, intensity)
+    return Fragment(station, down, R, raw, intensity, how)

@@ -184,7 +184,9 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
     with _Stage(times, "fragments", len(seg.stations), quiet) as bar:
         frags = build_fragments(eng, rec.lidar, seg.stations, orient, ext, cfg.fragments.voxel_m,
                                 pc.min_range_m, pc.max_range_m, threads, survey, bar,
-                                anchor_fit=pc.anchor_fit)
+                                anchor_fit=pc.anchor_fit,
+                                anchor_max_deviation_deg=pc.anchor_max_deviation_deg)
+    notes += _anchor_notes(frags, pc.anchor_max_deviation_deg)
 
     # 6. odometry
     cache = CloudCache(cfg.odometry.point_sigma_m, threads)
@@ -223,6 +225,22 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
     outputs.write_json(out / "result.json", summary(res))
     res.files["result"] = str(out / "result.json")
     return res
+
+
+def _anchor_notes(frags: list, max_dev_deg: float) -> list[str]:
+    """One note when a station's fitted anchor was not used or its pan angle not fitted."""
+    kept = [f"{f.station.index} ({f.anchor})" for f in frags
+            if f.anchor not in ("fit", "fit, pan slerped", "slerped")]
+    pan = sum(f.anchor == "fit, pan slerped" for f in frags)
+    out = []
+    if kept:
+        out.append(f"station anchor: {len(kept)} of {len(frags)} stations kept the slerped IMU "
+                   f"attitude, the fit being more than {max_dev_deg:g}° from it: "
+                   + ", ".join(kept))
+    if pan:
+        out.append(f"station anchor: {pan} of {len(frags)} stations' pan angle not fitted (no "
+                   "window's residuals were white noise): taken from the slerped attitude")
+    return out
 
 
 def trajectory(res: ReconstructResult, orient: ImuOrientation, hz: float

@@ -314,7 +314,9 @@ class ImuOrientation:
 
 
 def station_anchor_rotation(orient: ImuOrientation, start_ns: int, end_ns: int, anchor_ns: int,
-                            spans_s: tuple[float, ...] = (1.0, 0.5, 0.25)) -> np.ndarray:
+                            spans_s: tuple[float, ...] = (1.0, 0.5, 0.25),
+                            max_deviation_deg: float = 0.3,
+                            info: dict | None = None) -> np.ndarray:
     """R_world_imu (3, 3) at ``anchor_ns`` fitted over the IMU samples of a station [start_ns,
     end_ns) instead of slerped from the two samples around it.
 
@@ -328,18 +330,35 @@ def station_anchor_rotation(orient: ImuOrientation, start_ns: int, end_ns: int, 
        samples: the tilt of the anchor (2 of its 3 angles, gravity in particular) is averaged
        over the whole station;
     2. the pan angle φ_k of each sample (a direction across a_i, seen in the plane across a_w)
-       is fitted by a quadratic in time around the anchor, over the longest of ``spans_s``
-       whose residuals match the samples' own noise (a hand's speed change or a reversal near
-       the anchor takes a shorter span); φ(anchor) is the fit's value there.
+       is fitted by a quadratic in time over a window centred on the anchor (the longest of
+       ``spans_s`` that the station holds on both sides) whose residuals are the samples' own
+       white noise: their RMS within 1.3 σ (2 σ for the shortest span) and their lag-1
+       autocorrelation within 3/√n (a
+       hand's speed change or a reversal near the anchor leaves a smooth, correlated misfit
+       and takes a shorter span). σ is the smaller of two estimates: from the pan angle's
+       second differences (which a hand's jerks inflate) and from the tilt's scatter about a_w
+       (which a swaying tripod inflates; the noise is the same on every axis). With no span
+       passing, φ(anchor) is the slerped sample's pan angle; else the fit's value there.
 
     R_m maps the IMU frame (u_i, a_i×u_i, a_i) onto the world's (u(φ), a_w×u(φ), a_w). A head
-    that does not turn fits too (a_i is then arbitrary and R_k·a_i constant). With fewer than
-    10 samples, the slerped attitude is returned.
+    that does not turn fits too (a_i is then arbitrary and R_k·a_i constant).
+
+    **Guard**: the fitted attitude must stay within ``max_deviation_deg`` of the slerped one
+    (the slerped sample's noise is 0.05° per axis: 0.3° is 6 σ); else the model does not hold
+    (the station's edge carries a part of the walk, the head wobbles on its axis) and the
+    slerped attitude is returned. It is also returned with fewer than 10 samples.
+
+    ``info``: when given, filled with ``outcome`` ("fit", "fit, pan slerped" or why the slerped
+    attitude was kept: "few samples", "off by X°"), ``deviation_deg`` (fitted vs slerped) and
+    ``sigma_deg`` (the per-axis noise estimate).
     """
+    info = {} if info is None else info
+    R_slerp = orient.rotation_at(np.array([int(anchor_ns)]))[0]
     t = orient.t_ns
     i0, i1 = np.searchsorted(t, [int(start_ns), int(end_ns)])
     if i1 - i0 < 10 or not (t[i0] <= anchor_ns <= t[i1 - 1]):
-        return orient.rotation_at(np.array([int(anchor_ns)]))[0]
+        info.update(outcome="few samples", deviation_deg=0.0, sigma_deg=float("nan"))
+        return R_slerp
     ts = t[i0:i1]
     R = Rotation.from_quat(orient._q[i0:i1][:, [1, 2, 3, 0]])
     Rm = R.as_matrix()
@@ -349,8 +368,12 @@ def station_anchor_rotation(orient: ImuOrientation, start_ns: int, end_ns: int, 
     v = (R[:-s].inv() * R[s:]).as_rotvec()
     _, V = np.linalg.eigh(v.T @ v)
     a_i = V[:, -1]
-    a_w = (Rm @ a_i).mean(axis=0)
+    A_w = Rm @ a_i  # (K, 3) the pan axis seen by every sample
+    a_w = A_w.mean(axis=0)
     a_w /= np.linalg.norm(a_w)
+    # the tilt's scatter about a_w: 2 axes of white noise, a Rayleigh angle (median 1.1774 σ)
+    tilt = np.arccos(np.clip(A_w @ a_w, -1.0, 1.0))
+    sigma_tilt = float(np.median(tilt)) / 1.1774
     # 2. pan angles about a_w of a direction across a_i
     u_i = np.cross(a_i, [1.0, 0.0, 0.0] if abs(a_i[0]) < 0.9 else [0.0, 1.0, 0.0])
     u_i /= np.linalg.norm(u_i)
@@ -360,26 +383,41 @@ def station_anchor_rotation(orient: ImuOrientation, start_ns: int, end_ns: int, 
     d = Rm @ u_i
     phi = np.unwrap(np.arctan2(d @ e2, d @ e1))
     x = (ts - int(anchor_ns)).astype(np.float64) * 1e-9  # [s]
-    # the samples' own noise from second differences (a turn's rate changes far less in 10 ms)
+    # the samples' own noise: second differences (a steady turn's rate changes far less in
+    # 10 ms; a hand's jerk does not) and the tilt's scatter
     dd = np.diff(phi, 2)
-    sigma = 1.4826 * float(np.median(np.abs(dd - np.median(dd)))) / np.sqrt(6.0) + 1e-12
-    phi_m = None
+    sigma_dd = 1.4826 * float(np.median(np.abs(dd - np.median(dd)))) / np.sqrt(6.0)
+    sigma = min(sigma_dd, sigma_tilt) + 1e-12
+    half_max = min(-float(x[0]), float(x[-1]))  # a window the station holds on both sides
+    phi_m, how = None, "fit"
     for span in spans_s:
-        sel = np.abs(x) <= 0.5 * span
-        if sel.sum() < 7:
+        sel = np.abs(x) <= min(0.5 * span, half_max)
+        n = int(sel.sum())
+        if n < 7:
             continue
-        A = np.stack([np.ones(int(sel.sum())), x[sel], x[sel] ** 2], axis=1)
+        A = np.stack([np.ones(n), x[sel], x[sel] ** 2], axis=1)
         c, *_ = np.linalg.lstsq(A, phi[sel], rcond=None)
-        rms = float(np.sqrt(np.mean((phi[sel] - A @ c) ** 2)))
-        phi_m = float(c[0])
-        if rms <= 1.3 * sigma:
+        r = phi[sel] - A @ c
+        rms = float(np.sqrt(np.mean(r**2)))
+        rho1 = float(r[1:] @ r[:-1]) / max(float(r @ r), 1e-30)
+        # the shortest span: a mild misfit (within 2 σ) still beats one sample's noise
+        k_rms = 2.0 if span == spans_s[-1] else 1.3
+        if rms <= k_rms * sigma and rho1 <= 3.0 / np.sqrt(n):
+            phi_m = float(c[0])
             break
-    if phi_m is None:
-        return orient.rotation_at(np.array([int(anchor_ns)]))[0]
+    if phi_m is None:  # no window fits as white noise: the pan angle where the samples put it
+        phi_m, how = float(np.interp(0.0, x, phi)), "fit, pan slerped"
     u_w = np.cos(phi_m) * e1 + np.sin(phi_m) * e2
     B_i = np.stack([u_i, np.cross(a_i, u_i), a_i], axis=1)
     B_w = np.stack([u_w, np.cross(a_w, u_w), a_w], axis=1)
-    return B_w @ B_i.T
+    R_fit = B_w @ B_i.T
+    dev = float(np.degrees(Rotation.from_matrix(R_slerp.T @ R_fit).magnitude()))
+    info.update(deviation_deg=dev, sigma_deg=float(np.degrees(sigma)))
+    if not dev <= max_deviation_deg:
+        info["outcome"] = f"off by {dev:.2f}°"
+        return R_slerp
+    info["outcome"] = how
+    return R_fit
 
 
 def pose_world_lidar(orient: ImuOrientation, ext: Extrinsic, t_ns) -> np.ndarray:

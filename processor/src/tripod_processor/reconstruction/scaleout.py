@@ -53,14 +53,16 @@ def _threaded_map(fn, calls: list[tuple], workers: int, step=None) -> list:
 def _fragment_task(payload: np.ndarray, lidar_ns: np.ndarray, return_mode: str,
                    station: Station, orient: ImuOrientation, ext: Extrinsic, voxel_m: float,
                    min_range: float, max_range: float, num_threads: int,
-                   with_intensity: bool, anchor_fit: bool = True) -> Fragment:
+                   with_intensity: bool, anchor_fit: bool = True,
+                   anchor_max_deviation_deg: float = 0.3) -> Fragment:
     """One station's fragment from its own packets (``payload``, ``lidar_ns``: the station's
     slice; ``station`` with its original packet indices)."""
     n = len(lidar_ns)
     lidar = LidarPackets(np.zeros(n, np.int64), lidar_ns, payload, return_mode)
     local = Station(station.index, station.start_ns, station.end_ns, 0, n, station.label)
     frag = build_fragment(lidar, local, orient, ext, voxel_m, min_range, max_range, num_threads,
-                          with_intensity=with_intensity, anchor_fit=anchor_fit)
+                          with_intensity=with_intensity, anchor_fit=anchor_fit,
+                          anchor_max_deviation_deg=anchor_max_deviation_deg)
     frag.station = station
     return frag
 
@@ -68,7 +70,8 @@ def _fragment_task(payload: np.ndarray, lidar_ns: np.ndarray, return_mode: str,
 def build_fragments(engine, lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
                     ext: Extrinsic, voxel_m: float, min_range: float, max_range: float,
                     num_threads: int = 0, with_intensity: bool = False, progress=None,
-                    anchor_fit: bool = True) -> list[Fragment]:
+                    anchor_fit: bool = True,
+                    anchor_max_deviation_deg: float = 0.3) -> list[Fragment]:
     """:func:`~.fragments.build_fragment` for every station, in station order. ``progress``: a
     bar (``update(1)`` per station)."""
     step = (lambda _k: progress.update(1)) if progress is not None else None
@@ -81,7 +84,8 @@ def build_fragments(engine, lidar: LidarPackets, stations: list[Station], orient
 
         def one(st: Station) -> Fragment:
             return build_fragment(lidar, st, orient, ext, voxel_m, min_range, max_range,
-                                  inner, with_intensity=with_intensity, anchor_fit=anchor_fit)
+                                  inner, with_intensity=with_intensity, anchor_fit=anchor_fit,
+                                  anchor_max_deviation_deg=anchor_max_deviation_deg)
 
         calls = [(st,) for st in stations]
         if workers == 1:
@@ -90,7 +94,8 @@ def build_fragments(engine, lidar: LidarPackets, stations: list[Station], orient
     h_orient, h_ext = engine.put(orient), engine.put(ext)
     calls = [(lidar.payload[st.packet_start:st.packet_stop],
               lidar.lidar_ns[st.packet_start:st.packet_stop], lidar.return_mode, st, h_orient,
-              h_ext, voxel_m, min_range, max_range, num_threads, with_intensity, anchor_fit)
+              h_ext, voxel_m, min_range, max_range, num_threads, with_intensity, anchor_fit,
+              anchor_max_deviation_deg)
              for st in stations]
     return engine.map(_fragment_task, calls, step)
 
