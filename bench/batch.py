@@ -180,8 +180,9 @@ def building(args, con) -> None:
          f"{ev['links_kept']} / {ev['true_links_found']} / {ev['false_links']} / "
          f"{ev['weak_links_kept']}"),
         ("link recall / precision", f"{ev['link_recall']:.3f} / {ev['link_precision']:.3f}"),
-        ("recording pairs joined / all",
-         f"{ms['recording_pairs_joined']} / {len(ms['recording_pairs'])}"),
+        ("recording pairs joined / all (of them by proximity)",
+         f"{ms['recording_pairs_joined']} / {len(ms['recording_pairs'])} "
+         f"({ms.get('recording_pairs_proximity', 0)})"),
         ("recording pairs shortlisted / left out (true pairs left out)",
          f"{ms['recording_pairs_shortlisted']} / {ms['recording_pairs_left_out']} "
          f"({lost_true})"),
@@ -235,6 +236,8 @@ def detail_tables(con, ev: dict) -> None:
             joined = f"left out ({x.get('score', 0):.2f})"
         if tw.get("ambiguous"):
             joined = "ambiguous"
+        if x.get("accepted") == "proximity":  # the proximity pass linked it after all
+            joined = f"proximity (was {joined})"
         err = (f"{x['hyp_err_m']:.2f} / {x['hyp_err_deg']:.2f}" if "hyp_err_m" in x else "-")
         sc = ", ".join(f"{k}: {v:.2f}" for k, v in tw.get("scores", {}).items())
         p.add_row(ab.replace("|", " x "), joined, err, str(x["true_links"]), str(x["kept"]),

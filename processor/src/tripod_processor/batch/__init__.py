@@ -65,7 +65,8 @@ def batch_reconstruct(recs: list[BatchRecording], outdir: str | Path, cfg, *, wo
             meta["merge"] = {"folder": str(res.merge.outdir), "wall_s": time.perf_counter() - t1,
                              **{k: summ[k] for k in ("stations", "merged_stations", "components",
                                                      "links_kept", "recording_pairs_joined",
-                                                     "recording_pairs_left_out")}}
+                                                     "recording_pairs_left_out",
+                                                     "recording_pairs_proximity")}}
         else:
             res.notes.append("merge: no finished recording to merge")
     write_index(outdir, res.outcomes, meta)

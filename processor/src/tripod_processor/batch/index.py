@@ -51,6 +51,9 @@ def write_index(outdir: Path, outcomes: list[dict], meta: dict) -> dict[str, Pat
                 f"{m['links_kept']} links; {len(comps)} component(s)")
         if m.get("recording_pairs_left_out"):
             text += f"; {m['recording_pairs_left_out']} recording pairs left out by the shortlist"
+        if m.get("recording_pairs_proximity"):
+            text += (f"; {m['recording_pairs_proximity']} recording pairs linked by proximity "
+                     f"(from the merged estimate)")
         merged_md = f"{text}: [report]({rel})\n\n"
         merged_html = f'<p>{html.escape(text)}: <a href="{html.escape(rel)}">report</a></p>'
     md = ["# tripod batch", "", head, "", merged_md + "| " + " | ".join(COLUMNS) + " |",

@@ -54,7 +54,8 @@ def merge_table(mres):
     s = merge_summary(mres)
     t = Table(title=f"merged model ({mres.outdir}): {s['links_kept']} links between recordings, "
                     f"{s['recording_pairs_joined']} recording pairs joined "
-                    f"({s['recording_pairs_left_out']} left out by the shortlist), "
+                    f"({s['recording_pairs_proximity']} by proximity; "
+                    f"{s['recording_pairs_left_out']} left out by the shortlist), "
                     f"{s['processing_s']:.1f} s", header_style="bold")
     for c in ("component", "recordings", "stations", "folder"):
         t.add_column(c, justify="right" if c in ("component", "stations") else "left")

@@ -18,7 +18,8 @@ Steps, for every pair of recordings (A, B):
    its ``shortlist_k`` best partners by the pair's overlap score (:func:`pair_score`), plus
    the recordings before and after it in capture time, and only those pairs go on to the
    steps below (they cost ~90 % of the merge and grow with the square of the recordings);
-   a pair left out is counted in ``result.json`` and the report, never joined;
+   a pair left out is counted in ``result.json`` and the report, never joined by its
+   hypothesis (the proximity pass, 3a, may still link it);
 2. **verification, like loop closures**: B's stations placed by a hypothesis; the station pairs
    whose fragments would overlap there (share of coarse points within ``overlap_distance_m``
    of the other, at least ``min_overlap``) are registered from that guess (coarse-to-fine
@@ -45,6 +46,13 @@ Steps, for every pair of recordings (A, B):
 3. **one pose graph** per group of joined recordings: every station a node (starting where the
    links put its recording), the recordings' own edges (their ``pose_graph.g2o``), the links
    (robust, rejectable like loops), IMU gravity priors; links the graph rejects are dropped;
+3a. **the proximity pass** (loop closure by proximity, ``proximity_links``): every pair of
+   recordings of one group without a kept link (left out by the shortlist, unjoined by the
+   cycle check, ambiguous, no hypothesis) is searched from the T_A_B the optimised graph
+   implies, with the same candidates and verification as step 2, each link also within
+   ``guess_radius_m`` / 5 deg of the stations' merged relative pose; the links found are added
+   and the group's graph optimised once more (``accepted == "proximity"``). Only pairs inside
+   one group: two groups are never joined this way;
 4. **outputs**: the largest group is the merged model (map, ``stations.tum`` with every
    station of it in lidar time, ``stations.csv``, ``links.csv``, ``pose_graph.g2o``,
    ``report.md``, ``result.json``, ``config.yaml``); a recording that links to nothing, or a
@@ -133,12 +141,21 @@ class MergeConfig(StrictModel):
     #: score (:func:`pair_score`; a pair stays when either of its recordings keeps it), and
     #: only those pairs are verified, linked and twin-checked (the steps that cost ~90 % and
     #: grow with the square of the recordings). Buildings of <= k + 1 recordings keep every
-    #: pair; 0: every pair. A pair left out is counted in result.json and the report
+    #: pair; 0: every pair. A pair left out is counted in result.json and the report (the
+    #: proximity pass may still link it)
     shortlist_k: int = Field(default=4, ge=0)
     #: also keep the pairs of recordings adjacent in capture time (by their first station):
     #: a recording usually starts where the one before stopped; these may get the heightmap
     #: hypothesis when the global one found nothing (N - 1 pairs)
     shortlist_time_neighbours: bool = True
+    #: the proximity pass (loop closure by proximity): once each component is placed and
+    #: optimised, every pair of its recordings without a kept link (left out by the shortlist,
+    #: unjoined by the cycle check, ambiguous, or no hypothesis) is searched for links from the
+    #: transform the merged estimate implies between them (the same candidates, verification
+    #: and free-space checks as a hypothesis'; a link must also agree with the merged estimate
+    #: within ``guess_radius_m`` / 5 deg); the links found are added and the component's pose
+    #: graph optimised once more. Never joins two components
+    proximity_links: bool = True
     num_threads: int = Field(default=0, ge=0)
 
 
@@ -740,6 +757,10 @@ class PairOutcome:
     #: left out is neither verified nor joined)
     score: float = 0.0
     shortlisted: bool = True
+    #: the proximity pass, when it searched the pair: {"candidates": station pairs,
+    #: "verified": links verified and agreeing with the merged estimate, "kept": those the
+    #: re-optimised graph kept}; a pair it joined has ``accepted == "proximity"``
+    proximity: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -906,6 +927,33 @@ def merge_recordings(outdirs: list, outdir: str | os.PathLike, cfg: MergeConfig 
                 T_ws[r] = res[0][r]
             converged[c] = res[1]
             graphs[c] = res[2]
+    # 3a. the proximity pass: pairs of recordings inside one component without a kept link,
+    #     searched from the transform the merged estimate implies between them
+    if cfg.proximity_links:
+        with _Timer(times, "proximity"):
+            for c in range(len(order)):
+                members = [int(r) for r in np.flatnonzero(component == c)]
+                if len(members) < 2:
+                    continue
+                found = proximity_pass(recs, cache, coarse, members, T_ws, links, pairs, cfg)
+                if not found:
+                    continue
+                links += found
+                res = _optimize(recs, members, None, [lk for lk in links if lk.A in members],
+                                scfg, cfg.num_threads, init={r: T_ws[r] for r in members})
+                for r in members:
+                    T_ws[r] = res[0][r]
+                converged[c] = res[1]
+                graphs[c] = res[2]
+            for po in pairs:
+                if not po.proximity:
+                    continue
+                po.proximity["kept"] = sum(lk.kept for lk in links if (lk.A, lk.B) ==
+                                           (po.A, po.B) and lk.source == "proximity")
+                if po.proximity["kept"]:
+                    po.accepted = "proximity"
+                    notes.append(f"{recs[po.A].name} - {recs[po.B].name}: joined by proximity "
+                                 f"({po.proximity['kept']} links from the merged estimate)")
     for po in pairs:
         if not po.accepted:
             continue
@@ -919,6 +967,56 @@ def merge_recordings(outdirs: list, outdir: str | os.PathLike, cfg: MergeConfig 
     with _Timer(times, "outputs"):
         _write_outputs(mres, graphs, cfg)
     return mres
+
+
+def implied_transform(T_rec: np.ndarray, T_comp: np.ndarray) -> np.ndarray:
+    """T_component_recording that best maps a recording's stations (``T_rec``, (N, 4, 4) in its
+    own map) onto where the merged graph put them (``T_comp``, (N, 4, 4)): the rotation the mean
+    of the stations' (projected onto SO(3)), the translation the least-squares one of their
+    positions under it."""
+    M = np.einsum("nij,nkj->ik", T_comp[:, :3, :3], T_rec[:, :3, :3])  # sum R_comp R_rec^T
+    U, _, Vt = np.linalg.svd(M)
+    R = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    out = np.eye(4)
+    out[:3, :3] = R
+    out[:3, 3] = (T_comp[:, :3, 3] - T_rec[:, :3, 3] @ R.T).mean(axis=0)
+    return out
+
+
+def proximity_pass(recs, cache, coarse, members: list[int], T_ws: list[np.ndarray],
+                   links: list[Link], pairs: list[PairOutcome], cfg: MergeConfig
+                   ) -> list[Link]:
+    """Loop closure by proximity inside one placed, optimised component (its ``members``,
+    their stations at ``T_ws[r]`` in the component's frame): for every pair of members without
+    a kept link, H = the T_A_B the merged estimate implies (:func:`implied_transform` of each);
+    its candidate station pairs (:func:`candidate_pairs`) registered and verified like a
+    hypothesis' (:func:`verify_link`: fitness, within ``guess_radius_m`` / 5 deg of H's guess,
+    free space), the ``probe_links`` best first (none verified: the pair is left); a link is
+    kept only when it also agrees with the two stations' merged relative pose (the same
+    tolerance). Returns the new links (source ``"proximity"``); records each searched pair's
+    counts in ``PairOutcome.proximity``."""
+    by_pair = {(p.A, p.B): p for p in pairs}
+    T_c = {r: implied_transform(recs[r].T, T_ws[r]) for r in members}
+    out: list[Link] = []
+    for i, A in enumerate(members):
+        for B in members[i + 1:]:
+            if any(lk.kept and (lk.A, lk.B) == (A, B) for lk in links):
+                continue
+            H = inv(T_c[A]) @ T_c[B]
+            cands = candidate_pairs(recs, coarse, A, B, H, cfg)
+            got = []
+            for n, (ov, a, b) in enumerate(cands):
+                if n == cfg.probe_links and not got:
+                    break  # none of the best candidates verifies: the estimate is off here
+                ok, T, info, fit, rmse, _ = verify_link(recs, cache, coarse, A, a, B, b, H, cfg)
+                merged = inv(T_ws[A][a]) @ T_ws[B][b]
+                if ok and _close(merged, T, cfg.guess_radius_m, 5.0):
+                    got.append(Link(A, a, B, b, T, info, fit, rmse, ov, "proximity"))
+            po = by_pair.get((A, B))
+            if po is not None:
+                po.proximity = {"candidates": len(cands), "verified": len(got), "kept": 0}
+            out += got
+    return out
 
 
 def _labels(maps, num_threads):
@@ -963,16 +1061,18 @@ def _place_recordings(members: list[int], accepted: dict) -> dict[int, np.ndarra
     return T
 
 
-def _optimize(recs, members, T_rec, links, scfg, num_threads):
-    """One pose graph over the members' stations; returns ({rec: T (N, 4, 4)}, converged,
-    (graph, result, node table)). Links the graph rejects are marked ``kept = False``."""
+def _optimize(recs, members, T_rec, links, scfg, num_threads, init=None):
+    """One pose graph over the members' stations, each node starting at its recording's
+    station placed by ``T_rec[r]`` (T_component_recording), or at ``init[r][k]`` when given;
+    returns ({rec: T (N, 4, 4)}, converged, (graph, result, node table)). Links the graph
+    rejects are marked ``kept = False``."""
     graph = pg.PoseGraph()
     base = {}
     table = []
     for r in members:
         base[r] = len(graph.T_world_node)
         for k in range(len(recs[r].t_ns)):
-            graph.add_node(T_rec[r] @ recs[r].T[k])
+            graph.add_node(init[r][k] if init is not None else T_rec[r] @ recs[r].T[k])
             table.append((r, k))
         for e in recs[r].edges:
             graph.add_edge(pg.Edge(base[r] + e.i, base[r] + e.j, e.T_i_j, e.information, e.kind))
@@ -1096,10 +1196,12 @@ def merge_summary(mres: MergeResult) -> dict:
         "recording_pairs_joined": int(sum(bool(p.accepted) for p in mres.pairs)),
         "recording_pairs_shortlisted": int(sum(p.shortlisted for p in mres.pairs)),
         "recording_pairs_left_out": int(sum(not p.shortlisted for p in mres.pairs)),
+        "recording_pairs_proximity": int(sum(p.accepted == "proximity" for p in mres.pairs)),
         "recording_pairs": [{"a": recs[p.A].name, "b": recs[p.B].name,
                              "score": round(p.score, 4), "shortlisted": p.shortlisted,
                              "tried": p.tried,
                              "accepted": p.accepted, "links": p.links, "twin": p.twin,
+                             "proximity": p.proximity,
                              "T_a_b": None if p.T_A_B is None else
                              np.round(p.T_A_B, 6).tolist()}
                             for p in mres.pairs],
@@ -1124,7 +1226,9 @@ def merge_report(mres: MergeResult, summ: dict) -> str:
           f"({summ['links_verified']} verified); {len(summ['components'])} component(s); "
           f"{summ['processing_s']:.1f} s; {summ['recording_pairs_shortlisted']} of "
           f"{len(mres.pairs)} recording pairs shortlisted, "
-          f"{summ['recording_pairs_left_out']} left out", "",
+          f"{summ['recording_pairs_left_out']} left out; "
+          f"{summ['recording_pairs_joined']} joined, {summ['recording_pairs_proximity']} of "
+          f"them by proximity", "",
           "## Components", "", "| component | recordings | stations | folder |", "|---|---|---|---|"]
     for c in summ["components"]:
         folder = "." if c["component"] == 0 else f"component-{c['component']}/"
@@ -1141,7 +1245,9 @@ def merge_report(mres: MergeResult, summ: dict) -> str:
            "verified probes); the accepted one and "
            "its kept links; the twin check (score of the hypothesis and of its twins turned by "
            "180/90/270 deg or shifted along a repeated structure (m@axis yaw); runner-up / "
-           "winner; ambiguous pairs are not joined).", "",
+           "winner; ambiguous pairs are not joined by their hypothesis). *proximity*: a pair "
+           "without links of its own, linked from the merged estimate (candidates / verified / "
+           "kept).", "",
            "| a | b | score | hypotheses | accepted | links | twins |",
            "|---|---|---|---|---|---|---|"]
     for p in mres.pairs:
@@ -1156,9 +1262,12 @@ def merge_report(mres: MergeResult, summ: dict) -> str:
         if p.twin.get("cycle"):
             tw.append("**breaks cycles**")
         tw = "; ".join(tw) or "–"
+        acc = p.accepted or "–"
+        if p.proximity:
+            acc = (f"{acc} ({p.proximity['candidates']} / {p.proximity['verified']} / "
+                   f"{p.proximity['kept']})")
         ln.append(f"| {recs[p.A].name} | {recs[p.B].name} | {p.score:.2f} | {tried} | "
-                  f"{p.accepted or '–'} | "
-                  f"{p.links} | {tw} |")
+                  f"{acc} | {p.links} | {tw} |")
     cpu = summ["stage_cpu_s"]
     ln += ["", "## Stages", "", "| stage | wall s | CPU s |", "|---|---|---|"]
     ln += [f"| {k} | {v:.1f} | {cpu.get(k, 0.0):.1f} |" for k, v in summ["stage_s"].items()]
