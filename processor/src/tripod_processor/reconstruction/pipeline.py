@@ -235,8 +235,8 @@ def _anchor_notes(frags: list, max_dev_deg: float) -> list[str]:
     out = []
     if kept:
         out.append(f"station anchor: {len(kept)} of {len(frags)} stations kept the slerped IMU "
-                   f"attitude, the fit being more than {max_dev_deg:g}° from it: "
-                   + ", ".join(kept))
+                   f"attitude (too few IMU samples, or the fit more than {max_dev_deg:g}° from "
+                   "it): " + ", ".join(kept))
     if pan:
         out.append(f"station anchor: {pan} of {len(frags)} stations' pan angle not fitted (no "
                    "window's residuals were white noise): taken from the slerped attitude")

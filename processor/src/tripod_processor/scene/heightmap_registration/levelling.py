@@ -85,10 +85,10 @@ def structure_up(planes, *, prior_sigma_deg: float = 0.25, min_sigma_deg: float 
         # the structure alone (a weak pull to the prior keeps an unconstrained direction there)
         ab_s = np.linalg.solve(N + 1e-6 * np.eye(2), Ak.T @ (wk * yk))
         dof = len(yk) - 2  # planes (rows) beyond the two unknowns; weights of mean 1
-        r2 = (float((wk * (Ak @ ab_s - yk) ** 2).sum() / dof) if dof > 0
-              else np.inf)
-        s2 = max(r2, np.radians(min_sigma_deg) ** 2)
-        if not np.isfinite(s2):  # too few planes to tell how far they agree: the prior wins
+        if dof > 0:
+            r2 = float((wk * (Ak @ ab_s - yk) ** 2).sum() / dof)
+            s2 = max(r2, np.radians(min_sigma_deg) ** 2)
+        else:  # too few planes to tell how far they agree: the prior wins
             s2 = np.radians(1.0) ** 2
         ab = np.linalg.solve(N / s2 + prior_info * np.eye(2), Ak.T @ (wk * yk) / s2)
         keep = np.abs(A @ ab_s - y) < np.radians(outlier_deg)
