@@ -20,6 +20,7 @@ from sim_fixtures import make_rig_capture
 from tripod_processor.reconstruction import evaluation as ev
 from tripod_processor.reconstruction.calibration import (max_pair_turn_deg, self_calibrate,
                                                          time_offset_from_turns)
+from tripod_processor.reconstruction.config import CalibrationConfig
 from tripod_processor.reconstruction.inputs import read_recording
 from tripod_processor.reconstruction.placement import Extrinsic, ImuOrientation, fit_clock_map
 from tripod_processor.reconstruction.stations import Station
@@ -83,7 +84,8 @@ def test_time_offset_from_every_stations_turns(capture):
     err_ms = (est.offset_ns - t_true) * 1e-6
     assert est.pairs >= 6, est
     assert abs(err_ms) < 1.0, (name, est, err_ms)
-    assert abs(err_ms) < 3 * est.sigma_ms + 0.1 and est.sigma_ms < 1.0, (name, est, err_ms)
+    assert abs(err_ms) < 3 * est.sigma_ms + 0.1, (name, est, err_ms)
+    assert est.sigma_ms < CalibrationConfig().max_turns_time_offset_sigma_ms  # applied
 
 
 def test_lever_arm_and_offset_jointly(capture):
