@@ -25,7 +25,10 @@ counted as a false success.
 Splits (:data:`SPLITS`): ``dev`` (seed 301, pair draw 0) and ``dev2`` (seed 302, draw 2) are
 looked at while developing; ``test`` (seed 331, draw 1) was run once for the first reported
 figure and ``test2`` (seed 332, draw 3) once for the second; ``test3`` (seed 333, draw 5) is
-fresh for the third figure; ``--fragments-only`` makes a split's captures and fragments without
+fresh for the third figure; ``dev3`` (seed 303, draw 6) and ``dev4`` (seed 304, draw 8) were added for the choice between a
+pose and its turned twin, and ``test4`` (seed 334, draw 7) is fresh for the fourth figure;
+``--seed S`` (with ``--draw D``, default 9) names any other split by its capture seed, for a
+fresh test split after that. ``--fragments-only`` makes a split's captures and fragments without
 registering anything. Pairs under 30 % true overlap are left out (neither registered nor
 counted; the bench prints how many). Captures and fragments are cached under
 ``.cache/scene_data/hm_pairs``.
@@ -59,8 +62,10 @@ STATIONS = 4
 #: fresh one (test: seed 331, run once for issue 18's first figure; test2: seed 332, fresh for
 #: the second)
 SPLITS = {"dev": (301, 0), "dev2": (302, 2), "test": (331, 1), "test2": (332, 3),
-          "test3": (333, 5)}  # test3: fresh for the third figure (uncertainty-fused levelling)
-DEV_SPLITS = ("dev", "dev2")
+          "test3": (333, 5),  # test3: fresh for the third figure (uncertainty-fused levelling)
+          "dev3": (303, 6), "dev4": (304, 8),  # dev3, dev4: development of the twin choice
+          "test4": (334, 7)}  # test4: fresh for the fourth figure (the twin choice)
+DEV_SPLITS = ("dev", "dev2", "dev3", "dev4")
 
 
 def rot_err_deg(R) -> float:
@@ -116,7 +121,8 @@ def _about(axis, angle: float) -> np.ndarray:
     return Rotation.from_rotvec(a / np.linalg.norm(a) * angle).as_matrix()
 
 
-def pairs(split: str, rigs=tuple(RIGS), scenes=SCENES, left_out: list | None = None):
+def pairs(split: str, rigs=tuple(RIGS), scenes=SCENES, left_out: list | None = None,
+          min_overlap: float = 0.3):
     """Yields (name, rig, scene, target, source, up_tgt, up_src, T_true, overlap, vp_tgt,
     vp_src) for the overlapping fragment pairs of every rig and scene of the split; the pairs
     under 30 % true overlap are not registered and not counted (appended to ``left_out`` as
@@ -140,7 +146,7 @@ def pairs(split: str, rigs=tuple(RIGS), scenes=SCENES, left_out: list | None = N
             for i in range(len(pts)):
                 for j in range(i + 1, len(pts)):
                     ov = float((trees[i].query(world[j], distance_upper_bound=0.1)[0] < 0.1).mean())
-                    if ov < 0.3 or ups[i] is None or ups[j] is None:
+                    if ov < min_overlap or ups[i] is None or ups[j] is None:
                         if left_out is not None:
                             left_out.append((f"{rig} {scene} {i}-{j}", ov))
                         continue
@@ -233,6 +239,9 @@ def bench_heightmap_pairs(split: str = "test", quick: bool = False, with_up: boo
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--split", choices=sorted(SPLITS), default="test")
+    ap.add_argument("--seed", type=int, default=None,
+                    help="a split named by its capture seed (overrides --split): split 'seedS'")
+    ap.add_argument("--draw", type=int, default=9, help="the pair draw of a --seed split")
     ap.add_argument("--quick", action="store_true", help="two scenes only")
     ap.add_argument("--no-up", action="store_true", help="ignore the up the files carry")
     ap.add_argument("--rigs", nargs="+", choices=list(RIGS), default=list(RIGS))
@@ -240,6 +249,9 @@ def main(argv=None) -> int:
     ap.add_argument("--fragments-only", action="store_true",
                     help="simulate and reconstruct the split's captures (cached), register nothing")
     a = ap.parse_args(argv)
+    if a.seed is not None:
+        a.split = f"seed{a.seed}"
+        SPLITS[a.split] = (a.seed, a.draw)
     if a.fragments_only:
         for rig in a.rigs:
             for scene in a.scenes or SCENES:

@@ -191,10 +191,15 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
     if twins:
         t1 = time.perf_counter()
         tight = 0.5 * max_distance
-        twin_amb, twin_list = _twins(ls, lt, check, T, fitness, rmse, fp, fine_step_deg,
-                                     coarse_step_deg, tight, free_space_weight, other_weight,
-                                     seed)
-        stages["twins"] = time.perf_counter() - t1
+        cands = _candidates(ls, lt, check, T, checked, fp, fine_step_deg, coarse_step_deg,
+                            other_weight, seed)
+        stages["candidates"] = time.perf_counter() - t1
+        t1 = time.perf_counter()
+        k, twin_amb, twin_list = choose(check, cands, tight)
+        if k:  # a turned twin or a runner-up explains both scans clearly better
+            T, fitness, rmse = cands[k][2], cands[k][3], cands[k][4]
+            who = f"{cands[k][0]} (chosen)"
+        stages["choice"] = time.perf_counter() - t1
     sfit = check.structure_fitness(T)
     viol = check.free_space_violation(T)
     ok = (sfit >= min_fitness and viol <= max_violation and ambiguity <= max_ambiguity
@@ -248,6 +253,65 @@ def _twins(ls, lt, check, T, fitness, rmse, fp: float, fine_step_deg: float,
     else:
         amb = max(0.0, best_twin / own)
     return float(min(amb, 10.0)), [(c[0], c[1], c[4]) for c in cand]
+
+
+def _candidates(ls, lt, check, T, checked, fp: float, fine_step_deg: float,
+                coarse_step_deg: float, other_weight: float, seed: int, peaks: int = 3) -> list:
+    """The answer ``T`` and the poses it could be confused with, each finished like it
+    (polished, final ICP): its turned twins (:data:`TWIN_TURNS_DEG`; the dense correlation over
+    yaws within a coarse step of the answer's yaw + the turn, the ``peaks`` best distinct shifts
+    of each, refined at the fine pixel and yaw step) and the verification's two best distinct
+    runners-up. Returns [(label, turn [deg], T, fitness, rmse)], the answer first, no two the
+    same pose."""
+    M = lt.T_level_scan @ T @ np.linalg.inv(ls.T_level_scan)
+    yaw0 = float(np.arctan2(M[1, 0], M[0, 0]))
+    cands = [("answer", 0.0, T, float("nan"), float("nan"))]
+    offs = np.deg2rad(np.arange(-coarse_step_deg, coarse_step_deg + 1e-9, fine_step_deg))
+
+    def add(label, turn, T0):
+        T1, fit, rmse = check.final(check.polish(T0))
+        if not any(_same_pose(T1, c[2]) for c in cands):
+            cands.append((label, turn, T1, fit, rmse))
+
+    for turn in TWIN_TURNS_DEG:
+        for _, yaw, shift in _search(ls, lt, yaw0 + np.deg2rad(turn) + offs, fp, seed=seed,
+                                     other_weight=other_weight, keep=peaks, shifts=peaks):
+            add(f"twin {turn:.0f}", turn, _lift(ls, lt, yaw, shift))
+    runners = [c for c in checked[1:] if not _same_pose(c[3], T)][:2]
+    for c in runners:
+        M2 = lt.T_level_scan @ c[3] @ np.linalg.inv(ls.T_level_scan)
+        turn = float(np.degrees(np.arctan2(M2[1, 0], M2[0, 0]) - yaw0)) % 360.0
+        add("runner-up", turn, c[3])
+    return cands
+
+
+def choose(check, cands: list, tight: float, wall_weight: float = 1.0,
+           other_weight: float = 1.0, free_space_weight: float = 10.0
+           ) -> tuple[int, float, list]:
+    """Choose among near-symmetric candidates (:func:`_candidates`, the answer first) by their
+    full 3-D consistency (:meth:`_Verifier.consistency`): score = walls' and furniture's shares
+    within ``tight`` of the other scan's surface, less ``free_space_weight`` x their shares the
+    other scan saw through (each class weighted: the shell fits its twin, the furniture does
+    not). Returns (index of the chosen candidate, ambiguity: the best other candidate's score
+    over the chosen one's (~1 when two distinct poses explain the scans equally), [(turn, T,
+    score, features)] of every candidate in their order (the answer first)."""
+    scored = []
+    for label, turn, T, _, _ in cands:
+        f = check.consistency(T, tight)
+        score = (wall_weight * (f["fit_wall"] - free_space_weight * f["viol_wall"])
+                 + other_weight * (f["fit_other"] - free_space_weight * f["viol_other"]))
+        scored.append((score, f))
+    k = int(np.argmax([s for s, _ in scored]))
+    own = scored[k][0]
+    rest = [s for i, (s, _) in enumerate(scored) if i != k]
+    best_other = max(rest, default=None)
+    if best_other is None:
+        amb = 0.0
+    elif own <= 0:
+        amb = 1.0
+    else:
+        amb = max(0.0, best_other / own)
+    return k, float(min(amb, 10.0)), [(c[1], c[2], sc[0], sc[1]) for c, sc in zip(cands, scored)]
 
 
 def _register_levelled(source, target, source_up, target_up, viewpoint_source, viewpoint_target,

@@ -57,11 +57,12 @@ class _RangeImage:
         j = np.minimum((el / self.step).astype(np.int64), self.shape[1] - 1)
         return i, j, r
 
-    def seen_through(self, P) -> np.ndarray:
-        """(N,) bool: the point lies clearly in front of the nearest return in its direction."""
+    def seen_through(self, P, rel: float = 0.95, margin_m: float = 0.10) -> np.ndarray:
+        """(N,) bool: the point lies clearly in front of the nearest return in its direction
+        (closer than ``rel`` x that range less ``margin_m``)."""
         i, j, r = self._bins(P)
         lim = self.img[i, j]
-        return np.isfinite(lim) & (r < 0.95 * lim - 0.10)
+        return np.isfinite(lim) & (r < rel * lim - margin_m)
 
 
 def _in_free_space(P: np.ndarray, rimg: _RangeImage) -> float:
@@ -93,6 +94,16 @@ class _Verifier:
             return np.asarray(voxel_downsample(st.astype(np.float32), 0.10), np.float64)
 
         self.struct, self.struct_t = structure(S, labels_s), structure(Tg, labels_t)
+
+        def part(P, lab, cls):
+            return np.asarray(voxel_downsample(P[lab == cls].astype(np.float32), 0.10),
+                              np.float64).reshape(-1, 3)
+
+        # the structure by class for the choice among near-symmetric candidates: the walls
+        # (a room's shell, symmetric) and the rest (furniture, columns: what breaks it)
+        self.parts = {c: (part(S, labels_s, k), part(Tg, labels_t, k))
+                      for c, k in (("wall", WALL), ("other", OTHER))}
+        self._oriented = None
         # an even subset for screening many hypotheses
         self.few = self.struct[:: max(1, len(self.struct) // 3000)]
         self.few_t = self.struct_t[:: max(1, len(self.struct_t) // 3000)]
@@ -161,6 +172,28 @@ class _Verifier:
         return (self.structure_fitness(T, tight)
                 - free_space_weight * self.free_space_violation(T))
 
+    def consistency(self, T, tight: float, rel: float = 0.98, margin_m: float = 0.10) -> dict:
+        """Full 3-D consistency of a pose, by class (walls, other), each the mean of both
+        directions (source on target, target on source): ``fit_<class>`` the share within
+        ``tight`` of the other's surface, ``viol_<class>`` the share the other scan saw through
+        (in front of its nearest return by more than (1 - ``rel``) x range + ``margin_m``), and
+        the counts ``n_<class>`` of both; shares of a class with under 50 points are 0."""
+        Ti = np.linalg.inv(T)
+        out = {}
+        for c, (a, b) in self.parts.items():
+            a = a @ T[:3, :3].T + T[:3, 3]
+            b = b @ Ti[:3, :3].T + Ti[:3, 3]
+            n = min(len(a), len(b))
+            out[f"n_{c}"] = n
+            if n < 50:
+                out[f"fit_{c}"] = out[f"viol_{c}"] = 0.0
+                continue
+            out[f"fit_{c}"] = 0.5 * (self._on_surface(a, self.surf_t, tight)
+                                     + self._on_surface(b, self.surf_s, tight))
+            out[f"viol_{c}"] = 0.5 * (float(self.range_t.seen_through(a, rel, margin_m).mean())
+                                      + float(self.range_s.seen_through(b, rel, margin_m).mean()))
+        return out
+
     def _on_surface(self, p, surf, tol: float) -> float:
         tree, pts, nrm, nok = surf
         d, j = tree.query(p, distance_upper_bound=max(0.3, tol))
@@ -201,7 +234,9 @@ class _Verifier:
             return prepare(voxel_downsample(P.astype(np.float32), voxel), num_neighbors=nn,
                            viewpoint=v, point_sigma=0.03, num_threads=self.threads)
 
-        src, tgt = oriented(self._S, self.range_s.v), oriented(self._Tg, self.range_t.v)
+        if self._oriented is None:  # once per pair: every candidate is finished on them
+            self._oriented = (oriented(self._S, self.range_s.v), oriented(self._Tg, self.range_t.v))
+        src, tgt = self._oriented
         T2 = np.ascontiguousarray(T, dtype=np.float64)
         r = None
         kw = dict(method="plane", max_iterations=15, rotation_eps=1e-6, translation_eps=1e-5,
