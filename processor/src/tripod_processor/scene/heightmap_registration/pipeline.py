@@ -190,12 +190,11 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
     twin_amb, twin_list, who = 0.0, [], best[2]
     if twins:
         t1 = time.perf_counter()
-        tight = 0.5 * max_distance
         cands = _candidates(ls, lt, check, T, checked, fp, fine_step_deg, coarse_step_deg,
                             other_weight, seed)
         stages["candidates"] = time.perf_counter() - t1
         t1 = time.perf_counter()
-        k, twin_amb, twin_list = choose(check, cands, tight)
+        k, twin_amb, twin_list = choose(check, cands, max_distance, free_space_weight)
         if k:  # a turned twin or a runner-up explains both scans clearly better
             T, fitness, rmse = cands[k][2], cands[k][3], cands[k][4]
             who = f"{cands[k][0]} (chosen)"
@@ -216,51 +215,12 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
 TWIN_TURNS_DEG = (180.0, 90.0, 270.0)
 
 
-def _twins(ls, lt, check, T, fitness, rmse, fp: float, fine_step_deg: float,
-           coarse_step_deg: float, tight: float, free_space_weight: float,
-           other_weight: float, seed: int):
-    """The answer ``T`` against its turned twins: for each turn of :data:`TWIN_TURNS_DEG` the
-    dense correlation over yaws within a coarse step of the answer's yaw + the turn (every
-    shift), refined at the fine pixel and yaw step, lifted, polished and finished like the
-    answer; all scored by :meth:`_Verifier.twin_score` (tight inlier share less the weighted
-    free-space violation, full resolution). Returns (twin ambiguity: the best twin's score over
-    the answer's, [(turn deg, T, score)] with the answer first as turn 0)."""
-    M = lt.T_level_scan @ T @ np.linalg.inv(ls.T_level_scan)
-    yaw0 = float(np.arctan2(M[1, 0], M[0, 0]))
-    cand = [(0.0, T, fitness, rmse, check.twin_score(T, tight, free_space_weight))]
-    offs = np.deg2rad(np.arange(-coarse_step_deg, coarse_step_deg + 1e-9, fine_step_deg))
-    for turn in TWIN_TURNS_DEG:
-        yaws = yaw0 + np.deg2rad(turn) + offs
-        found = _search(ls, lt, yaws, fp, seed=seed, other_weight=other_weight)
-        if not found:
-            continue
-        _, yaw, shift = found[0]
-        T_alt = check.polish(_lift(ls, lt, yaw, shift))
-        T_alt, fit_alt, rmse_alt = check.final(T_alt)
-        if _same_pose(T_alt, T):  # the polish ran back to the answer: no twin there
-            continue
-        cand.append((turn, T_alt, fit_alt, rmse_alt,
-                     check.twin_score(T_alt, tight, free_space_weight)))
-    # the answer stays (the verification ranked it); the twins only judge it: the best twin's
-    # score over the answer's, > 1 when a twin scores better (a swap to the better-scoring twin
-    # picked the wrong one more often than the right one on reconstruct's fragments)
-    own = cand[0][4]
-    best_twin = max((c[4] for c in cand[1:]), default=None)
-    if best_twin is None:
-        amb = 0.0
-    elif own <= 0:
-        amb = 1.0 if best_twin <= 0 else float("inf")
-    else:
-        amb = max(0.0, best_twin / own)
-    return float(min(amb, 10.0)), [(c[0], c[1], c[4]) for c in cand]
-
-
 def _candidates(ls, lt, check, T, checked, fp: float, fine_step_deg: float,
                 coarse_step_deg: float, other_weight: float, seed: int, peaks: int = 3) -> list:
     """The answer ``T`` and the poses it could be confused with, each finished like it
     (polished, final ICP): its turned twins (:data:`TWIN_TURNS_DEG`; the dense correlation over
     yaws within a coarse step of the answer's yaw + the turn, the ``peaks`` best distinct shifts
-    of each, refined at the fine pixel and yaw step) and the verification's two best distinct
+    at 180 deg and the best at 90 and 270 deg) and the verification's two best distinct
     runners-up. Returns [(label, turn [deg], T, fitness, rmse)], the answer first, no two the
     same pose."""
     M = lt.T_level_scan @ T @ np.linalg.inv(ls.T_level_scan)
@@ -274,8 +234,9 @@ def _candidates(ls, lt, check, T, checked, fp: float, fine_step_deg: float,
             cands.append((label, turn, T1, fit, rmse))
 
     for turn in TWIN_TURNS_DEG:
+        n = peaks if turn == 180.0 else 1  # a rectangle's twin; a square's are rarer
         for _, yaw, shift in _search(ls, lt, yaw0 + np.deg2rad(turn) + offs, fp, seed=seed,
-                                     other_weight=other_weight, keep=peaks, shifts=peaks):
+                                     other_weight=other_weight, keep=n, shifts=n):
             add(f"twin {turn:.0f}", turn, _lift(ls, lt, yaw, shift))
     runners = [c for c in checked[1:] if not _same_pose(c[3], T)][:2]
     for c in runners:
@@ -285,26 +246,36 @@ def _candidates(ls, lt, check, T, checked, fp: float, fine_step_deg: float,
     return cands
 
 
-def choose(check, cands: list, tight: float, wall_weight: float = 1.0,
-           other_weight: float = 1.0, free_space_weight: float = 10.0
-           ) -> tuple[int, float, list]:
+def choose(check, cands: list, distance: float, free_space_weight: float = 10.0,
+           noise: float = 0.01) -> tuple[int, float, list]:
     """Choose among near-symmetric candidates (:func:`_candidates`, the answer first) by their
-    full 3-D consistency (:meth:`_Verifier.consistency`): score = walls' and furniture's shares
-    within ``tight`` of the other scan's surface, less ``free_space_weight`` x their shares the
-    other scan saw through (each class weighted: the shell fits its twin, the furniture does
-    not). Returns (index of the chosen candidate, ambiguity: the best other candidate's score
-    over the chosen one's (~1 when two distinct poses explain the scans equally), [(turn, T,
-    score, features)] of every candidate in their order (the answer first)."""
+    full 3-D consistency (:meth:`_Verifier.consistency`, walls and the rest apart).
+
+    score = fit - ``free_space_weight`` x max(0, violation - ``noise``), where fit is the share
+    of the structure (walls and the rest together) within ``distance`` of the other scan's
+    surface and violation the mean of the walls' and the rest's shares that the other scan saw
+    through (the rest counts as much as the walls: a room's shell fits its turned twin, its
+    furniture does not, and a cabinet standing where the other scan saw the wall behind it is
+    the contradiction that tells them apart); up to ``noise`` is what a right pose shows (range
+    noise, the lever arm's travel). The best score is chosen. Ambiguity: the best other
+    candidate's score over the chosen one's: a pose that contradicts nothing and overlaps about
+    as much is an equally good explanation (a symmetric hall's twin: its fit is often *higher*,
+    both scans then seeing the columns from the same side), so a fit ratio near 1 there means
+    the scans cannot tell; a contradicting twin scores far below.
+
+    Returns (index of the chosen candidate, ambiguity (0..10), [(turn, T, score, features)] of
+    every candidate in their order (the answer first))."""
     scored = []
     for label, turn, T, _, _ in cands:
-        f = check.consistency(T, tight)
-        score = (wall_weight * (f["fit_wall"] - free_space_weight * f["viol_wall"])
-                 + other_weight * (f["fit_other"] - free_space_weight * f["viol_other"]))
-        scored.append((score, f))
+        f = check.consistency(T, distance)
+        n_w, n_o = f["n_wall"], f["n_other"]
+        fit = (n_w * f["fit_wall"] + n_o * f["fit_other"]) / max(n_w + n_o, 1)
+        viol = 0.5 * (f["viol_wall"] + f["viol_other"]) if n_o >= 50 else f["viol_wall"]
+        f = dict(f, fit=fit, viol=viol)
+        scored.append((fit - free_space_weight * max(0.0, viol - noise), f))
     k = int(np.argmax([s for s, _ in scored]))
     own = scored[k][0]
-    rest = [s for i, (s, _) in enumerate(scored) if i != k]
-    best_other = max(rest, default=None)
+    best_other = max((s for i, (s, _) in enumerate(scored) if i != k), default=None)
     if best_other is None:
         amb = 0.0
     elif own <= 0:
