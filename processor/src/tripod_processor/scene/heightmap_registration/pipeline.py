@@ -160,8 +160,7 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
     check = _Verifier(S, source_labels, Tg, target_labels, max_distance, viewpoint_source,
                       viewpoint_target, num_threads)
     if source_gravity and target_gravity:  # both level by gravity: the ICPs keep them level
-        check.keep_level(ls.T_level_scan, lt.T_level_scan,
-                         ls.floor_trusted and lt.floor_trusted)
+        check.keep_level(ls.T_level_scan, lt.T_level_scan, _level_height(ls, lt))
     screened = _screen(proposals, ls, lt, check, 3 * cp, free_space_weight)
     hyps = []
     for _, yaw0, shift0, who in screened[:verify]:
@@ -194,7 +193,7 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
                             other_weight, seed)
         stages["candidates"] = time.perf_counter() - t1
         t1 = time.perf_counter()
-        k, twin_amb, twin_list = choose(check, cands, max_distance, free_space_weight)
+        k, twin_amb, twin_list = choose(check, cands, max_distance)
         if k:  # a turned twin or a runner-up explains both scans clearly better
             T, fitness, rmse = cands[k][2], cands[k][3], cands[k][4]
             who = f"{cands[k][0]} (chosen)"
@@ -246,7 +245,7 @@ def _candidates(ls, lt, check, T, checked, fp: float, fine_step_deg: float,
     return cands
 
 
-def choose(check, cands: list, distance: float, free_space_weight: float = 10.0,
+def choose(check, cands: list, distance: float, free_space_weight: float = 30.0,
            noise: float = 0.01) -> tuple[int, float, list]:
     """Choose among near-symmetric candidates (:func:`_candidates`, the answer first) by their
     full 3-D consistency (:meth:`_Verifier.consistency`, walls and the rest apart).
@@ -331,6 +330,19 @@ def _proposals(ls, lt, stages: dict, yaws, cp: float, fpx: float, candidates: in
         proposals += _shape_proposals(ls, lt, fpx, seed)
         stages["shapes"] = time.perf_counter() - t1
     return proposals
+
+
+def _level_height(ls, lt) -> float | None:
+    """Height [m] of the source's level frame in the target's when two horizontal planes tell it:
+    0 when both floors are trusted (both level frames stand on them), else the ceilings'
+    difference when both ceilings are; None (the height left to the level ICP) when neither
+    pair is seen. A vertical lidar's band sees no floor in a small room: its height then rests
+    on furniture and the walls' ends only (``success`` does not check it)."""
+    if ls.floor_trusted and lt.floor_trusted:
+        return 0.0
+    if ls.ceiling_trusted and lt.ceiling_trusted:
+        return float(lt.height - ls.height)
+    return None
 
 
 def _footprint_distance(ls, lt) -> float:

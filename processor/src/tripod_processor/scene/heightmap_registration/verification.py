@@ -118,28 +118,30 @@ class _Verifier:
         self.surf_s, self.surf_t = surface(S), surface(Tg)
         self.level = None
 
-    def keep_level(self, L_s, L_t, same_floor: bool) -> None:
+    def keep_level(self, L_s, L_t, height: float | None) -> None:
         """Both scans are levelled by gravity (T_level_scan ``L_s``, ``L_t``): every ICP result
         is taken back to a yaw and a shift between the level frames and its translation refitted
         with that rotation fixed (a thin band of walls, as a vertical lidar sees, lets a free
-        ICP tip over by degrees). ``same_floor``: both floors were seen (trusted), so the floors
-        coincide and the height is kept; else it stays free (such a scan may see no floor)."""
-        self.level = (np.asarray(L_s, np.float64), np.asarray(L_t, np.float64), bool(same_floor))
+        ICP tip over by degrees). ``height``: the source level frame's height in the target's
+        [m] when horizontal planes both scans saw tell it (0 on shared floors, the ceilings'
+        difference), kept fixed; None: it stays free (such a scan may see no floor)."""
+        self.level = (np.asarray(L_s, np.float64), np.asarray(L_t, np.float64),
+                      None if height is None else float(height))
 
     def _levelled(self, T, src, tgt, **kw):
         """``T`` turned to a yaw between the level frames, its translation refitted."""
         from ...registration.pairwise import register
 
-        L_s, L_t, same_floor = self.level
+        L_s, L_t, height = self.level
         M = L_t @ T @ np.linalg.inv(L_s)
-        if same_floor:
-            M[2, 3] = 0.0
+        if height is not None:
+            M[2, 3] = height
         yaw = np.arctan2(M[1, 0], M[0, 0])
         M[:3, :3] = [[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]]
         T1 = np.ascontiguousarray(np.linalg.inv(L_t) @ M @ L_s)
         try:
             r = register(src, tgt, init=T1, rotation_prior=T1[:3, :3], rotation_prior_sigma=0.0,
-                         lock_z=same_floor, num_threads=self.threads, **kw)
+                         lock_z=height is not None, num_threads=self.threads, **kw)
         except ValueError:
             return T1, None
         return r.T_target_source, r
