@@ -33,35 +33,27 @@ def _lift(ls: "LevelledScan", lt: "LevelledScan", yaw: float, shift) -> np.ndarr
 
 
 class _RangeImage:
-    """Nearest return per direction around a scan's viewpoint: a spherical image (``step_deg``
-    bins of azimuth and elevation) of the smallest range, eroded over the 3 x 3 neighbourhood so
-    that only space seen through in every neighbouring direction counts as free."""
+    """Nearest return per direction around a scan's viewpoint (``reconstruction.free_space``'s
+    range image about that point, ``step_deg`` bins, eroded over the 3 x 3 neighbourhood so
+    that only space seen through in every neighbouring direction counts as free)."""
 
     def __init__(self, P: np.ndarray, viewpoint, step_deg: float = 0.5) -> None:
-        from scipy import ndimage
+        from ...reconstruction import free_space
 
         self.v = np.asarray(viewpoint, np.float64).reshape(3)
-        self.step = np.radians(step_deg)
-        self.shape = (int(round(2 * np.pi / self.step)), int(round(np.pi / self.step)) + 1)
-        i, j, r = self._bins(P)
-        img = np.full(self.shape, np.inf)
-        np.minimum.at(img, (i, j), r)
-        self.img = ndimage.minimum_filter(img, size=3, mode="wrap")
+        self.step_deg = step_deg
+        self.img = free_space.range_image(np.asarray(P, np.float64) - self.v, step_deg)
 
     def _bins(self, P):
-        d = np.asarray(P, np.float64) - self.v
-        r = np.linalg.norm(d, axis=1)
-        az = np.arctan2(d[:, 1], d[:, 0]) + np.pi
-        el = np.arcsin(np.clip(d[:, 2] / np.maximum(r, 1e-9), -1, 1)) + np.pi / 2
-        i = np.minimum((az / self.step).astype(np.int64), self.shape[0] - 1)
-        j = np.minimum((el / self.step).astype(np.int64), self.shape[1] - 1)
-        return i, j, r
+        from ...reconstruction import free_space
+
+        return free_space._bins(np.asarray(P, np.float64) - self.v, self.step_deg)
 
     def seen_through(self, P, rel: float = 0.95, margin_m: float = 0.10) -> np.ndarray:
         """(N,) bool: the point lies clearly in front of the nearest return in its direction
         (closer than ``rel`` x that range less ``margin_m``)."""
         i, j, r = self._bins(P)
-        lim = self.img[i, j]
+        lim = self.img[i, j].astype(np.float64)
         return np.isfinite(lim) & (r < rel * lim - margin_m)
 
 
