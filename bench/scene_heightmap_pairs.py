@@ -177,7 +177,7 @@ def bench_heightmap_pairs(split: str = "test", quick: bool = False, with_up: boo
           f"{draw}, up {'from the files' if with_up else 'ignored'}", flush=True)
     per_rig: dict[str, list[int]] = {}
     per_scene: dict[str, list[int]] = {}
-    n = ok = flagged = false_ok = false_ok_180 = doubted = 0
+    n = ok = flagged = false_ok = false_ok_180 = doubted = chosen = 0
     times, overlaps, errs = [], [], []
     c0 = time.process_time()
     left_out: list = []
@@ -198,6 +198,7 @@ def bench_heightmap_pairs(split: str = "test", quick: bool = False, with_up: boo
         false_ok += (not good) and r.success
         false_ok_180 += (not good) and r.success and a > 170
         doubted += good and (not r.success)
+        chosen += r.proposer.endswith("(chosen)")
         if good:
             errs.append((a, d))
         for key, tab in ((rig, per_rig), (scene, per_scene)):
@@ -206,6 +207,7 @@ def bench_heightmap_pairs(split: str = "test", quick: bool = False, with_up: boo
             tab[key][1] += 1
         print(f"    {n:3d} {name:<26} overlap {ov:.2f}: {'ok  ' if good else 'FAIL'} "
               f"{a:6.2f} deg {d * 100:6.1f} cm, flag {r.success}, twin {r.twin_ambiguity:.2f}, "
+              f"consistent {r.consistent_ratio:.2f}, "
               f"{times[-1]:.1f} s", flush=True)
     cpu = time.process_time() - c0
     sec = "hm pairs" + ("" if with_up else " (no up)")
@@ -230,6 +232,7 @@ def bench_heightmap_pairs(split: str = "test", quick: bool = False, with_up: boo
     row(sec, "false successes (wrong, success = true); of them > 170 deg off",
         f"{false_ok}; {false_ok_180}")
     row(sec, "correct poses its check did not trust", f"{doubted} of {ok}")
+    row(sec, "answers the choice among twins and runners-up changed", f"{chosen} of {n}")
     row(sec, "time per pair incl. segmentation, median [s] (CPU total [s], load)",
         f"{np.median(times):.1f} ({cpu:.0f}, {os.getloadavg()[0]:.1f})")
     return {"n": n, "ok": ok, "flagged": flagged, "false_ok": false_ok,
