@@ -24,11 +24,13 @@ counted as a false success.
 
 Splits (:data:`SPLITS`): ``dev`` (seed 301, pair draw 0) and ``dev2`` (seed 302, draw 2) are
 looked at while developing; ``test`` (seed 331, draw 1) was run once for the first reported
-figure and ``test2`` (seed 332, draw 3) once for the second; ``test3`` (seed 333, draw 5) is
-fresh for the third figure; ``dev3`` (seed 303, draw 6) and ``dev4`` (seed 304, draw 8) were added for the choice between a
-pose and its turned twin, and ``test4`` (seed 334, draw 7) is fresh for the fourth figure;
-``--seed S`` (with ``--draw D``, default 9) names any other split by its capture seed, for a
-fresh test split after that. ``--fragments-only`` makes a split's captures and fragments without
+figure and ``test2`` (seed 332, draw 3) once for the second; ``test3`` (seed 333, draw 5) once
+for the third; ``dev3`` (seed 303, draw 6) and ``dev4`` (seed 304, draw 8) were added for the
+choice between a pose and its turned twins (development), and ``test4`` (seed 334, draw 7) is
+fresh for the fourth figure; ``--seed S`` (with ``--draw D``, default 9) names any other split
+by its capture seed, for a fresh test split after that. ``--min-overlap`` (development only)
+changes the 30 % limit (and with it the pair draw). ``--fragments-only`` makes a split's
+captures and fragments without
 registering anything. Pairs under 30 % true overlap are left out (neither registered nor
 counted; the bench prints how many). Captures and fragments are cached under
 ``.cache/scene_data/hm_pairs``.
@@ -165,7 +167,8 @@ def pairs(split: str, rigs=tuple(RIGS), scenes=SCENES, left_out: list | None = N
 
 
 def bench_heightmap_pairs(split: str = "test", quick: bool = False, with_up: bool = True,
-                          row=None, rigs=tuple(RIGS), scenes=None) -> dict:
+                          row=None, rigs=tuple(RIGS), scenes=None,
+                          min_overlap: float = 0.3) -> dict:
     """Run the section; ``row(section, item, value)`` collects the table rows. Returns the
     counts."""
     from tripod_processor.scene.heightmap_registration import register_by_heightmaps
@@ -182,7 +185,7 @@ def bench_heightmap_pairs(split: str = "test", quick: bool = False, with_up: boo
     c0 = time.process_time()
     left_out: list = []
     for (name, rig, scene, tgt, src, up_t, up_s, T_true, ov, vp_t,
-         vp_s) in pairs(split, tuple(rigs), scenes, left_out):
+         vp_s) in pairs(split, tuple(rigs), scenes, left_out, min_overlap):
         n += 1
         overlaps.append(ov)
         t0 = time.perf_counter()
@@ -213,7 +216,7 @@ def bench_heightmap_pairs(split: str = "test", quick: bool = False, with_up: boo
     sec = "hm pairs" + ("" if with_up else " (no up)")
     row(sec, f"reconstruct's fragments ({split}): pairs, overlap min / median",
         f"{n}, {min(overlaps):.2f} / {np.median(overlaps):.2f}" if n else "0")
-    row(sec, "pairs left out: true overlap < 30 % (neither registered nor counted)",
+    row(sec, f"pairs left out: true overlap < {min_overlap:.0%} (neither registered nor counted)",
         f"{len(left_out)}" + (f" (overlap max {max(o for _, o in left_out):.2f})"
                               if left_out else ""))
     if not n:
@@ -245,6 +248,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=None,
                     help="a split named by its capture seed (overrides --split): split 'seedS'")
     ap.add_argument("--draw", type=int, default=9, help="the pair draw of a --seed split")
+    ap.add_argument("--min-overlap", type=float, default=0.3,
+                    help="true overlap below which a pair is left out (development only)")
     ap.add_argument("--quick", action="store_true", help="two scenes only")
     ap.add_argument("--no-up", action="store_true", help="ignore the up the files carry")
     ap.add_argument("--rigs", nargs="+", choices=list(RIGS), default=list(RIGS))
@@ -260,7 +265,8 @@ def main(argv=None) -> int:
             for scene in a.scenes or SCENES:
                 reconstructed_fragments(rig, scene, SPLITS[a.split][0])
         return 0
-    bench_heightmap_pairs(a.split, a.quick, not a.no_up, rigs=a.rigs, scenes=a.scenes)
+    bench_heightmap_pairs(a.split, a.quick, not a.no_up, rigs=a.rigs, scenes=a.scenes,
+                          min_overlap=a.min_overlap)
     return 0
 
 
