@@ -260,7 +260,7 @@ def _candidates(ls, lt, check, T, checked, fp: float, fine_step_deg: float,
 
 
 def choose(check, cands: list, distance: float, free_space_weight: float = 30.0,
-           noise: float = 0.01) -> tuple[int, float, list]:
+           noise: float = 0.01) -> tuple[int, float, float, list]:
     """Choose among near-symmetric candidates (:func:`_candidates`, the answer first) by their
     full 3-D consistency (:meth:`_Verifier.consistency`, walls and the rest apart).
 

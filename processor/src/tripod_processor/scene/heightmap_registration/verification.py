@@ -160,13 +160,6 @@ class _Verifier:
         return 0.5 * (self._on_surface(a @ T[:3, :3].T + T[:3, 3], self.surf_t, tol)
                       + self._on_surface(b @ Ti[:3, :3].T + Ti[:3, 3], self.surf_s, tol))
 
-    def twin_score(self, T, tight: float, free_space_weight: float) -> float:
-        """Score of a pose against its turned twins, at full resolution: the structure's share
-        within ``tight`` of the other's surface (both ways) less ``free_space_weight`` x the
-        free-space violation (both ways)."""
-        return (self.structure_fitness(T, tight)
-                - free_space_weight * self.free_space_violation(T))
-
     def consistency(self, T, tight: float, rel: float = 0.98, margin_m: float = 0.10) -> dict:
         """Full 3-D consistency of a pose, by class (walls, other), each the mean of both
         directions (source on target, target on source): ``fit_<class>`` the share within
