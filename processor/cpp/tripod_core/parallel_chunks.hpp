@@ -15,7 +15,6 @@
 #include <algorithm>
 #include <atomic>
 #include <cstdint>
-#include <cstdlib>
 #include <memory>
 #include <type_traits>
 
@@ -81,12 +80,6 @@ void parallel_chunks(int num_threads, int64_t num_chunks, Body&& body,
         }
         x.team->leave(t);
     };
-    const char* ab = std::getenv("TRIPOD_AB_POOL");  // TEMPORARY A/B switch
-    if (ab && ab[0] == '0') {
-#pragma omp parallel num_threads(nt)
-        run(&ctx, omp_get_thread_num());
-        return;
-    }
     if (!pool_run(nt, run, &ctx)) run(&ctx, 0);
 }
 

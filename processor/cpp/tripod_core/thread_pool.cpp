@@ -2,6 +2,7 @@
 #include "tripod_core/thread_pool.hpp"
 
 #include <immintrin.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <atomic>
@@ -36,7 +37,8 @@ int64_t poll_ns_from_env() {
 class Pool {
 public:
     bool run(int nt, void (*fn)(void*, int), void* ctx) {
-        if (tl_worker || nt <= 1) return false;
+        // a forked child has none of the workers (and may hold a copy of a locked mutex)
+        if (tl_worker || nt <= 1 || getpid() != pid_) return false;
         std::unique_lock<std::mutex> busy(busy_, std::try_to_lock);
         if (!busy.owns_lock()) return false;
         const int want = std::min(nt, kMaxThreads) - 1;  // workers
@@ -105,6 +107,7 @@ private:
     }
 
     const int64_t poll_ns_ = poll_ns_from_env();
+    const pid_t pid_ = getpid();
     std::mutex busy_;  // one job at a time
     std::vector<std::thread> workers_;
     // the job (written by the caller before gen_ moves on, read by workers after)

@@ -14,7 +14,8 @@
 // OMP_WAIT_POLICY=PASSIVE alone: sleeps at once; ACTIVE: polls for 100 ms; neither set: 9 ms
 // (libgomp's default count). The poll does not execute a PAUSE per iteration (a KVM guest
 // spinning on PAUSE is exited to the host by its pause filter and may lose its CPU there).
-// One job at a time: a call from a second thread while a job runs runs on its caller alone.
+// One job at a time: a call from a second thread while a job runs runs on its caller alone, as
+// does a call in a forked child process (it has none of the parent's workers).
 #pragma once
 
 #include <cstdint>
