@@ -2,12 +2,14 @@
 #include "tripod_core/thread_pool.hpp"
 
 #include <immintrin.h>
+#include <linux/futex.h>
+#include <sys/syscall.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <atomic>
 #include <chrono>
-#include <condition_variable>
+#include <climits>
 #include <cstdlib>
 #include <cstring>
 #include <mutex>
@@ -19,6 +21,18 @@ namespace tripod::detail {
 namespace {
 
 thread_local bool tl_worker = false;
+
+static_assert(sizeof(std::atomic<uint32_t>) == sizeof(uint32_t), "futex word");
+
+void futex_wait(std::atomic<uint32_t>* word, uint32_t expected) {
+    syscall(SYS_futex, reinterpret_cast<uint32_t*>(word), FUTEX_WAIT_PRIVATE, expected, nullptr,
+            nullptr, 0);
+}
+
+void futex_wake_all(std::atomic<uint32_t>* word) {
+    syscall(SYS_futex, reinterpret_cast<uint32_t*>(word), FUTEX_WAKE_PRIVATE, INT32_MAX, nullptr,
+            nullptr, 0);
+}
 
 /// How long [ns] a worker polls for the next job before it sleeps (see thread_pool.hpp).
 int64_t poll_ns_from_env() {
@@ -54,16 +68,14 @@ public:
         team_ = std::min(nt, kMaxThreads);
         gen_.fetch_add(1, std::memory_order_seq_cst);
         open_.store(true, std::memory_order_seq_cst);
-        if (sleepers_.load(std::memory_order_seq_cst) > 0) {
-            { std::lock_guard<std::mutex> lock(sleep_mu_); }
-            sleep_cv_.notify_all();
-        }
+        // no mutex on this path (a worker on its way to sleep would hold the caller up)
+        if (sleepers_.load(std::memory_order_seq_cst) > 0) futex_wake_all(&gen_);
         fn(ctx, 0);
         // every chunk is taken: close the job, wait for the workers inside it (running a chunk)
         open_.store(false, std::memory_order_seq_cst);
         for (uint32_t i = 1; active_.load(std::memory_order_seq_cst) != 0; ++i) {
             _mm_pause();
-            if ((i & 1023) == 0) std::this_thread::yield();
+            if ((i & 16383) == 0) std::this_thread::yield();  // a worker descheduled here
         }
         return true;
     }
@@ -73,7 +85,7 @@ private:
 
     void work(int index) {
         tl_worker = true;
-        uint64_t seen = gen_.load(std::memory_order_acquire);
+        uint32_t seen = gen_.load(std::memory_order_acquire);
         for (;;) {
             wait_for_job(seen);
             seen = gen_.load(std::memory_order_seq_cst);
@@ -86,7 +98,7 @@ private:
         }
     }
 
-    void wait_for_job(uint64_t seen) {
+    void wait_for_job(uint32_t seen) {
         if (poll_ns_ > 0) {
             const auto t0 = std::chrono::steady_clock::now();
             for (uint32_t i = 1;; ++i) {
@@ -100,9 +112,10 @@ private:
                 }
             }
         }
-        std::unique_lock<std::mutex> lock(sleep_mu_);
+        // the caller moves gen_ on, then looks for sleepers; a sleeper counts itself, then
+        // sleeps only while gen_ is unchanged (the kernel compares): no wake-up is lost
         sleepers_.fetch_add(1, std::memory_order_seq_cst);
-        while (gen_.load(std::memory_order_seq_cst) == seen) sleep_cv_.wait(lock);
+        while (gen_.load(std::memory_order_seq_cst) == seen) futex_wait(&gen_, seen);
         sleepers_.fetch_sub(1, std::memory_order_seq_cst);
     }
 
@@ -114,12 +127,10 @@ private:
     void (*fn_)(void*, int) = nullptr;
     void* ctx_ = nullptr;
     int team_ = 1;
-    alignas(64) std::atomic<uint64_t> gen_{0};
+    alignas(64) std::atomic<uint32_t> gen_{0};  // the job's generation (a futex word)
     alignas(64) std::atomic<bool> open_{false};
     alignas(64) std::atomic<int> active_{0};
     alignas(64) std::atomic<int> sleepers_{0};
-    std::mutex sleep_mu_;
-    std::condition_variable sleep_cv_;
 };
 
 Pool& pool() {
