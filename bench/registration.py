@@ -383,7 +383,8 @@ def print_thread_table(con, rows, load):
               f"{os.cpu_count()} cores (the figure needs an idle machine: load < 0.5); OpenMP "
               f"wait: OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY', 'unset')}, "
               f"GOMP_SPINCOUNT={os.environ.get('GOMP_SPINCOUNT', 'unset')} (set by "
-              "tripod_processor at import unless given)")
+              "tripod_processor at import unless given; the registration path's worker pool "
+              "reads the same)")
 
 
 # ---------------------------------------------------------------------------- tables
