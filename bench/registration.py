@@ -32,6 +32,7 @@ only, so success there is 2 deg / 10 cm), and three simulated VLP-16 station pai
     .venv/bin/python bench/registration.py            # full run (a few minutes on 2 cores)
     .venv/bin/python bench/registration.py --quick    # 1 repeat, fewer global trials
     .venv/bin/python bench/registration.py --threads  # thread scaling only (idle machine)
+    .venv/bin/python bench/registration.py --idle     # thread scaling + single-thread ratios
 Open3D's OpenMP thread count is fixed at import, so its rows run in child processes; without
 Open3D installed its rows are left out (said in the output).
 """
@@ -382,7 +383,8 @@ def print_thread_table(con, rows, load):
               f"{os.cpu_count()} cores (the figure needs an idle machine: load < 0.5); OpenMP "
               f"wait: OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY', 'unset')}, "
               f"GOMP_SPINCOUNT={os.environ.get('GOMP_SPINCOUNT', 'unset')} (set by "
-              "tripod_processor at import unless given)")
+              "tripod_processor at import unless given; the registration path's worker pool "
+              "reads the same)")
 
 
 # ---------------------------------------------------------------------------- tables
@@ -447,6 +449,11 @@ def main(argv=None) -> int:
     ap.add_argument("--no-global", action="store_true", help="skip the global table")
     ap.add_argument("--threads", action="store_true",
                     help="only the thread-scaling table of tripod GICP (5 repeats)")
+    ap.add_argument("--idle", action="store_true",
+                    help="the figures that need an idle machine, in one run (about a minute "
+                         "idle): the thread-scaling table (15 repeats), then the per-pair and "
+                         "summary tables of tripod and small_gicp (CPU ratios, 3 repeats; no "
+                         "Open3D, no global table)")
     ap.add_argument("--o3d-worker", type=int, default=0, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     repeats = args.repeats or (1 if args.quick else 3)
@@ -465,9 +472,14 @@ def main(argv=None) -> int:
 
     con = Console(width=150)
     load0 = os.getloadavg()[0]
-    if args.threads:
-        rows = thread_scaling(pairs, args.repeats or 5)
+    if args.threads or args.idle:
+        rows = thread_scaling(pairs, args.repeats or (15 if args.idle else 5))
         print_thread_table(con, rows, (load0, os.getloadavg()[0]))
+        if args.threads:
+            return 0
+        load0 = os.getloadavg()[0]
+        rows = local_rows(["tripod", "small_gicp"], pairs, 3)
+        print_tables(con, rows, pairs, (load0, os.getloadavg()[0]))
         return 0
     rows = local_rows(["tripod", "small_gicp"], pairs, repeats)
     try:

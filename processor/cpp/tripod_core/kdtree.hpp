@@ -20,6 +20,7 @@
 #include <numeric>
 #include <vector>
 
+#include "tripod_core/parallel_chunks.hpp"
 #include "tripod_core/phase_timer.hpp"
 
 namespace tripod {
@@ -34,7 +35,7 @@ public:
     /// @param data        n x Dim row-major floats (copied)
     /// @param n           number of rows
     /// @param leaf_size   points per leaf (>= 1)
-    /// @param num_threads build threads (subtrees as OpenMP tasks; <= 0: all). The tree is the
+    /// @param num_threads build threads (parallel_chunks; <= 0: all). The tree is the
     ///                    same whatever the count: a subtree's node numbers follow from its size.
     KdTree(const float* data, int64_t n, int leaf_size = 20, int num_threads = 1)
         : leaf_size_(std::max(1, leaf_size)) {
@@ -54,19 +55,33 @@ public:
             parent_.resize(total);
             const Row lo = Row::Constant(-std::numeric_limits<float>::infinity()), hi = -lo;
             std::iota(order_.begin(), order_.end(), 0);
-            // each leaf copies its rows when made: no pass after the build, so one parallel
-            // region with one barrier (each may have to wake a sleeping thread)
+            // each leaf copies its rows when made: no pass after the build
             if (parallel) {
-                TRIPOD_TEAM("kdtree build");
-#pragma omp parallel num_threads(nt)
-                {
-                    TRIPOD_TEAM_ENTER();
-#pragma omp single
-                    build(0, 0, static_cast<int>(n), lo, hi, -1, true);
-                    TRIPOD_TEAM_LEAVE();
+                // level by level: the nodes of a level split in parallel, then the subtrees
+                // below 2 * kTaskPoints points built whole in parallel (parallel_chunks: a
+                // thread that comes late holds no one up); node numbers follow from sizes
+                std::vector<Pending> level{{0, 0, static_cast<int>(n), -1, lo, hi}}, next, rest;
+                while (!level.empty()) {
+                    next.assign(2 * level.size(), Pending{});
+                    detail::parallel_chunks(
+                        nt, static_cast<int64_t>(level.size()),
+                        [&](int64_t k) { make_node(level[k], &next[2 * k]); },
+                        "kdtree build: level");
+                    level.clear();
+                    for (const Pending& c : next) {
+                        if (c.id < 0) continue;
+                        (c.end - c.begin >= 2 * kTaskPoints ? level : rest).push_back(c);
+                    }
                 }
+                detail::parallel_chunks(
+                    nt, static_cast<int64_t>(rest.size()),
+                    [&](int64_t k) {
+                        const Pending& p = rest[k];
+                        build(p.id, p.begin, p.end, p.lo, p.hi, p.parent);
+                    },
+                    "kdtree build: subtrees");
             } else {
-                build(0, 0, static_cast<int>(n), lo, hi, -1, false);
+                build(0, 0, static_cast<int>(n), lo, hi, -1);
             }
         }
         src_ = nullptr;
@@ -272,7 +287,8 @@ private:
         int left, right;
     };
 
-    /// Subtrees of at least this many points are built as OpenMP tasks.
+    /// Nodes of at least 2 x this many points are split level by level in parallel; smaller
+    /// subtrees are built whole, in parallel.
     static constexpr int kTaskPoints = 512;
 
     /// Node count of a subtree of m points: every node of more than leaf_size_ points splits at
@@ -305,19 +321,27 @@ private:
         }
     }
 
-    /// Build node `id` over tree positions [begin, end) and its subtree (nodes id, id + 1, ...).
-    void build(int id, int begin, int end, const Row& cell_lo, const Row& cell_hi, int parent,
-               bool tasks) {
+    /// A node still to be made: id, tree positions [begin, end), parent, cell.
+    struct Pending {
+        int id = -1, begin = 0, end = 0, parent = -1;
+        Row lo, hi;
+    };
+
+    /// Makes node p.id over tree positions [p.begin, p.end): its cell and box, and either a
+    /// leaf or the split of its positions. A split's children go to child[0] and child[1] (left,
+    /// right); a leaf leaves them with id -1.
+    void make_node(const Pending& p, Pending* child) {
+        const int id = p.id, begin = p.begin, end = p.end;
         nodes_[id] = {begin, end, -1, 0.f, -1, -1};
-        parent_[id] = parent;
+        parent_[id] = p.parent;
         float* cell = cells_.data() + static_cast<size_t>(id) * 2 * Dim;
-        std::copy(cell_lo.data(), cell_lo.data() + Dim, cell);
-        std::copy(cell_hi.data(), cell_hi.data() + Dim, cell + Dim);
+        std::copy(p.lo.data(), p.lo.data() + Dim, cell);
+        std::copy(p.hi.data(), p.hi.data() + Dim, cell + Dim);
         Row lo = Row::Constant(std::numeric_limits<float>::infinity()), hi = -lo;
         for (int i = begin; i < end; ++i) {
-            Eigen::Map<const Row> p(src_ + order_[i] * Dim);
-            lo = lo.cwiseMin(p);
-            hi = hi.cwiseMax(p);
+            Eigen::Map<const Row> q(src_ + order_[i] * Dim);
+            lo = lo.cwiseMin(q);
+            hi = hi.cwiseMax(q);
         }
         float* box = boxes_.data() + static_cast<size_t>(id) * 2 * Dim;
         std::copy(lo.data(), lo.data() + Dim, box);
@@ -333,24 +357,24 @@ private:
                          });
         const float split = src_[order_[mid] * Dim + axis];
         // left cell: coordinate <= split, right cell: >= split (ties may sit on either side)
-        Row left_hi = cell_hi, right_lo = cell_lo;
-        left_hi[axis] = split;
-        right_lo[axis] = split;
         const int l = id + 1, r = id + 1 + subtree_nodes(mid - begin);
         nodes_[id].axis = axis;
         nodes_[id].split = split;
         nodes_[id].left = l;
         nodes_[id].right = r;
-        if (tasks && end - begin >= 2 * kTaskPoints) {
-            const Row clo = cell_lo;
-#pragma omp task default(shared) firstprivate(l, begin, mid, clo, left_hi, id)
-            build(l, begin, mid, clo, left_hi, id, true);
-            build(r, mid, end, right_lo, cell_hi, id, true);
-#pragma omp taskwait
-        } else {
-            build(l, begin, mid, cell_lo, left_hi, id, false);
-            build(r, mid, end, right_lo, cell_hi, id, false);
-        }
+        child[0] = {l, begin, mid, id, p.lo, p.hi};
+        child[0].hi[axis] = split;
+        child[1] = {r, mid, end, id, p.lo, p.hi};
+        child[1].lo[axis] = split;
+    }
+
+    /// Build node `id` over tree positions [begin, end) and its subtree (nodes id, id + 1, ...).
+    void build(int id, int begin, int end, const Row& cell_lo, const Row& cell_hi, int parent) {
+        Pending child[2];
+        make_node({id, begin, end, parent, cell_lo, cell_hi}, child);
+        if (child[0].id < 0) return;
+        build(child[0].id, child[0].begin, child[0].end, child[0].lo, child[0].hi, id);
+        build(child[1].id, child[1].begin, child[1].end, child[1].lo, child[1].hi, id);
     }
 
     /// Squared distance from q to node `id`'s bounding box (0 inside). Never above the

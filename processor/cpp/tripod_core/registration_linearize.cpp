@@ -376,13 +376,16 @@ void associate(const Problem& P, const Eigen::Isometry3d& T, double max_sq_dist,
     const Eigen::Matrix3f R = T.linear().cast<float>();
     const Eigen::Vector3f t = T.translation().cast<float>();
     const int64_t m = static_cast<int64_t>(P.rows.size());
-#pragma omp parallel for num_threads(P.num_threads) schedule(static)
-    for (int64_t k = 0; k < m; ++k) {
-        const int64_t i = P.rows[k];
-        const Eigen::Vector3f p = R * P.src.points.row(i).transpose() + t;
-        float d;
-        corr[i] = P.tgt.tree->nearest_from(p.data(), static_cast<float>(max_sq_dist), corr[i], &d);
-    }
+    constexpr int64_t kChunk = 128;
+    parallel_chunks(P.num_threads, (m + kChunk - 1) / kChunk, [&](int64_t chunk) {
+        for (int64_t k = chunk * kChunk, end = std::min(m, k + kChunk); k < end; ++k) {
+            const int64_t i = P.rows[k];
+            const Eigen::Vector3f p = R * P.src.points.row(i).transpose() + t;
+            float d;
+            corr[i] = P.tgt.tree->nearest_from(p.data(), static_cast<float>(max_sq_dist),
+                                               corr[i], &d);
+        }
+    }, "associate");
 }
 
 Normal linearize_fused(const Problem& P, const Eigen::Isometry3d& T,

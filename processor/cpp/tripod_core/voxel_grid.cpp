@@ -11,6 +11,7 @@
 #include <numeric>
 #include <stdexcept>
 
+#include "tripod_core/parallel_chunks.hpp"
 #include "tripod_core/phase_timer.hpp"
 
 namespace tripod {
@@ -64,42 +65,6 @@ constexpr int kPartsPerThread = 4;
 /// Keys sampled per chunk to cut the voxels into parts of about equal point counts.
 constexpr int kSamplesPerChunk = 32;
 
-/// Items [0, count) shared out as parallel_chunks does (tripod_core/parallel_chunks.hpp): each
-/// thread first takes those of its own contiguous share (the same share in every pass over the
-/// same items, so what a thread wrote in one pass it reads in the next from its own cache),
-/// then what is left of the others'. A thread woken late, or sharing its core with another
-/// process, no longer holds the team up at the next barrier.
-class Shares {
-public:
-    Shares(int nt, int64_t count) : nt_(nt), s_(new Share[nt]) {
-        for (int u = 0; u < nt; ++u) {
-            s_[u].next.store(count * u / nt, std::memory_order_relaxed);
-            s_[u].end = count * (u + 1) / nt;
-        }
-    }
-    /// Calls fn(item) for the items thread t gets (a team smaller than nt: the others' shares
-    /// are taken over all the same).
-    template <class Fn>
-    void run(int t, Fn&& fn) {
-        for (int k = 0; k < nt_; ++k) {
-            Share& s = s_[(t + k) % nt_];
-            for (;;) {
-                if (s.next.load(std::memory_order_relaxed) >= s.end) break;
-                const int64_t c = s.next.fetch_add(1, std::memory_order_relaxed);
-                if (c >= s.end) break;
-                fn(c);
-            }
-        }
-    }
-
-private:
-    struct alignas(64) Share {
-        std::atomic<int64_t> next;
-        int64_t end;
-    };
-    int nt_;
-    std::unique_ptr<Share[]> s_;
-};
 }  // namespace
 
 PointsXYZ voxel_downsample(const Eigen::Ref<const PointsXYZ>& points, double voxel_size,
@@ -113,7 +78,7 @@ PointsXYZ voxel_downsample(const Eigen::Ref<const PointsXYZ>& points, double vox
     const int64_t stride = points.outerStride();
     // The rows are cut into chunks (contiguous, in row order), each keyed and sorted by one
     // thread; the voxels are cut into parts (key ranges, in key order) merged and summed by one
-    // thread each; chunks and parts are shared out dynamically (Shares). Each voxel's centroid
+    // thread each; chunks and parts are shared out by parallel_chunks. Each voxel's centroid
     // is summed over its points in chunk order and, within a chunk, in row order (a stable
     // sort): in row order, whatever the cut, so the output is the same bit for bit on any
     // thread count and any number of chunks.
@@ -124,9 +89,7 @@ PointsXYZ voxel_downsample(const Eigen::Ref<const PointsXYZ>& points, double vox
     auto chunk_begin = [&](int64_t c) { return n * c / num_chunks; };
 
     // 0. lattice origin: either 0 (index offset by kOffset) or Open3D's min_bound - size / 2,
-    // from the bounds of the finite points (each chunk's, combined in the same parallel region
-    // as the rest: every fork, join and barrier may have to wake a sleeping thread, see
-    // tripod_processor/__init__.py)
+    // from the bounds of the finite points (each chunk's, combined by the caller)
     std::vector<double> bounds(6 * num_chunks);  // per chunk: lo xyz, hi xyz
     // dense voxel key over the occupied box: ((ix - ix0) * ny + (iy - iy0)) * nz + (iz - iz0),
     // lexicographic in (x, y, z) like the index itself, but only as many bits as needed; a
@@ -180,15 +143,9 @@ PointsXYZ voxel_downsample(const Eigen::Ref<const PointsXYZ>& points, double vox
     std::vector<int64_t> hist(static_cast<size_t>(nt) * kDigits);
     std::vector<std::vector<int64_t>> runs(num_chunks);  // per chunk: run starts, then its end
     std::vector<std::vector<float>> centroids(num_parts);  // per part: x, y, z of its voxels
-    Shares chunk_shares_1(nt, num_chunks), chunk_shares_2(nt, num_chunks);
-    Shares part_shares(nt, num_parts);
-    Lattice lat;
-    TRIPOD_TEAM("voxel grid");
-#pragma omp parallel num_threads(nt)
-    {
-        TRIPOD_TEAM_ENTER();
-        const int t = omp_get_thread_num();
-        chunk_shares_1.run(t, [&](int64_t c) {
+    // three passes over fixed chunks / parts (parallel_chunks: a thread that comes late holds
+    // no one up), the lattice and the part bounds computed between them by the caller
+    detail::parallel_chunks(nt, num_chunks, [&](int64_t c) {
             double lo[3], hi[3];
             for (int k = 0; k < 3; ++k) {
                 lo[k] = std::numeric_limits<double>::infinity();
@@ -206,17 +163,16 @@ PointsXYZ voxel_downsample(const Eigen::Ref<const PointsXYZ>& points, double vox
                 bounds[6 * c + k] = lo[k];
                 bounds[6 * c + 3 + k] = hi[k];
             }
-        });
-#pragma omp barrier
-        // every thread combines the chunks' bounds alike (the same lattice on every thread)
-        const Lattice L = lattice();
-        if (t == 0) lat = L;
+        }, "voxel grid: bounds");
+    const Lattice lat = lattice();
+    {
+        const Lattice& L = lat;
         const Eigen::Vector3d origin = L.origin;
         const int64_t offset = L.offset, *i0 = L.i0, *extent = L.extent;
         const uint64_t kInvalid = L.invalid;
         if (!L.empty && !L.too_big) {
-            int64_t* h = hist.data() + static_cast<size_t>(t) * kDigits;
-            chunk_shares_2.run(t, [&](int64_t c) {
+            detail::parallel_chunks(nt, num_chunks, [&](int64_t c, int t) {
+                int64_t* h = hist.data() + static_cast<size_t>(t) * kDigits;
                 const int64_t b0 = chunk_begin(c), b1 = chunk_begin(c + 1);
                 // Same arithmetic as Open3D: (p - origin) / size in double, floored, so the two
                 // agree bit for bit in kMinBound mode.
@@ -264,16 +220,15 @@ PointsXYZ voxel_downsample(const Eigen::Ref<const PointsXYZ>& points, double vox
                 int64_t e = b0;  // the chunk's end of finite points
                 while (e < b1 && src[e].key != kInvalid) ++e;
                 r.push_back(e);
-            });
-#pragma omp barrier
+            }, "voxel grid: keys");
             auto sorted = [&](int64_t c) -> const Keyed* { return in_b[c] ? B : A; };
             auto run_key = [&](int64_t c, size_t j) { return sorted(c)[runs[c][j]].key; };
             // Part bounds: keys at equal steps through a sample of every chunk's sorted finite
             // keys (kSamplesPerChunk each, weighted by the chunk's count), so the parts hold
             // about as many points each. Any increasing bounds give the same output (a voxel is
-            // merged whole in one part); these are computed alike by every thread, once, from
-            // a few hundred keys (an exact count of the points below a key, searched for by
-            // bisection over the key range, cost as much as a tenth of the merge).
+            // merged whole in one part); computed by the caller between the passes from a few
+            // hundred keys (an exact count of the points below a key, searched for by bisection
+            // over the key range, cost as much as a tenth of the merge).
             std::vector<std::pair<uint64_t, int64_t>> sample;  // (key, points it stands for)
             sample.reserve(num_chunks * kSamplesPerChunk);
             int64_t finite = 0;
@@ -300,8 +255,10 @@ PointsXYZ voxel_downsample(const Eigen::Ref<const PointsXYZ>& points, double vox
                                                  : kInvalid;
                 }
             }
-            std::vector<size_t> at(num_chunks), stop(num_chunks);
-            part_shares.run(t, [&](int64_t part) {
+            std::vector<size_t> at_stop(2 * static_cast<size_t>(nt) * num_chunks);
+            detail::parallel_chunks(nt, num_parts, [&](int64_t part, int t) {
+                size_t* at = at_stop.data() + 2 * static_cast<size_t>(t) * num_chunks;
+                size_t* stop = at + num_chunks;
                 const uint64_t k_lo = bound[part], k_hi = bound[part + 1];
                 for (int64_t c = 0; c < num_chunks; ++c) {
                     const size_t nc = runs[c].size() - 1;
@@ -345,9 +302,8 @@ PointsXYZ voxel_downsample(const Eigen::Ref<const PointsXYZ>& points, double vox
                     c_out.push_back(static_cast<float>(sy / dc));
                     c_out.push_back(static_cast<float>(sz / dc));
                 }
-            });
+            }, "voxel grid: merge");
         }  // a lattice
-        TRIPOD_TEAM_LEAVE();
     }
     if (lat.too_big)
         throw std::invalid_argument("cloud spans too many voxels (more than 2^21 per axis)");

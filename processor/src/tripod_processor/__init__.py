@@ -17,7 +17,8 @@ import os as _os
 # sleep; libgomp never spins when it has more threads than CPUs) when the machine was quiet
 # when this process started (1-min load < half the CPUs it may use): 1.82-1.98x on the idle
 # VM (bench/registration.py --threads, README "Thread scaling"). Set before _ext loads libgomp,
-# which reads them once per process.
+# which reads them once per process. The registration path's own workers
+# (tripod_core/thread_pool.cpp) read the same two variables when they start.
 
 
 def _openmp_wait_policy(environ=_os.environ) -> None:
