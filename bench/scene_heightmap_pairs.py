@@ -24,8 +24,13 @@ counted as a false success.
 
 Splits (:data:`SPLITS`): ``dev`` (seed 301, pair draw 0) and ``dev2`` (seed 302, draw 2) are
 looked at while developing; ``test`` (seed 331, draw 1) was run once for the first reported
-figure and ``test2`` (seed 332, draw 3) once for the second; ``test3`` (seed 333, draw 5) is
-fresh for the third figure; ``--fragments-only`` makes a split's captures and fragments without
+figure and ``test2`` (seed 332, draw 3) once for the second; ``test3`` (seed 333, draw 5) once
+for the third; ``dev3`` (seed 303, draw 6) and ``dev4`` (seed 304, draw 8) were added for the
+choice between a pose and its turned twins (development), and ``test4`` (seed 334, draw 7) is
+fresh for the fourth figure; ``--seed S`` (with ``--draw D``, default 9) names any other split
+by its capture seed, for a fresh test split after that. ``--min-overlap`` (development only)
+changes the 30 % limit (and with it the pair draw). ``--fragments-only`` makes a split's
+captures and fragments without
 registering anything. Pairs under 30 % true overlap are left out (neither registered nor
 counted; the bench prints how many). Captures and fragments are cached under
 ``.cache/scene_data/hm_pairs``.
@@ -59,8 +64,10 @@ STATIONS = 4
 #: fresh one (test: seed 331, run once for issue 18's first figure; test2: seed 332, fresh for
 #: the second)
 SPLITS = {"dev": (301, 0), "dev2": (302, 2), "test": (331, 1), "test2": (332, 3),
-          "test3": (333, 5)}  # test3: fresh for the third figure (uncertainty-fused levelling)
-DEV_SPLITS = ("dev", "dev2")
+          "test3": (333, 5),  # test3: fresh for the third figure (uncertainty-fused levelling)
+          "dev3": (303, 6), "dev4": (304, 8),  # dev3, dev4: development of the twin choice
+          "test4": (334, 7)}  # test4: fresh for the fourth figure (the twin choice)
+DEV_SPLITS = ("dev", "dev2", "dev3", "dev4")
 
 
 def rot_err_deg(R) -> float:
@@ -116,7 +123,8 @@ def _about(axis, angle: float) -> np.ndarray:
     return Rotation.from_rotvec(a / np.linalg.norm(a) * angle).as_matrix()
 
 
-def pairs(split: str, rigs=tuple(RIGS), scenes=SCENES, left_out: list | None = None):
+def pairs(split: str, rigs=tuple(RIGS), scenes=SCENES, left_out: list | None = None,
+          min_overlap: float = 0.3):
     """Yields (name, rig, scene, target, source, up_tgt, up_src, T_true, overlap, vp_tgt,
     vp_src) for the overlapping fragment pairs of every rig and scene of the split; the pairs
     under 30 % true overlap are not registered and not counted (appended to ``left_out`` as
@@ -140,7 +148,7 @@ def pairs(split: str, rigs=tuple(RIGS), scenes=SCENES, left_out: list | None = N
             for i in range(len(pts)):
                 for j in range(i + 1, len(pts)):
                     ov = float((trees[i].query(world[j], distance_upper_bound=0.1)[0] < 0.1).mean())
-                    if ov < 0.3 or ups[i] is None or ups[j] is None:
+                    if ov < min_overlap or ups[i] is None or ups[j] is None:
                         if left_out is not None:
                             left_out.append((f"{rig} {scene} {i}-{j}", ov))
                         continue
@@ -159,7 +167,8 @@ def pairs(split: str, rigs=tuple(RIGS), scenes=SCENES, left_out: list | None = N
 
 
 def bench_heightmap_pairs(split: str = "test", quick: bool = False, with_up: bool = True,
-                          row=None, rigs=tuple(RIGS), scenes=None) -> dict:
+                          row=None, rigs=tuple(RIGS), scenes=None,
+                          min_overlap: float = 0.3) -> dict:
     """Run the section; ``row(section, item, value)`` collects the table rows. Returns the
     counts."""
     from tripod_processor.scene.heightmap_registration import register_by_heightmaps
@@ -171,12 +180,12 @@ def bench_heightmap_pairs(split: str = "test", quick: bool = False, with_up: boo
           f"{draw}, up {'from the files' if with_up else 'ignored'}", flush=True)
     per_rig: dict[str, list[int]] = {}
     per_scene: dict[str, list[int]] = {}
-    n = ok = flagged = false_ok = false_ok_180 = doubted = 0
+    n = ok = flagged = false_ok = false_ok_180 = doubted = chosen = 0
     times, overlaps, errs = [], [], []
     c0 = time.process_time()
     left_out: list = []
     for (name, rig, scene, tgt, src, up_t, up_s, T_true, ov, vp_t,
-         vp_s) in pairs(split, tuple(rigs), scenes, left_out):
+         vp_s) in pairs(split, tuple(rigs), scenes, left_out, min_overlap):
         n += 1
         overlaps.append(ov)
         t0 = time.perf_counter()
@@ -192,6 +201,7 @@ def bench_heightmap_pairs(split: str = "test", quick: bool = False, with_up: boo
         false_ok += (not good) and r.success
         false_ok_180 += (not good) and r.success and a > 170
         doubted += good and (not r.success)
+        chosen += r.proposer.endswith("(chosen)")
         if good:
             errs.append((a, d))
         for key, tab in ((rig, per_rig), (scene, per_scene)):
@@ -200,12 +210,13 @@ def bench_heightmap_pairs(split: str = "test", quick: bool = False, with_up: boo
             tab[key][1] += 1
         print(f"    {n:3d} {name:<26} overlap {ov:.2f}: {'ok  ' if good else 'FAIL'} "
               f"{a:6.2f} deg {d * 100:6.1f} cm, flag {r.success}, twin {r.twin_ambiguity:.2f}, "
+              f"consistent {r.consistent_ratio:.2f}, "
               f"{times[-1]:.1f} s", flush=True)
     cpu = time.process_time() - c0
     sec = "hm pairs" + ("" if with_up else " (no up)")
     row(sec, f"reconstruct's fragments ({split}): pairs, overlap min / median",
         f"{n}, {min(overlaps):.2f} / {np.median(overlaps):.2f}" if n else "0")
-    row(sec, "pairs left out: true overlap < 30 % (neither registered nor counted)",
+    row(sec, f"pairs left out: true overlap < {min_overlap:.0%} (neither registered nor counted)",
         f"{len(left_out)}" + (f" (overlap max {max(o for _, o in left_out):.2f})"
                               if left_out else ""))
     if not n:
@@ -224,6 +235,7 @@ def bench_heightmap_pairs(split: str = "test", quick: bool = False, with_up: boo
     row(sec, "false successes (wrong, success = true); of them > 170 deg off",
         f"{false_ok}; {false_ok_180}")
     row(sec, "correct poses its check did not trust", f"{doubted} of {ok}")
+    row(sec, "answers the choice among twins and runners-up changed", f"{chosen} of {n}")
     row(sec, "time per pair incl. segmentation, median [s] (CPU total [s], load)",
         f"{np.median(times):.1f} ({cpu:.0f}, {os.getloadavg()[0]:.1f})")
     return {"n": n, "ok": ok, "flagged": flagged, "false_ok": false_ok,
@@ -233,6 +245,11 @@ def bench_heightmap_pairs(split: str = "test", quick: bool = False, with_up: boo
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--split", choices=sorted(SPLITS), default="test")
+    ap.add_argument("--seed", type=int, default=None,
+                    help="a split named by its capture seed (overrides --split): split 'seedS'")
+    ap.add_argument("--draw", type=int, default=9, help="the pair draw of a --seed split")
+    ap.add_argument("--min-overlap", type=float, default=0.3,
+                    help="true overlap below which a pair is left out (development only)")
     ap.add_argument("--quick", action="store_true", help="two scenes only")
     ap.add_argument("--no-up", action="store_true", help="ignore the up the files carry")
     ap.add_argument("--rigs", nargs="+", choices=list(RIGS), default=list(RIGS))
@@ -240,12 +257,16 @@ def main(argv=None) -> int:
     ap.add_argument("--fragments-only", action="store_true",
                     help="simulate and reconstruct the split's captures (cached), register nothing")
     a = ap.parse_args(argv)
+    if a.seed is not None:
+        a.split = f"seed{a.seed}"
+        SPLITS[a.split] = (a.seed, a.draw)
     if a.fragments_only:
         for rig in a.rigs:
             for scene in a.scenes or SCENES:
                 reconstructed_fragments(rig, scene, SPLITS[a.split][0])
         return 0
-    bench_heightmap_pairs(a.split, a.quick, not a.no_up, rigs=a.rigs, scenes=a.scenes)
+    bench_heightmap_pairs(a.split, a.quick, not a.no_up, rigs=a.rigs, scenes=a.scenes,
+                          min_overlap=a.min_overlap)
     return 0
 
 

@@ -263,3 +263,21 @@ def test_structure_up_is_fused_with_the_prior_by_uncertainty():
     # a floor tilted with the true up agrees with the walls
     floor = SimpleNamespace(label=FLOOR, normal=true_up, indices=np.arange(20_000))
     assert angle(structure_up([*walls, floor]), true_up) < 0.1
+
+
+def test_level_height_from_shared_floors_then_ceilings():
+    """The height between two gravity-levelled scans: fixed by their floors when both are
+    trusted, else by their ceilings (a vertical lidar may see the ceiling of a low room but not
+    its floor), else left free (None: the level ICP's)."""
+    from tripod_processor.scene.heightmap_registration.levelling import LevelledScan
+    from tripod_processor.scene.heightmap_registration.pipeline import _level_height
+
+    def scan(height, floor, ceiling):
+        e = np.zeros((0, 2))
+        return LevelledScan(np.eye(4), e, np.zeros(0), e, height, np.zeros(0, int), floor,
+                            ceiling)
+
+    assert _level_height(scan(2.8, True, False), scan(2.6, True, True)) == 0.0
+    # no floor in the source: its level frame stands 0.3 m off; the ceilings tell by how much
+    assert _level_height(scan(2.5, False, True), scan(2.8, True, True)) == pytest.approx(0.3)
+    assert _level_height(scan(2.5, False, False), scan(2.8, True, True)) is None

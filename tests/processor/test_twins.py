@@ -59,11 +59,41 @@ def test_heightmap_registration_flags_a_symmetric_twin(symmetric):
     assert turns[0] == 0.0 and 180.0 in turns  # the 180 deg twin was searched and scored
     if symmetric:
         # the twin explains the scans as well: no unique answer, whichever pose came out
-        assert not r.success and r.twin_ambiguity > 0.8, (r.twin_ambiguity, r.twins)
+        assert not r.success and (r.twin_ambiguity > 0.8 or r.consistent_ratio > 0.65), r.twins
     else:
         ang, dist = _err(r.T_target_source, np.linalg.inv(T_w_t) @ T_w_s)
         assert ang <= 1.0 and dist <= 0.05, (ang, dist)
-        assert r.success and r.twin_ambiguity < 0.8, (r.twin_ambiguity, r.twins)
+        assert r.success and r.twin_ambiguity < 0.8 and r.consistent_ratio < 0.65, r.twins
+
+
+@pytest.mark.parametrize("symmetric", [True, False])
+def test_heightmap_choice_rejects_a_twin_handed_as_the_answer(symmetric):
+    """The choice among candidates on its own: handed the 180 deg twin as the answer and the
+    true pose as a candidate, it takes the true pose when furniture breaks the room's symmetry
+    (the twin puts a cabinet where the other scan saw the wall behind it), and calls the pair
+    ambiguous when the room is exactly symmetric (both poses contradict nothing)."""
+    from tripod_processor.scene.heightmap_registration.pipeline import _segment, choose
+    from tripod_processor.scene.heightmap_registration.verification import _Verifier
+
+    scene = _room(symmetric)
+    tgt, T_w_t = _scan(scene, (2.2, 2.0), 30.0, 1)
+    src, T_w_s = _scan(scene, (5.1, 2.7), -110.0, 2)
+    T_true = np.linalg.inv(T_w_t) @ T_w_s
+    half_turn = pose(yaw_deg=180.0, xyz=(W, D, 0.0))  # the room onto itself: x -> W - x
+    T_twin = np.linalg.inv(T_w_t) @ half_turn @ T_w_s
+    S, Tg = np.asarray(src, np.float64), np.asarray(tgt, np.float64)
+    lab_s, lab_t = _segment(S, Tg, None, None, None, 0)
+    check = _Verifier(S, np.asarray(lab_s), Tg, np.asarray(lab_t), 0.08, (0, 0, 0), (0, 0, 0))
+    nan = float("nan")
+    k, amb, consistent, scored = choose(check, [("answer", 0.0, T_twin, nan, nan),
+                                    ("twin 180", 180.0, T_true, nan, nan)], 0.08)
+    assert [s[0] for s in scored] == [0.0, 180.0] and len(scored[0]) == 4
+    if symmetric:
+        assert amb > 0.8 or consistent > 0.65, scored  # no unique answer: success = false
+    else:
+        assert k == 1 and amb < 0.8 and consistent < 0.65, scored  # the true pose, clearly
+        f_twin = scored[0][3]
+        assert f_twin["viol_other"] > 0.02, f_twin  # the furniture gave the twin away
 
 
 # ---- the merge of recordings --------------------------------------------------------------------

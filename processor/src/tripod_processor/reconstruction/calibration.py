@@ -470,7 +470,8 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
                    points_per_station: int = 80_000, voxel_m: float = 0.25,
                    min_separation_s: float = 0.3, iterations: int = 8,
                    max_range: float = 60.0, sigma_inflation: float = 3.0,
-                   num_threads: int = 0) -> SelfCalibration:
+                   num_threads: int = 0, time_prior_ns: int | None = None,
+                   time_prior_sigma_ms: float = float("inf")) -> SelfCalibration:
     """Lever arm, IMU time offset and mount rotation that make every station self-consistent.
 
     At a standing station the head turns about a fixed pivot, so a surface seen at two moments
@@ -491,7 +492,10 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
     What a pan about one axis b cannot see is held at the prior: ℓ along b (moves the fragment
     rigidly) and the mount's turn about b (turns it). The time offset is seen where the turn
     rate changes (the pan's start and stop, a hand-turned head); at a constant rate it only
-    turns the fragment, and its sigma says so.
+    turns the fragment, and its sigma says so. ``time_prior_ns`` / ``time_prior_sigma_ms``: an
+    independent estimate of the offset (the head's turns, :func:`time_offset_from_turns`) joins
+    the fit as one more residual, so the offset and the lever arm, which a hand pan's uneven
+    rate makes correlate, are estimated together and the result's sigma is the joint one.
 
     The stations' sampling and residuals run side by side on ``num_threads`` threads (0: every
     core), one station a thread, gathered in station order: the same result on any count.
@@ -563,6 +567,13 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
         wgt = np.where(np.abs(r) < hub, 1.0, hub / np.maximum(np.abs(r), 1e-12))
         H = (Jr * wgt[:, None]).T @ Jr
         g = (Jr * wgt[:, None]).T @ r
+        if fit_time and time_prior_ns is not None and np.isfinite(time_prior_sigma_ms):
+            # the offset's prior (the head's turns) as one more residual, in the units of the
+            # data's information (H / (s² · inflation²) is the inverse covariance)
+            it_c = 2 if fit_lever else 0
+            w_p = (s_rob * sigma_inflation / (time_prior_sigma_ms * 1e-3)) ** 2
+            H[it_c, it_c] += w_p
+            g[it_c] += w_p * (off - time_prior_ns) * 1e-9
         # scale columns for conditioning; tiny eigenvalues (no information) are left out
         sc = np.sqrt(np.maximum(np.diag(H), 1e-30))
         Hs = H / np.outer(sc, sc)
@@ -643,27 +654,45 @@ class TurnTimeOffset:
 
 def time_offset_from_turns(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
                            ext: Extrinsic, num_threads: int = 0, *, passes: int = 2,
-                           redo_ms: float = 0.5, **kw) -> TurnTimeOffset:
+                           redo_ms: float = 0.5, redo_max_sigma_ms: float = 4.0,
+                           **kw) -> TurnTimeOffset:
     """The IMU time offset from the head's turns, at any pan profile (see
     :func:`_turn_offset_pass`). The sweeps are de-skewed by the IMU at the current offset, which
     bends them a little where the rate changes; a second pass de-skews them at the first pass's
     offset when it moved by more than ``redo_ms``."""
     res = _turn_offset_pass(lidar, stations, orient, ext, num_threads, **kw)
     for _ in range(passes - 1):
-        # no second pass for an offset too uncertain to be used (> 1 ms) or one that hardly moved
-        if not res.sigma_ms <= 1.0 or abs(res.offset_ns - orient.time_offset_ns) < redo_ms * 1e6:
+        # no second pass for an offset too uncertain to be used or one that hardly moved
+        moved_ns = abs(res.offset_ns - orient.time_offset_ns)
+        if not res.sigma_ms <= redo_max_sigma_ms or moved_ns < redo_ms * 1e6:
             break
         orient = orient.with_offset(res.offset_ns)
         res = _turn_offset_pass(lidar, stations, orient, ext, num_threads, **kw)
     return res
 
 
+def max_pair_turn_deg(a_lidar: np.ndarray, band_deg: float = 12.0, floor_deg: float = 20.0
+                      ) -> float:
+    """The largest turn [deg] about the pan axis (``a_lidar``: unit, lidar frame) at which two
+    sweeps still see the same surfaces everywhere round the lidar. A VLP-16 sees a band of
+    ±15° about its equator; with the spin axis tilted τ from the pan axis, a turn α moves the
+    band's elevation by up to 2τ·sin(α/2) (small angles), so α ≤ 2·asin(band / τ) keeps the two
+    bands within ``band_deg`` of each other: any turn for τ ≤ band (a spin axis near the pan
+    axis sees the same ring after any turn), ~80° at 18°, ``floor_deg`` for a lidar on its
+    side (whose sweeps overlap near the pan axis only)."""
+    tilt = float(np.degrees(np.arccos(min(1.0, abs(float(a_lidar[2]))))))
+    if tilt <= band_deg:
+        return 180.0
+    return float(max(floor_deg, 2.0 * np.degrees(np.arcsin(band_deg / tilt))))
+
+
 def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
-                      ext: Extrinsic, num_threads: int = 0, *, max_stations: int = 4,
-                           pairs_per_station: int = 8, step_s: float = 0.1,
-                           window_s: float = 0.1, min_turn_deg: float = 3.0,
-                           max_turn_deg: float = 20.0, min_rate_change_deg_s: float = 4.0,
-                           ) -> TurnTimeOffset:
+                      ext: Extrinsic, num_threads: int = 0, *, max_stations: int = 8,
+                      pairs_per_station: int = 6, step_s: float = 0.1,
+                      window_s: float = 0.1, min_turn_deg: float = 3.0,
+                      max_turn_deg: float | None = None, max_pair_s: float = 10.0,
+                      min_rate_change_deg_s: float = 4.0, sigma_inflation: float = 2.0
+                      ) -> TurnTimeOffset:
     """One pass of the IMU time offset from the head's turns.
 
     Two short sweeps of a station (``window_s``, de-skewed by the IMU) are registered against
@@ -671,11 +700,19 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
     IMU predicts it from its attitudes at those moments less the offset δ; a δ error turns the
     prediction about the pan axis by δ·(ω_j − ω_k), the change of the pan rate between the two
     sweeps. Pairs are chosen where the rate changes most (a motor's ramps, a hand's uneven
-    speed, a pause, a reversal) and turned ``min_turn_deg``–``max_turn_deg`` (enough shared
-    view for any mount); δ is the least-squares fit of the registrations' angles about the pan
-    axis (a mount tilt error turns them about other axes), outliers trimmed, its sigma from the
-    residuals' scatter. A pan at a perfectly constant rate with no ramp gives no pair (sigma
-    inf).
+    speed, a pause, a reversal), turned ``min_turn_deg`` up to what the mount's sweeps share
+    everywhere (:func:`max_pair_turn_deg`, unless ``max_turn_deg``: a spin axis near the pan
+    axis pairs sweeps far apart in a hand pan, whose rate differs more the longer apart), at
+    most ``max_pair_s`` apart; each sweep in one pair. The stations (up to ``max_stations``,
+    those the head turns most in) are pooled: one offset for the recording, each pair weighted
+    by its own information (δ's effect grows with the rate change). δ and the IMU's yaw drift
+    (a slow turn about the vertical that a fused attitude without magnetometer accumulates:
+    0.5°/min is 0.02° over a 2-s pair, as much as a 1-ms error at 20°/s of rate change) are
+    the least-squares fit of the registrations' angles about the pan axis (a mount tilt error
+    turns them about other axes), outliers trimmed. δ's sigma: from the residuals' scatter, at
+    least the stations' cluster-robust (sandwich) one (a station's pairs share its errors), times
+    ``sigma_inflation`` (on 6 development rigs the errors were 2.3 sigma RMS without it). A pan
+    at a perfectly constant rate with no ramp gives no pair (sigma inf).
     """
     from scipy.spatial.transform import Rotation
 
@@ -684,9 +721,11 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
     use = _pick_stations(stations, orient, max_stations)
     b = pan_axis_in_imu(orient, use)
     a_l = ext.R_imu_lidar.T @ b  # the pan axis in the lidar frame
+    turn_max = max_pair_turn_deg(a_l) if max_turn_deg is None else float(max_turn_deg)
     win = int(window_s * 1e9)
     off0 = orient.time_offset_ns
     h_ns = 2_000_000
+    max_lag = max(1, int(round(max_pair_s / step_s)))
 
     def rel(o: ImuOrientation, tk: int, tj: int) -> np.ndarray:
         T = pose_world_lidar(o, ext, np.array([tk, tj], dtype=np.int64))
@@ -703,23 +742,32 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
         R_w = orient.rotation_at(mids)
         rate = np.einsum("ni,ni->n", _world_rate(orient, mids, 50_000_000),
                          np.einsum("nij,j->ni", R_w, b))  # signed pan rate [rad/s]
-        cand = []
+        cand_dr, cand_k, cand_j = [], [], []
         for k in range(len(times) - 1):
+            hi = min(len(times), k + 1 + max_lag)
             ang = np.degrees(Rotation.from_matrix(
-                np.einsum("ji,njk->nik", R_w[k], R_w[k + 1:])).magnitude())
-            for j in np.flatnonzero((ang >= min_turn_deg) & (ang <= max_turn_deg)) + k + 1:
-                dr = abs(float(rate[j] - rate[k]))
-                if np.degrees(dr) >= min_rate_change_deg_s:
-                    cand.append((dr, k, int(j)))
-        cand.sort(reverse=True)
-        used: dict[int, int] = {}
+                np.einsum("ji,njk->nik", R_w[k], R_w[k + 1:hi])).magnitude())
+            j = np.flatnonzero((ang >= min_turn_deg) & (ang <= turn_max)) + k + 1
+            dr = np.abs(rate[j] - rate[k])
+            ok = np.degrees(dr) >= min_rate_change_deg_s
+            cand_dr.append(dr[ok])
+            cand_k.append(np.full(int(ok.sum()), k))
+            cand_j.append(j[ok])
+        if not cand_dr:
+            return meas
+        dr_all = np.concatenate(cand_dr)
+        k_all = np.concatenate(cand_k)
+        j_all = np.concatenate(cand_j)
+        # largest rate change first; ties in (k, j) order, as the serial loop had them
+        order = np.lexsort((j_all, k_all, -dr_all))
+        used = np.zeros(len(times), dtype=bool)
         chosen = []
-        for dr, k, j in cand:
-            if used.get(k, 0) >= 1 or used.get(j, 0) >= 1:
+        for m in order:
+            k, j = int(k_all[m]), int(j_all[m])
+            if used[k] or used[j]:
                 continue
-            chosen.append((k, j, dr))
-            used[k] = used.get(k, 0) + 1
-            used[j] = used.get(j, 0) + 1
+            chosen.append((k, j, float(dr_all[m])))
+            used[k] = used[j] = True
             if len(chosen) >= pairs_per_station:
                 break
         clouds: dict[int, np.ndarray] = {}
@@ -746,13 +794,15 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
 
     workers = thread_workers(num_threads, len(use))
     inner = num_threads if workers == 1 else 1
-    meas = [m for ms in _threaded_map(station_turns, [(st, inner) for st in use], workers)
-            for m in ms]
-    if len(meas) < 3:
+    per_station = _threaded_map(station_turns, [(st, inner) for st in use], workers)
+    meas = [m for ms in per_station for m in ms]
+    st_of = np.concatenate([np.full(len(ms), i) for i, ms in enumerate(per_station)] or [[]])
+    if len(meas) < 4:
         return TurnTimeOffset(off0, float("inf"), len(meas), 0.0)
     keep = np.ones(len(meas), dtype=bool)
     off = off0
     sig = float("inf")
+    dt_s = np.array([(tj - tk) * 1e-9 for tk, tj, _, _ in meas])  # [s] between the sweeps
     for it in range(4):
         o = orient.with_offset(off)
         oh = orient.with_offset(off + h_ns)
@@ -762,18 +812,32 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
             r_[m] = a_l @ Rotation.from_matrix(P.T @ A[:3, :3]).as_rotvec()
             g_[m] = a_l @ Rotation.from_matrix(P.T @ rel(oh, tk, tj)[:3, :3]).as_rotvec() / (
                 h_ns * 1e-9)
-        gg = float(np.sum(g_[keep] ** 2))
-        if gg <= 0:
-            break
-        d = float(np.sum(g_[keep] * r_[keep]) / gg)  # [s]
-        e = r_ - g_ * d
+        # r = g·δ + Δt·c: δ the offset's correction [s], c the IMU's yaw drift [rad/s]
+        X = np.stack([g_, dt_s], axis=1)
         n = int(keep.sum())
-        s_res = float(np.sqrt(np.sum(e[keep] ** 2) / max(n - 1, 1)))
-        sig = s_res / np.sqrt(gg) * 1e3 if n >= 3 else float("inf")
+        H = X[keep].T @ X[keep]
+        if not np.all(np.isfinite(H)) or H[0, 0] <= 0:
+            break
+        if n < 6 or np.linalg.cond(H) > 1e12:
+            X, H = X[:, :1], H[:1, :1]  # too few pairs for the drift: δ alone
+        sol = np.linalg.solve(H, X[keep].T @ r_[keep])
+        e = r_ - X @ sol
+        d = float(sol[0])
+        dof = max(n - X.shape[1], 1)
+        s_res = float(np.sqrt(np.sum(e[keep] ** 2) / dof))
+        Hi = np.linalg.inv(H)
+        sig = float(np.sqrt(Hi[0, 0])) * s_res * 1e3 if n >= 3 else float("inf")
+        # pairs of one station share its errors (its pan axis, its view): the cluster-robust
+        # (sandwich) variance over the stations, when there are enough, bounds sigma below
+        groups = np.unique(st_of[keep])
+        if len(groups) >= 3:
+            U = np.array([X[keep & (st_of == q)].T @ e[keep & (st_of == q)] for q in groups])
+            V = Hi @ (U.T @ U) @ Hi * len(groups) / (len(groups) - 1)
+            sig = max(sig, float(np.sqrt(max(V[0, 0], 0.0))) * 1e3)
         off = int(round(off + np.clip(d, -0.05, 0.05) * 1e9))
         scale = 1.4826 * float(np.median(np.abs(e[keep]))) + np.radians(0.005)
         new_keep = np.abs(e) < 3.0 * scale
-        if new_keep.sum() >= 3:
+        if new_keep.sum() >= 4:
             keep = new_keep
     rc = float(np.sqrt(np.mean([m[3] ** 2 for m, k in zip(meas, keep) if k])))
-    return TurnTimeOffset(off, sig, int(keep.sum()), rc)
+    return TurnTimeOffset(off, sig * sigma_inflation, int(keep.sum()), rc)

@@ -68,6 +68,16 @@ class CalibrationConfig(StrictModel):
     #: (``calibration.time_offset_from_turns``; any pan profile), joined with the stations'
     #: surfaces' when both are sure and agree; off: from the surfaces only
     time_offset_from_turns: bool = True
+    #: stations the turns' offset pools (one offset for the recording; those turned most)
+    max_turn_stations: int = Field(default=8, ge=1)
+    #: the turns' offset is applied up to this sigma [ms] (their sigma comes from the pairs'
+    #: scatter, inflated to be honest; an estimate that sure still beats the prior 0 against IMU
+    #: latencies of up to 10 ms, and the station splitter's refit tolerates ±12 ms); above
+    #: 0.5 ms it is warned as poorly observable
+    max_turns_time_offset_sigma_ms: float = Field(default=4.0, gt=0)
+    #: the turns' offset joins the surfaces' fit as a prior (offset and lever arm estimated
+    #: together); off: the surfaces fit alone, then an inverse-variance mean when they agree
+    joint_time_prior: bool = True
 
 
 class StationConfig(StrictModel):

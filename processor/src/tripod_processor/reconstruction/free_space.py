@@ -23,28 +23,33 @@ import numpy as np
 BIN_DEG = 1.0
 
 
-def _bins(P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def image_shape(bin_deg: float = BIN_DEG) -> tuple[int, int]:
+    """(azimuth bins, elevation bins) of a range image with ``bin_deg`` cells."""
+    return int(round(360 / bin_deg)), int(round(180 / bin_deg)) + 1
+
+
+def _bins(P: np.ndarray, bin_deg: float = BIN_DEG) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(azimuth bin, elevation bin, range [m]) of points (N, 3) about the origin."""
     r = np.linalg.norm(P, axis=1)
     az = np.arctan2(P[:, 1], P[:, 0]) + np.pi
     el = np.arcsin(np.clip(P[:, 2] / np.maximum(r, 1e-9), -1.0, 1.0)) + np.pi / 2
-    step = np.radians(BIN_DEG)
-    na, ne = int(round(360 / BIN_DEG)), int(round(180 / BIN_DEG)) + 1
+    step = np.radians(bin_deg)
+    na, ne = image_shape(bin_deg)
     i = np.minimum((az / step).astype(np.int64), na - 1)
     j = np.minimum((el / step).astype(np.int64), ne - 1)
     return i, j, r
 
 
-def range_image(points: np.ndarray) -> np.ndarray:
-    """(360, 181) float32: the nearest return [m] per direction of a fragment (its own frame,
-    (N, 3) [m]; a 5-6 cm voxel cloud is dense enough), eroded over 3 x 3 bins; inf where
-    nothing returned."""
+def range_image(points: np.ndarray, bin_deg: float = BIN_DEG) -> np.ndarray:
+    """(360, 181) float32 (at 1 deg ``bin_deg``): the nearest return [m] per direction of a
+    fragment (its own frame, (N, 3) [m]; a 5-6 cm voxel cloud is dense enough), eroded over
+    3 x 3 bins; inf where nothing returned."""
     from scipy import ndimage
 
     P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    img = np.full((int(round(360 / BIN_DEG)), int(round(180 / BIN_DEG)) + 1), np.inf)
+    img = np.full(image_shape(bin_deg), np.inf)
     if len(P):
-        i, j, r = _bins(P)
+        i, j, r = _bins(P, bin_deg)
         np.minimum.at(img, (i, j), r)
     return ndimage.minimum_filter(img, size=3, mode="wrap").astype(np.float32)
 

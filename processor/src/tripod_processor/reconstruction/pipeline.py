@@ -332,22 +332,27 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
     if fit_time and cc.time_offset_from_turns:
         # the time offset first, from the head's turns (registrations, blind to the lever
         # arm): the surfaces' fit below starts from it
-        turn = time_offset_from_turns(rec.lidar, seg.stations, orient, ext, cfg.num_threads)
-        if turn.sigma_ms <= cc.max_time_offset_sigma_ms:
+        turn = time_offset_from_turns(rec.lidar, seg.stations, orient, ext, cfg.num_threads,
+                                      max_stations=cc.max_turn_stations)
+        if turn.sigma_ms <= cc.max_turns_time_offset_sigma_ms:
             orient = orient.with_offset(turn.offset_ns)
         else:
             turn = None
+    # the turns' offset joins the surfaces' fit as a prior: offset and lever arm together
+    prior = {} if turn is None or not cc.joint_time_prior else {
+        "time_prior_ns": turn.offset_ns, "time_prior_sigma_ms": turn.sigma_ms}
     try:
         cal = self_calibrate(rec.lidar, seg.stations, orient, ext, fit_lever=fit_lever,
                              fit_time=fit_time_surf, fit_rotation=fit_rot,
-                             max_stations=cc.max_stations, num_threads=cfg.num_threads)
+                             max_stations=cc.max_stations, num_threads=cfg.num_threads, **prior)
         if fit_rot and not cal.rotation_observable:
             # the stations hardly see the mount's tilt (a spin axis near the pan axis in a
             # small room): hand-eye's tilt is the better one; the rest again with it held
             if fit_lever or fit_time_surf:
                 cal = self_calibrate(rec.lidar, seg.stations, orient, ext, fit_lever=fit_lever,
                                      fit_time=fit_time_surf, fit_rotation=False,
-                                     max_stations=cc.max_stations, num_threads=cfg.num_threads)
+                                     max_stations=cc.max_stations, num_threads=cfg.num_threads,
+                                     **prior)
             fit_rot = False
             notes.append("WARNING: mount tilt poorly observable from the stations' surfaces; "
                          "hand-eye's kept")
@@ -363,7 +368,11 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
                          f"{np.max(cal.lever_arm_sigma_m) * 1000:.1f} mm): few surfaces seen "
                          "from opposite sides of the pan")
     off = orient.time_offset_ns
-    if turn is not None:
+    if turn is not None and prior:
+        # the joint fit holds both: its offset and sigma are the result
+        cal.time_offset_method = "turns and surfaces (joint)"
+        cal.turns = turn.to_dict()
+    elif turn is not None:
         # the surfaces' estimate joins the turns' when it is sure and agrees (inverse-variance
         # mean); else the turns' alone
         s_t, s_s = turn.sigma_ms, cal.time_offset_sigma_ms
@@ -378,8 +387,13 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
             cal.time_offset_method = "turns"
         cal.time_offset_observable = bool(cal.time_offset_sigma_ms < 0.5)
         cal.turns = turn.to_dict()
+    if turn is not None and prior:
+        cal.time_offset_observable = bool(cal.time_offset_sigma_ms < 0.5)
     if fit_time:
-        if cal.time_offset_sigma_ms <= cc.max_time_offset_sigma_ms:
+        # the turns' sigma is honest (their scatter); the surfaces' alone is optimistic
+        limit = (cc.max_turns_time_offset_sigma_ms if turn is not None
+                 else cc.max_time_offset_sigma_ms)
+        if cal.time_offset_sigma_ms <= limit:
             off = cal.time_offset_ns
             if not cal.time_offset_observable:
                 notes.append(f"WARNING: IMU time offset poorly observable (σ "

@@ -37,6 +37,10 @@ class LevelledScan:
     #: the floor is a plane with (almost) nothing below it: its height can be trusted (a
     #: table top taken for the floor by a scan that saw no floor has walls below it)
     floor_trusted: bool = True
+    #: the ceiling (at z = ``height``) is a plane with (almost) nothing above it: two scans that
+    #: both see it share its height when a floor is missing (a vertical lidar's narrow band may
+    #: see the ceiling of a low room but not the floor)
+    ceiling_trusted: bool = False
 
 
 def structure_up(planes, *, prior_sigma_deg: float = 0.25, min_sigma_deg: float = 0.1,
@@ -111,7 +115,9 @@ def level_scan(points, labels, *, seed: int = 0, max_points: int = 200_000,
     sizeable floor plane within 10 deg of horizontal and gives the height only, and without one
     the height comes from the lowest floor-labelled (else lowest) points: a lidar with its spin
     axis vertical sees little floor in a small room, but gravity and its walls still level it.
-    ``floor_trusted``: the floor is a plane with under 1 % of the points below it."""
+    ``floor_trusted``: the floor is a plane with under 1 % of the points below it;
+    ``ceiling_trusted`` (gravity only): the ceiling is a plane within 10 deg of horizontal with
+    under 1 % of the points above it."""
     P = np.asarray(points, np.float64)
     labels = np.asarray(labels)
     ok = np.isfinite(P).all(1)
@@ -150,13 +156,16 @@ def level_scan(points, labels, *, seed: int = 0, max_points: int = 200_000,
         raise ValueError("no floor plane found: cannot level the scan")
     R = T[:3, :3]
     Q = P @ R.T + T[:3, 3]
-    ceilings = [p for p in planes if p.label == CEILING]
+    ceilings = [p for p in planes if p.label == CEILING
+                and (not gravity or abs(p.normal[2]) > np.cos(np.radians(10.0)))]
+    ceiling_trusted = False
     if ceilings:
         cl = max(ceilings, key=lambda p: len(p.indices))
         height = float(np.median(Q[cl.indices, 2]))
+        ceiling_trusted = bool(gravity and float((Q[:, 2] > height + 0.10).mean()) < 0.01)
     else:
         height = float(np.percentile(Q[:, 2], 99.5))
     band = (Q[:, 2] > 0.10) & (Q[:, 2] < height - 0.10)
     trusted = bool(floors) and float((Q[:, 2] < -0.10).mean()) < 0.01
     return LevelledScan(T, Q[band, :2], Q[band, 2], Q[floor_idx, :2], height, labels[band],
-                        trusted)
+                        trusted, ceiling_trusted)

@@ -30,14 +30,21 @@ class HeightmapMatch:
     proposer : which matcher proposed the answer ("correlation", "keypoints", "shapes")
     hypotheses : number of distinct hypotheses verified
     free_space_violation : share of either scan's structure the other saw through, at the answer
-    twin_ambiguity : the best *turned twin*'s full-resolution score / the answer's (the answer
-        turned by 180, 90 and 270 deg about the vertical, each re-searched, refined and
-        polished like the answer; score = tight inlier share (``max_distance`` / 2) of the
-        structure, both ways, less ``free_space_weight`` x the free-space violation): ~1 when a
-        twin explains the scans as well (a symmetric room), > 1 when it explains them better;
-        the answer is then not unique (it is kept: the twins only judge it; at most 10)
+    twin_ambiguity : the choice among near-symmetric candidates (:func:`choose`): the answer,
+        its turned twins (180 deg: three shift peaks; 90 and 270 deg: one) and the verification's
+        two best runners-up, each searched, refined and polished like the answer and scored by
+        their full 3-D consistency (fit less 30 x the free-space violation above 1 %, the walls
+        and the rest apart); the best is the answer (``proposer`` then ends in "(chosen)") and
+        this is the best other candidate's score over its own: ~1 when another pose explains
+        the scans as well (a symmetric hall), and the answer is then not unique (at most 10)
+    twins : (turn [deg], T_target_source, score, features) of every candidate of that choice,
+        the verification's answer first (turn 0)
+    consistent_ratio : the best other candidate that contradicts nothing (free-space violation
+        within the 1 % allowance): its fit over the answer's (such a pose is as valid an
+        explanation; > ``max_consistent_ratio``: ambiguous)
     success : structure_fitness >= min_fitness, free_space_violation <= max_violation,
-        ambiguity <= max_ambiguity and twin_ambiguity <= max_twin_ambiguity
+        ambiguity <= max_ambiguity, twin_ambiguity <= max_twin_ambiguity and consistent_ratio
+        <= max_consistent_ratio
     seconds : wall time; stages : per-stage times [s]
     verified : (proposer, verification score, T_target_source, structure fitness, free-space
         violation) of every verified hypothesis, best first (score = fitness - weight x violation)
@@ -59,6 +66,7 @@ class HeightmapMatch:
     verified: list = field(default_factory=list)
     twin_ambiguity: float = 0.0
     twins: list = field(default_factory=list)
+    consistent_ratio: float = 0.0
 
 
 def register_by_heightmaps(source, target, *, source_labels=None, target_labels=None,
@@ -68,7 +76,8 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
                            use_keypoints: bool = True, use_shapes: bool = True,
                            max_distance: float = 0.08, min_fitness: float = 0.4,
                            max_ambiguity: float = 0.97, max_violation: float = 0.05,
-                           max_twin_ambiguity: float = 0.8, twins: bool = True,
+                           max_twin_ambiguity: float = 0.8, max_consistent_ratio: float = 0.65,
+                           twins: bool = True,
                            other_weight: float = 2.0,
                            free_space_weight: float = 10.0, viewpoint_source=(0.0, 0.0, 0.0),
                            viewpoint_target=(0.0, 0.0, 0.0), weights=None, seed: int = 0,
@@ -95,9 +104,12 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
     max_ambiguity : runner-up / winner verification score above which the answer is not unique
     max_violation : share of structure seen through by the other scan above which the answer is
         inconsistent (two different rooms of similar shape overlap well, but not in free space)
-    max_twin_ambiguity : best turned twin's score / the answer's above which the answer is
-        ambiguous (``twin_ambiguity``)
-    twins : check the turned twins of the answer (off: the answer as verified)
+    max_twin_ambiguity : best other candidate's score / the chosen one's above which the answer
+        is ambiguous (``twin_ambiguity``)
+    max_consistent_ratio : fit of a candidate that contradicts nothing over the chosen one's
+        above which the answer is ambiguous (``consistent_ratio``)
+    twins : choose among the answer, its turned twins and the runners-up (off: the answer as
+        verified)
     free_space_weight : weight of that share against the structure fitness when ranking
         hypotheses (a point seen through is a contradiction, a missing overlap is only unseen)
     viewpoint_source, viewpoint_target : (3,) the sensor position in each cloud's frame [m]
@@ -126,6 +138,7 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
                  use_keypoints=use_keypoints, use_shapes=use_shapes, max_distance=max_distance,
                  min_fitness=min_fitness, max_ambiguity=max_ambiguity,
                  max_violation=max_violation, max_twin_ambiguity=max_twin_ambiguity,
+                 max_consistent_ratio=max_consistent_ratio,
                  twins=twins, other_weight=other_weight,
                  free_space_weight=free_space_weight, weights=weights, seed=seed,
                  num_threads=num_threads))
@@ -160,8 +173,7 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
     check = _Verifier(S, source_labels, Tg, target_labels, max_distance, viewpoint_source,
                       viewpoint_target, num_threads)
     if source_gravity and target_gravity:  # both level by gravity: the ICPs keep them level
-        check.keep_level(ls.T_level_scan, lt.T_level_scan,
-                         ls.floor_trusted and lt.floor_trusted)
+        check.keep_level(ls.T_level_scan, lt.T_level_scan, _level_height(ls, lt))
     screened = _screen(proposals, ls, lt, check, 3 * cp, free_space_weight)
     hyps = []
     for _, yaw0, shift0, who in screened[:verify]:
@@ -184,26 +196,31 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
     T, fitness, rmse = check.final(best[3])
     stages["final"] = time.perf_counter() - t1
 
-    # 6. the turned twins of the answer, each searched, refined and polished the same way and
-    #    scored at full resolution: one that scores nearly as well (or better) makes the answer
-    #    ambiguous (a symmetric room has no unique answer)
-    twin_amb, twin_list, who = 0.0, [], best[2]
+    # 6. the choice among near-symmetric candidates: the answer, its turned twins and the
+    #    runners-up, each searched, refined and polished the same way, scored by their full 3-D
+    #    consistency; the best is the answer, one that scores nearly as well makes it ambiguous
+    #    (a symmetric room has no unique answer)
+    twin_amb, consistent, twin_list, who = 0.0, 0.0, [], best[2]
     if twins:
         t1 = time.perf_counter()
-        tight = 0.5 * max_distance
-        twin_amb, twin_list = _twins(ls, lt, check, T, fitness, rmse, fp, fine_step_deg,
-                                     coarse_step_deg, tight, free_space_weight, other_weight,
-                                     seed)
-        stages["twins"] = time.perf_counter() - t1
+        cands = _candidates(ls, lt, check, T, checked, fp, fine_step_deg, coarse_step_deg,
+                            other_weight, seed)
+        stages["candidates"] = time.perf_counter() - t1
+        t1 = time.perf_counter()
+        k, twin_amb, consistent, twin_list = choose(check, cands, max_distance)
+        if k:  # a turned twin or a runner-up explains both scans better
+            T, fitness, rmse = cands[k][2], cands[k][3], cands[k][4]
+            who = f"{cands[k][0]} (chosen)"
+        stages["choice"] = time.perf_counter() - t1
     sfit = check.structure_fitness(T)
     viol = check.free_space_violation(T)
     ok = (sfit >= min_fitness and viol <= max_violation and ambiguity <= max_ambiguity
-          and twin_amb <= max_twin_ambiguity)
+          and twin_amb <= max_twin_ambiguity and consistent <= max_consistent_ratio)
     return HeightmapMatch(T, float(best[1]), float(sfit), float(viol), float(ambiguity), fitness,
                           rmse, _footprint_distance(ls, lt), who, len(checked), bool(ok),
                           time.perf_counter() - t0, stages,
                           [(c[2], c[0], c[3], c[4], c[5]) for c in checked], float(twin_amb),
-                          twin_list)
+                          twin_list, float(consistent))
 
 
 #: turns about the vertical that give the twins of an answer (a rectangle's 180 deg, a square's
@@ -211,43 +228,97 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
 TWIN_TURNS_DEG = (180.0, 90.0, 270.0)
 
 
-def _twins(ls, lt, check, T, fitness, rmse, fp: float, fine_step_deg: float,
-           coarse_step_deg: float, tight: float, free_space_weight: float,
-           other_weight: float, seed: int):
-    """The answer ``T`` against its turned twins: for each turn of :data:`TWIN_TURNS_DEG` the
-    dense correlation over yaws within a coarse step of the answer's yaw + the turn (every
-    shift), refined at the fine pixel and yaw step, lifted, polished and finished like the
-    answer; all scored by :meth:`_Verifier.twin_score` (tight inlier share less the weighted
-    free-space violation, full resolution). Returns (twin ambiguity: the best twin's score over
-    the answer's, [(turn deg, T, score)] with the answer first as turn 0)."""
+def _candidates(ls, lt, check, T, checked, fp: float, fine_step_deg: float,
+                coarse_step_deg: float, other_weight: float, seed: int, peaks: int = 3) -> list:
+    """The answer ``T`` and the poses it could be confused with, each finished like it
+    (polished, final ICP): its turned twins (:data:`TWIN_TURNS_DEG`; the dense correlation over
+    yaws within a coarse step of the answer's yaw + the turn, the ``peaks`` best distinct shifts
+    at 180 deg and the best at 90 and 270 deg) and the verification's two best distinct
+    runners-up. Returns [(label, turn [deg], T, fitness, rmse)], the answer first, no two the
+    same pose."""
     M = lt.T_level_scan @ T @ np.linalg.inv(ls.T_level_scan)
     yaw0 = float(np.arctan2(M[1, 0], M[0, 0]))
-    cand = [(0.0, T, fitness, rmse, check.twin_score(T, tight, free_space_weight))]
+    cands = [("answer", 0.0, T, float("nan"), float("nan"))]
     offs = np.deg2rad(np.arange(-coarse_step_deg, coarse_step_deg + 1e-9, fine_step_deg))
+
+    def add(label, turn, T0):
+        T1, fit, rmse = check.final(check.polish(T0))
+        if not any(_same_pose(T1, c[2]) for c in cands):
+            cands.append((label, turn, T1, fit, rmse))
+
     for turn in TWIN_TURNS_DEG:
-        yaws = yaw0 + np.deg2rad(turn) + offs
-        found = _search(ls, lt, yaws, fp, seed=seed, other_weight=other_weight)
-        if not found:
-            continue
-        _, yaw, shift = found[0]
-        T_alt = check.polish(_lift(ls, lt, yaw, shift))
-        T_alt, fit_alt, rmse_alt = check.final(T_alt)
-        if _same_pose(T_alt, T):  # the polish ran back to the answer: no twin there
-            continue
-        cand.append((turn, T_alt, fit_alt, rmse_alt,
-                     check.twin_score(T_alt, tight, free_space_weight)))
-    # the answer stays (the verification ranked it); the twins only judge it: the best twin's
-    # score over the answer's, > 1 when a twin scores better (a swap to the better-scoring twin
-    # picked the wrong one more often than the right one on reconstruct's fragments)
-    own = cand[0][4]
-    best_twin = max((c[4] for c in cand[1:]), default=None)
-    if best_twin is None:
+        n = peaks if turn == 180.0 else 1  # a rectangle's twin; a square's are rarer
+        for _, yaw, shift in _search(ls, lt, yaw0 + np.deg2rad(turn) + offs, fp, seed=seed,
+                                     other_weight=other_weight, keep=n, shifts=n):
+            add(f"twin {turn:.0f}", turn, _lift(ls, lt, yaw, shift))
+    runners = [c for c in checked[1:] if not _same_pose(c[3], T)][:2]
+    for c in runners:
+        M2 = lt.T_level_scan @ c[3] @ np.linalg.inv(ls.T_level_scan)
+        turn = float(np.degrees(np.arctan2(M2[1, 0], M2[0, 0]) - yaw0)) % 360.0
+        add("runner-up", turn, c[3])
+    return cands
+
+
+def choose(check, cands: list, distance: float, free_space_weight: float = 30.0,
+           noise: float = 0.01) -> tuple[int, float, float, list]:
+    """Choose among near-symmetric candidates (:func:`_candidates`, the answer first) by their
+    full 3-D consistency (:meth:`_Verifier.consistency`, walls and the rest apart).
+
+    score = fit - ``free_space_weight`` x max(0, violation - ``noise``), where fit is the share
+    of the structure (walls and the rest together) within ``distance`` of the other scan's
+    surface and violation the mean of the walls' and the rest's shares that the other scan saw
+    through (the rest counts as much as the walls: a room's shell fits its turned twin, its
+    furniture does not, and a cabinet standing where the other scan saw the wall behind it is
+    the contradiction that tells them apart); up to ``noise`` is what a right pose shows (range
+    noise, the lever arm's travel), or what the pair's most consistent overlapping candidate
+    shows, up to 3 x ``noise`` (thin furniture is seen through between its parts from another
+    viewpoint: a synthetic room's chairs gave its true pose 6-10 % of its furniture seen
+    through). The best score is chosen. Ambiguity: the best other
+    candidate's score over the chosen one's: a pose that contradicts nothing and overlaps about
+    as much is an equally good explanation (a symmetric hall's twin: its fit is often *higher*,
+    both scans then seeing the columns from the same side), so a fit ratio near 1 there means
+    the scans cannot tell; a contradicting twin scores far below.
+
+    A candidate whose violation is within ``noise`` contradicts nothing: it is as valid an
+    explanation as the chosen one whatever its fit, so its fit over the chosen one's is
+    returned too (``consistent``; the pipeline calls the answer ambiguous above
+    ``max_consistent_ratio``): fit depends on where the scans were taken from, and in a
+    symmetric hall the true pose fitted 0.8 of its twin's on dev seed 303 (score ratio 0.81,
+    just at the 0.8 limit), while the consistent alternatives of the right answers of dev
+    pairs with >= 30 % overlap fitted at most 0.57 of it (barely touching placements).
+
+    Returns (index of the chosen candidate, ambiguity: the best other score over the chosen
+    one's (0..10), consistent: the best consistent other's fit over the chosen one's (0..10),
+    [(turn, T, score, features)] of every candidate in their order (the answer first))."""
+    feats = []
+    for label, turn, T, _, _ in cands:
+        f = check.consistency(T, distance)
+        n_w, n_o = f["n_wall"], f["n_other"]
+        fit = (n_w * f["fit_wall"] + n_o * f["fit_other"]) / max(n_w + n_o, 1)
+        viol = 0.5 * (f["viol_wall"] + f["viol_other"]) if n_o >= 50 else f["viol_wall"]
+        feats.append(dict(f, fit=fit, viol=viol))
+    # the pair's own noise floor (up to 3 x ``noise``): what the most consistent of the
+    # candidates that overlap (fit >= half the best) shows: thin furniture, chair legs, is seen
+    # through between its parts from the other viewpoint; a candidate that barely overlaps
+    # contradicts nothing and sets no floor
+    top = max(f["fit"] for f in feats)
+    noise = min(3.0 * noise, max(noise, min(f["viol"] for f in feats if f["fit"] >= 0.5 * top)))
+    scored = [(f["fit"] - free_space_weight * max(0.0, f["viol"] - noise), f) for f in feats]
+    k = int(np.argmax([s for s, _ in scored]))
+    own, fit_own = scored[k][0], scored[k][1]["fit"]
+    others = [sc for i, sc in enumerate(scored) if i != k]
+    if not others:
         amb = 0.0
     elif own <= 0:
-        amb = 1.0 if best_twin <= 0 else float("inf")
+        amb = 1.0
     else:
-        amb = max(0.0, best_twin / own)
-    return float(min(amb, 10.0)), [(c[0], c[1], c[4]) for c in cand]
+        amb = max(0.0, max(s for s, _ in others) / own)
+    # an alternative that contradicts nothing is a valid explanation whatever its fit: judged
+    # by its share of the chosen one's fit (a symmetric hall's true pose fits ~0.8 of its twin's)
+    consistent = max((f["fit"] / max(fit_own, 1e-9) for _, f in others if f["viol"] <= noise),
+                     default=0.0)
+    return (k, float(min(amb, 10.0)), float(min(consistent, 10.0)),
+            [(c[1], c[2], sc[0], sc[1]) for c, sc in zip(cands, scored)])
 
 
 def _register_levelled(source, target, source_up, target_up, viewpoint_source, viewpoint_target,
@@ -296,6 +367,19 @@ def _proposals(ls, lt, stages: dict, yaws, cp: float, fpx: float, candidates: in
         proposals += _shape_proposals(ls, lt, fpx, seed)
         stages["shapes"] = time.perf_counter() - t1
     return proposals
+
+
+def _level_height(ls, lt) -> float | None:
+    """Height [m] of the source's level frame in the target's when two horizontal planes tell it:
+    0 when both floors are trusted (both level frames stand on them), else the ceilings'
+    difference when both ceilings are; None (the height left to the level ICP) when neither
+    pair is seen. A vertical lidar's band sees no floor in a small room: its height then rests
+    on furniture and the walls' ends only (``success`` does not check it)."""
+    if ls.floor_trusted and lt.floor_trusted:
+        return 0.0
+    if ls.ceiling_trusted and lt.ceiling_trusted:
+        return float(lt.height - ls.height)
+    return None
 
 
 def _footprint_distance(ls, lt) -> float:

@@ -33,35 +33,28 @@ def _lift(ls: "LevelledScan", lt: "LevelledScan", yaw: float, shift) -> np.ndarr
 
 
 class _RangeImage:
-    """Nearest return per direction around a scan's viewpoint: a spherical image (``step_deg``
-    bins of azimuth and elevation) of the smallest range, eroded over the 3 x 3 neighbourhood so
-    that only space seen through in every neighbouring direction counts as free."""
+    """Nearest return per direction around a scan's viewpoint (``reconstruction.free_space``'s
+    range image about that point, ``step_deg`` bins, eroded over the 3 x 3 neighbourhood so
+    that only space seen through in every neighbouring direction counts as free)."""
 
     def __init__(self, P: np.ndarray, viewpoint, step_deg: float = 0.5) -> None:
-        from scipy import ndimage
+        from ...reconstruction import free_space
 
         self.v = np.asarray(viewpoint, np.float64).reshape(3)
-        self.step = np.radians(step_deg)
-        self.shape = (int(round(2 * np.pi / self.step)), int(round(np.pi / self.step)) + 1)
-        i, j, r = self._bins(P)
-        img = np.full(self.shape, np.inf)
-        np.minimum.at(img, (i, j), r)
-        self.img = ndimage.minimum_filter(img, size=3, mode="wrap")
+        self.step_deg = step_deg
+        self.img = free_space.range_image(np.asarray(P, np.float64) - self.v, step_deg)
 
     def _bins(self, P):
-        d = np.asarray(P, np.float64) - self.v
-        r = np.linalg.norm(d, axis=1)
-        az = np.arctan2(d[:, 1], d[:, 0]) + np.pi
-        el = np.arcsin(np.clip(d[:, 2] / np.maximum(r, 1e-9), -1, 1)) + np.pi / 2
-        i = np.minimum((az / self.step).astype(np.int64), self.shape[0] - 1)
-        j = np.minimum((el / self.step).astype(np.int64), self.shape[1] - 1)
-        return i, j, r
+        from ...reconstruction import free_space
 
-    def seen_through(self, P) -> np.ndarray:
-        """(N,) bool: the point lies clearly in front of the nearest return in its direction."""
+        return free_space._bins(np.asarray(P, np.float64) - self.v, self.step_deg)
+
+    def seen_through(self, P, rel: float = 0.95, margin_m: float = 0.10) -> np.ndarray:
+        """(N,) bool: the point lies clearly in front of the nearest return in its direction
+        (closer than ``rel`` x that range less ``margin_m``)."""
         i, j, r = self._bins(P)
-        lim = self.img[i, j]
-        return np.isfinite(lim) & (r < 0.95 * lim - 0.10)
+        lim = self.img[i, j].astype(np.float64)
+        return np.isfinite(lim) & (r < rel * lim - margin_m)
 
 
 def _in_free_space(P: np.ndarray, rimg: _RangeImage) -> float:
@@ -93,6 +86,17 @@ class _Verifier:
             return np.asarray(voxel_downsample(st.astype(np.float32), 0.10), np.float64)
 
         self.struct, self.struct_t = structure(S, labels_s), structure(Tg, labels_t)
+
+        def part(P, lab, cls):
+            v = np.asarray(voxel_downsample(P[lab == cls].astype(np.float32), 0.10),
+                           np.float64).reshape(-1, 3)
+            return v[:: max(1, len(v) // 20_000)]  # an even subset: a hall has 140 k voxels
+
+        # the structure by class for the choice among near-symmetric candidates: the walls
+        # (a room's shell, symmetric) and the rest (furniture, columns: what breaks it)
+        self.parts = {c: (part(S, labels_s, k), part(Tg, labels_t, k))
+                      for c, k in (("wall", WALL), ("other", OTHER))}
+        self._oriented = None
         # an even subset for screening many hypotheses
         self.few = self.struct[:: max(1, len(self.struct) // 3000)]
         self.few_t = self.struct_t[:: max(1, len(self.struct_t) // 3000)]
@@ -106,28 +110,30 @@ class _Verifier:
         self.surf_s, self.surf_t = surface(S), surface(Tg)
         self.level = None
 
-    def keep_level(self, L_s, L_t, same_floor: bool) -> None:
+    def keep_level(self, L_s, L_t, height: float | None) -> None:
         """Both scans are levelled by gravity (T_level_scan ``L_s``, ``L_t``): every ICP result
         is taken back to a yaw and a shift between the level frames and its translation refitted
         with that rotation fixed (a thin band of walls, as a vertical lidar sees, lets a free
-        ICP tip over by degrees). ``same_floor``: both floors were seen (trusted), so the floors
-        coincide and the height is kept; else it stays free (such a scan may see no floor)."""
-        self.level = (np.asarray(L_s, np.float64), np.asarray(L_t, np.float64), bool(same_floor))
+        ICP tip over by degrees). ``height``: the source level frame's height in the target's
+        [m] when horizontal planes both scans saw tell it (0 on shared floors, the ceilings'
+        difference), kept fixed; None: it stays free (such a scan may see no floor)."""
+        self.level = (np.asarray(L_s, np.float64), np.asarray(L_t, np.float64),
+                      None if height is None else float(height))
 
     def _levelled(self, T, src, tgt, **kw):
         """``T`` turned to a yaw between the level frames, its translation refitted."""
         from ...registration.pairwise import register
 
-        L_s, L_t, same_floor = self.level
+        L_s, L_t, height = self.level
         M = L_t @ T @ np.linalg.inv(L_s)
-        if same_floor:
-            M[2, 3] = 0.0
+        if height is not None:
+            M[2, 3] = height
         yaw = np.arctan2(M[1, 0], M[0, 0])
         M[:3, :3] = [[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]]
         T1 = np.ascontiguousarray(np.linalg.inv(L_t) @ M @ L_s)
         try:
             r = register(src, tgt, init=T1, rotation_prior=T1[:3, :3], rotation_prior_sigma=0.0,
-                         lock_z=same_floor, num_threads=self.threads, **kw)
+                         lock_z=height is not None, num_threads=self.threads, **kw)
         except ValueError:
             return T1, None
         return r.T_target_source, r
@@ -154,12 +160,27 @@ class _Verifier:
         return 0.5 * (self._on_surface(a @ T[:3, :3].T + T[:3, 3], self.surf_t, tol)
                       + self._on_surface(b @ Ti[:3, :3].T + Ti[:3, 3], self.surf_s, tol))
 
-    def twin_score(self, T, tight: float, free_space_weight: float) -> float:
-        """Score of a pose against its turned twins, at full resolution: the structure's share
-        within ``tight`` of the other's surface (both ways) less ``free_space_weight`` x the
-        free-space violation (both ways)."""
-        return (self.structure_fitness(T, tight)
-                - free_space_weight * self.free_space_violation(T))
+    def consistency(self, T, tight: float, rel: float = 0.98, margin_m: float = 0.10) -> dict:
+        """Full 3-D consistency of a pose, by class (walls, other), each the mean of both
+        directions (source on target, target on source): ``fit_<class>`` the share within
+        ``tight`` of the other's surface, ``viol_<class>`` the share the other scan saw through
+        (in front of its nearest return by more than (1 - ``rel``) x range + ``margin_m``), and
+        the counts ``n_<class>`` of both; shares of a class with under 50 points are 0."""
+        Ti = np.linalg.inv(T)
+        out = {}
+        for c, (a, b) in self.parts.items():
+            a = a @ T[:3, :3].T + T[:3, 3]
+            b = b @ Ti[:3, :3].T + Ti[:3, 3]
+            n = min(len(a), len(b))
+            out[f"n_{c}"] = n
+            if n < 50:
+                out[f"fit_{c}"] = out[f"viol_{c}"] = 0.0
+                continue
+            out[f"fit_{c}"] = 0.5 * (self._on_surface(a, self.surf_t, tight)
+                                     + self._on_surface(b, self.surf_s, tight))
+            out[f"viol_{c}"] = 0.5 * (float(self.range_t.seen_through(a, rel, margin_m).mean())
+                                      + float(self.range_s.seen_through(b, rel, margin_m).mean()))
+        return out
 
     def _on_surface(self, p, surf, tol: float) -> float:
         tree, pts, nrm, nok = surf
@@ -201,7 +222,9 @@ class _Verifier:
             return prepare(voxel_downsample(P.astype(np.float32), voxel), num_neighbors=nn,
                            viewpoint=v, point_sigma=0.03, num_threads=self.threads)
 
-        src, tgt = oriented(self._S, self.range_s.v), oriented(self._Tg, self.range_t.v)
+        if self._oriented is None:  # once per pair: every candidate is finished on them
+            self._oriented = (oriented(self._S, self.range_s.v), oriented(self._Tg, self.range_t.v))
+        src, tgt = self._oriented
         T2 = np.ascontiguousarray(T, dtype=np.float64)
         r = None
         kw = dict(method="plane", max_iterations=15, rotation_eps=1e-6, translation_eps=1e-5,
