@@ -129,6 +129,11 @@ class OdometryConfig(StrictModel):
     oriented_refine: bool = True
     #: a loop closure registered from the map's guess is kept when it moves less than this [m]
     guess_radius_m: float = Field(default=0.5, gt=0)
+    #: ... and overlaps at least this much; a weaker one competes with the top-down seeds, which
+    #: must beat its overlap by ``guess_margin`` (a guess from a map that a wrong odometry pair
+    #: put wrong converges near itself at a low overlap)
+    guess_min_fitness: float = Field(default=0.5, ge=0, le=1)
+    guess_margin: float = Field(default=0.2, ge=0)
     #: below this overlap (fitness) a pair is taken as not registered
     min_fitness: float = Field(default=0.3, ge=0, le=1)
     #: check each pair's candidate poses against free space (``free_space``): a candidate that
@@ -156,6 +161,13 @@ class SlamConfig(StrictModel):
     #: odometry edges are robust and rejectable too (when the graph stays connected without
     #: them): loops around a wrong odometry edge outvote it
     robust_odometry: bool = True
+    #: start the pose graph from the chain that most edges agree with (``slam.consensus_initial``):
+    #: an odometry pair that loops agreeing with each other contradict is left out of the start
+    #: (a robust graph started from a chain metres off keeps the chain and drops the loops)
+    loop_consensus: bool = True
+    #: an edge agrees with a start when within this [m] and [deg] of it
+    consensus_m: float = Field(default=0.3, gt=0)
+    consensus_deg: float = Field(default=3.0, gt=0)
     #: tilt sigma of the IMU's gravity priors [deg]
     gravity_sigma_deg: float = Field(default=0.1, gt=0)
 

@@ -156,8 +156,15 @@ def run_slam(frags: list[Fragment], T_odom: np.ndarray, odom_edges: list[pg.Edge
                 _merge_components(comp, i, j)
         if progress is not None:
             progress.update(1)
-    # components joined by loops start where those loops put them
+    # components joined by loops start where those loops put them; an odometry pair that the
+    # loops around it outvote is left out of the start (the graph then rejects it)
     T_init = _chain_initial(n, edges, T_odom, frags)
+    if scfg.loop_consensus:
+        T_init, dropped = consensus_initial(n, edges, T_init, T_odom, frags,
+                                            scfg.consensus_m, scfg.consensus_deg)
+        for e, m in dropped:
+            notes.append(f"odometry pair {e.i}-{e.j} disagrees with {m} loop closures that agree "
+                         "with the rest: the pose graph starts without it")
 
     # 2. pose graph over the main component (that of station 0, or the largest)
     ids, counts = np.unique(comp, return_counts=True)
@@ -191,6 +198,85 @@ def run_slam(frags: list[Fragment], T_odom: np.ndarray, odom_edges: list[pg.Edge
 def _loop_guess(T_odom: np.ndarray, comp: np.ndarray, i: int, j: int) -> np.ndarray | None:
     """T_i_j from the odometry map when both stations are in the same component, else None."""
     return inv(T_odom[i]) @ T_odom[j] if comp[i] == comp[j] else None
+
+
+def _agreeing(edges: list[pg.Edge], T: np.ndarray, tol_m: float, tol_deg: float
+              ) -> np.ndarray:
+    """(M,) bool: each edge's T_i_j within ``tol_m`` / ``tol_deg`` of the poses ``T``."""
+    out = np.zeros(len(edges), dtype=bool)
+    cos_tol = np.cos(np.radians(tol_deg))
+    for k, e in enumerate(edges):
+        D = inv(e.T_i_j) @ inv(T[e.i]) @ T[e.j]
+        out[k] = (np.linalg.norm(D[:3, 3]) < tol_m
+                  and (np.trace(D[:3, :3]) - 1) / 2 > cos_tol)
+    return out
+
+
+def consensus_initial(n: int, edges: list[pg.Edge], T_init: np.ndarray, T_odom: np.ndarray,
+                      frags: list[Fragment], tol_m: float = 0.3, tol_deg: float = 3.0,
+                      max_rounds: int = 3) -> tuple[np.ndarray, list[tuple[pg.Edge, int]]]:
+    """The pose graph's start, checked against the cycles the loop closures close.
+
+    A wrong odometry pair (a room laid beside itself, a corridor slid along its axis) puts every
+    station after it off by metres; the loops spanning it then disagree with the chain, and a
+    robust pose graph started there keeps the chain and rejects the loops one by one (a Cauchy
+    loss hardly pulls at 1000 sigmas). Hypotheses: the chain with one odometry edge left out and
+    its two sides joined by one loop that spans it; each is scored by how many edges (odometry
+    and loops) agree with its poses within ``tol_m`` / ``tol_deg``. One that more edges agree
+    with than the current start replaces it (greedy, up to ``max_rounds`` odometry edges): two
+    loops that agree with each other outvote one odometry pair, one loop alone does not.
+    Returns (start poses, [(dropped odometry edge, loops agreeing with the new start)]).
+    """
+    loop_ids = [k for k, e in enumerate(edges) if e.is_loop]
+    if not loop_ids:
+        return T_init, []
+    tree = [k for k, e in enumerate(edges) if not e.is_loop]  # edge indices chaining the start
+    side = _sides(n, [edges[k] for k in tree])
+    for m in sorted(loop_ids, key=lambda m: (edges[m].i, edges[m].j)):
+        if side[edges[m].i] != side[edges[m].j]:  # a loop joining components chains them too
+            tree.append(m)
+            side = _sides(n, [edges[k] for k in tree])
+    T_best = T_init
+    agree = _agreeing(edges, T_best, tol_m, tol_deg)
+    best_count = int(agree.sum())
+    dropped: list[tuple[pg.Edge, int]] = []
+    for _ in range(max_rounds):
+        found = None
+        for k in tree:
+            if edges[k].is_loop:
+                continue
+            side = _sides(n, [edges[t] for t in tree if t != k])
+            for m in loop_ids:
+                L = edges[m]
+                if agree[m] or m in tree or side[L.i] == side[L.j]:
+                    continue  # agrees with the start, or does not span edge k
+                cand = [edges[t] for t in tree if t != k] + [L]
+                T = _chain_initial(n, cand, T_odom, frags)
+                a = _agreeing(edges, T, tol_m, tol_deg)
+                c = int(a.sum())
+                if c > best_count and (found is None or c > found[0]):
+                    found = (c, k, m, T, a)
+        if found is None:
+            break
+        best_count, k, m, T_best, agree = found
+        tree = [t for t in tree if t != k] + [m]
+        dropped.append((edges[k], int(agree[loop_ids].sum())))
+    return T_best, dropped
+
+
+def _sides(n: int, edges: list[pg.Edge]) -> np.ndarray:
+    """(n,) component label of every station over ``edges`` (union-find)."""
+    parent = list(range(n))
+
+    def root(a: int) -> int:
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    for e in edges:
+        parent[root(e.i)] = root(e.j)
+    return np.array([root(a) for a in range(n)])
 
 
 def _chain_initial(n: int, edges: list[pg.Edge], T_odom: np.ndarray,
