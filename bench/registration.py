@@ -321,7 +321,8 @@ def thread_scaling(pairs, repeats, threads_list=(1, 2)):
     covariances) and the registration of the prepared clouds, i.e. what a call of the API on
     two raw clouds costs, best of `repeats` per thread count. The thread counts take turns
     (1, 2, 1, 2, ...) after one untimed run each, so that both see the same state of the
-    machine (a background job starting halfway moves both alike)."""
+    machine (a background job starting halfway moves both alike), and the repeats go round
+    the pairs."""
     from tripod_processor import registration as reg
 
     def once(pair, threads):
@@ -336,26 +337,31 @@ def thread_scaling(pairs, repeats, threads_list=(1, 2)):
         c2, w2 = time.process_time(), time.perf_counter()
         return r, {"prepare": (w1 - w0, c1 - c0), "register": (w2 - w1, c2 - c1)}
 
-    rows = []
-    for pair in pairs:
-        if len(pair.src) + len(pair.tgt) < 50_000:
-            continue
-        best = {th: {"prepare": [np.inf, np.inf], "register": [np.inf, np.inf]}
-                for th in threads_list}
-        iterations = {}
-        for threads in threads_list:  # untimed: the OpenMP team is started once per process
+    big = [p for p in pairs if len(p.src) + len(p.tgt) >= 50_000]
+    best = {(p.name, th): {"prepare": [np.inf, np.inf], "register": [np.inf, np.inf]}
+            for p in big for th in threads_list}
+    iterations = {}
+    for pair in big:
+        for threads in threads_list:  # untimed: the worker pool is started once per process
             once(pair, threads)
-        for _ in range(repeats):
+    # The repeats go round the pairs (pair A 1, 2 threads, pair B 1, 2, ..., then again), so
+    # one pair's repeats are spread over the whole run: a stall of the host's second CPU
+    # lasting a second or so cannot hit every repeat of one pair.
+    for _ in range(repeats):
+        for pair in big:
             for threads in threads_list:
                 r, times = once(pair, threads)
-                iterations[threads] = r.iterations
+                iterations[pair.name, threads] = r.iterations
                 for k, (w, c) in times.items():
-                    b = best[threads][k]
-                    best[threads][k] = [min(b[0], w), min(b[1], c)]
+                    b = best[pair.name, threads][k]
+                    best[pair.name, threads][k] = [min(b[0], w), min(b[1], c)]
+    rows = []
+    for pair in big:
         for threads in threads_list:
             rows.append({"pair": pair.name, "points": len(pair.src) + len(pair.tgt),
-                         "threads": threads, "iterations": iterations[threads], **{
-                             f"{k}_{m}": v * 1e3 for k, (w, c) in best[threads].items()
+                         "threads": threads, "iterations": iterations[pair.name, threads], **{
+                             f"{k}_{m}": v * 1e3
+                             for k, (w, c) in best[pair.name, threads].items()
                              for m, v in (("wall_ms", w), ("cpu_ms", c))}})
     return rows
 
@@ -452,7 +458,7 @@ def main(argv=None) -> int:
     ap.add_argument("--idle", action="store_true",
                     help="the figures that need an idle machine, in one run (about a minute "
                          "idle): the thread-scaling table (15 repeats), then the per-pair and "
-                         "summary tables of tripod and small_gicp (CPU ratios, 3 repeats; no "
+                         "summary tables of tripod and small_gicp (CPU ratios, 5 repeats; no "
                          "Open3D, no global table)")
     ap.add_argument("--o3d-worker", type=int, default=0, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -478,7 +484,7 @@ def main(argv=None) -> int:
         if args.threads:
             return 0
         load0 = os.getloadavg()[0]
-        rows = local_rows(["tripod", "small_gicp"], pairs, 3)
+        rows = local_rows(["tripod", "small_gicp"], pairs, 5)
         print_tables(con, rows, pairs, (load0, os.getloadavg()[0]))
         return 0
     rows = local_rows(["tripod", "small_gicp"], pairs, repeats)
