@@ -36,3 +36,18 @@ def make_rig_capture(root: Path, name: str = "rig", **over) -> Path:
     out = root / name
     simulate(small_rig(**over), out, nthreads=2)
     return out
+
+
+def true_stations(rec, truth):
+    """The simulator's still spans as stations (0.5 s trimmed at each end), rows by lidar time."""
+    import numpy as np
+
+    from tripod_processor.reconstruction.stations import Station
+
+    out = []
+    for k, st in enumerate(truth["stations"]):
+        a, b = st["still"]["lidar_ns"]
+        a, b = a + int(0.5e9), b - int(0.5e9)
+        pa, pb = np.searchsorted(rec.lidar.lidar_ns, [a, b])
+        out.append(Station(k, a, b, int(pa), int(pb)))
+    return out

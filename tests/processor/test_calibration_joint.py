@@ -16,14 +16,13 @@ import json
 import numpy as np
 import pytest
 
-from sim_fixtures import make_rig_capture
+from sim_fixtures import make_rig_capture, true_stations
 from tripod_processor.reconstruction import evaluation as ev
 from tripod_processor.reconstruction.calibration import (max_pair_turn_deg, self_calibrate,
                                                          time_offset_from_turns)
 from tripod_processor.reconstruction.config import CalibrationConfig
 from tripod_processor.reconstruction.inputs import read_recording
 from tripod_processor.reconstruction.placement import Extrinsic, ImuOrientation, fit_clock_map
-from tripod_processor.reconstruction.stations import Station
 
 PANS = {
     # a hand-turned head: speed changes only (the turns' pairs are the hand's rate changes)
@@ -34,16 +33,6 @@ PANS = {
     "constant": {"pan_profile": "constant", "pan_pause_s": 0.0, "pan_reversal_deg": 0.0,
                  "tilt_deg": 50.0, "pan_s": 8.0, "lever_arm_m": [-0.05, 0.11, 0.02]},
 }
-
-
-def _true_stations(rec, truth):
-    out = []
-    for k, s in enumerate(truth["stations"]):
-        a, b = s["still"]["lidar_ns"]
-        a, b = a + int(0.5e9), b - int(0.5e9)
-        pa, pb = np.searchsorted(rec.lidar.lidar_ns, [a, b])
-        out.append(Station(k, a, b, int(pa), int(pb)))
-    return out
 
 
 def _truth_rotation(truth):
@@ -61,7 +50,7 @@ def capture(request, tmp_path_factory):
     truth = json.loads((cap / "meta.json").read_text())["truth"]
     rec = read_recording(cap)
     orient = ImuOrientation(rec.imu, fit_clock_map(rec.lidar), 0)
-    return request.param, cap, truth, rec, orient, _true_stations(rec, truth)
+    return request.param, cap, truth, rec, orient, true_stations(rec, truth)
 
 
 def test_max_pair_turn_follows_the_mount():

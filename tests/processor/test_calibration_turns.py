@@ -16,25 +16,14 @@ import json
 import numpy as np
 import pytest
 
-from sim_fixtures import make_rig_capture
+from sim_fixtures import make_rig_capture, true_stations
 from tripod_processor.reconstruction import evaluation as ev
 from tripod_processor.reconstruction.calibration import time_offset_from_turns
 from tripod_processor.reconstruction.config import ReconstructConfig
 from tripod_processor.reconstruction.inputs import read_recording
 from tripod_processor.reconstruction.pipeline import reconstruct
 from tripod_processor.reconstruction.placement import Extrinsic, ImuOrientation, fit_clock_map
-from tripod_processor.reconstruction.stations import Station
 from tripod_processor.sim.truth import score_stations
-
-
-def _true_stations(rec, truth):
-    out = []
-    for k, s in enumerate(truth["stations"]):
-        a, b = s["still"]["lidar_ns"]
-        a, b = a + int(0.5e9), b - int(0.5e9)
-        pa, pb = np.searchsorted(rec.lidar.lidar_ns, [a, b])
-        out.append(Station(k, a, b, int(pa), int(pb)))
-    return out
 
 
 def _truth_extrinsic(truth):
@@ -55,7 +44,7 @@ def test_time_offset_from_turns_on_a_motor_pan(tmp_path):
     orient = ImuOrientation(rec.imu, fit_clock_map(rec.lidar), 0)
     t_true = ev.true_time_offset_ns(cap, rec)
     assert t_true < -5e6  # the offset to find is far from the prior 0
-    est = time_offset_from_turns(rec.lidar, _true_stations(rec, truth), orient,
+    est = time_offset_from_turns(rec.lidar, true_stations(rec, truth), orient,
                                  _truth_extrinsic(truth), 2)
     assert est.pairs >= 3 and est.rate_change_deg_s > 10.0
     assert abs(est.offset_ns - t_true) < 1e6, (est, t_true)
