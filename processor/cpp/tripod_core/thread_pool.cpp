@@ -1,7 +1,9 @@
 // SPDX-License-Identifier: BSD-3-Clause
 #include "tripod_core/thread_pool.hpp"
 
+#if defined(__x86_64__) || defined(__i386__)
 #include <immintrin.h>
+#endif
 #include <linux/futex.h>
 #include <sys/syscall.h>
 #include <unistd.h>
@@ -21,6 +23,15 @@ namespace tripod::detail {
 namespace {
 
 thread_local bool tl_worker = false;
+
+/// A spin-wait hint to the CPU (x86 PAUSE, Arm YIELD; nothing elsewhere).
+inline void cpu_relax() {
+#if defined(__x86_64__) || defined(__i386__)
+    _mm_pause();
+#elif defined(__aarch64__) || defined(__arm__)
+    __asm__ __volatile__("yield");
+#endif
+}
 
 static_assert(sizeof(std::atomic<uint32_t>) == sizeof(uint32_t), "futex word");
 
@@ -74,7 +85,7 @@ public:
         // every chunk is taken: close the job, wait for the workers inside it (running a chunk)
         open_.store(false, std::memory_order_seq_cst);
         for (uint32_t i = 1; active_.load(std::memory_order_seq_cst) != 0; ++i) {
-            _mm_pause();
+            cpu_relax();
             if ((i & 16383) == 0) std::this_thread::yield();  // a worker descheduled here
         }
         return true;
@@ -104,7 +115,7 @@ private:
             for (uint32_t i = 1;; ++i) {
                 if (gen_.load(std::memory_order_acquire) != seen) return;
                 if ((i & 63) == 0) {
-                    _mm_pause();
+                    cpu_relax();
                     if (std::chrono::duration_cast<std::chrono::nanoseconds>(
                             std::chrono::steady_clock::now() - t0)
                             .count() > poll_ns_)
