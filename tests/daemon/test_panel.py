@@ -275,6 +275,7 @@ def _text(drv, css: str) -> str:
 
 def test_browser_login_live_rate_mark_and_refusal(tmp_path, imu_daemon, velodyne_dir):
     from selenium.webdriver.common.by import By
+    from selenium.common.exceptions import StaleElementReferenceException
     from selenium.webdriver.support.ui import WebDriverWait
 
     daemon = imu_daemon
@@ -301,7 +302,10 @@ def test_browser_login_live_rate_mark_and_refusal(tmp_path, imu_daemon, velodyne
         imu_on.set()
         ti.start()
         try:
-            wait = WebDriverWait(drv, 15, poll_frequency=0.2)
+            # the panel re-renders its lists each second: an element found just before a
+            # re-render is stale when read, so the condition is looked at again
+            wait = WebDriverWait(drv, 15, poll_frequency=0.2,
+                                 ignored_exceptions=(StaleElementReferenceException,))
             drv.get(p.url + "/")
             # no session: the login page, nothing of the panel
             assert drv.find_elements(By.ID, "password") and not drv.find_elements(By.ID, "rec")
