@@ -28,7 +28,8 @@ def image_shape(bin_deg: float = BIN_DEG) -> tuple[int, int]:
     return int(round(360 / bin_deg)), int(round(180 / bin_deg)) + 1
 
 
-def _bins(P: np.ndarray, bin_deg: float = BIN_DEG) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def direction_bins(P: np.ndarray, bin_deg: float = BIN_DEG
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(azimuth bin, elevation bin, range [m]) of points (N, 3) about the origin."""
     r = np.linalg.norm(P, axis=1)
     az = np.arctan2(P[:, 1], P[:, 0]) + np.pi
@@ -49,7 +50,7 @@ def range_image(points: np.ndarray, bin_deg: float = BIN_DEG) -> np.ndarray:
     P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     img = np.full(image_shape(bin_deg), np.inf)
     if len(P):
-        i, j, r = _bins(P, bin_deg)
+        i, j, r = direction_bins(P, bin_deg)
         np.minimum.at(img, (i, j), r)
     return ndimage.minimum_filter(img, size=3, mode="wrap").astype(np.float32)
 
@@ -62,7 +63,7 @@ def violation(points: np.ndarray, T_img_points: np.ndarray, img: np.ndarray,
     if not len(P):
         return 0.0
     P = P @ T_img_points[:3, :3].T + T_img_points[:3, 3]
-    i, j, r = _bins(P)
+    i, j, r = direction_bins(P)
     lim = img[i, j].astype(np.float64)
     seen = np.isfinite(lim)
     if not seen.any():

@@ -47,7 +47,7 @@ class _RangeImage:
     def _bins(self, P):
         from ...reconstruction import free_space
 
-        return free_space._bins(np.asarray(P, np.float64) - self.v, self.step_deg)
+        return free_space.direction_bins(np.asarray(P, np.float64) - self.v, self.step_deg)
 
     def seen_through(self, P, rel: float = 0.95, margin_m: float = 0.10) -> np.ndarray:
         """(N,) bool: the point lies clearly in front of the nearest return in its direction
