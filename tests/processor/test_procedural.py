@@ -128,7 +128,7 @@ def test_shipped_weights_on_generated_test_buildings():
         total += confusion(lab, seg(p))
     ious = iou(total)
     # measured 0.991 / 0.991 / 0.913 / 0.828 (fourth round's recipe: 9 000 steps, class power
-    # 0.25; third round 0.991 / 0.990 / 0.898 / 0.798; before issue 18's 41 features 0.990 /
+    # 0.25; previously 0.991 / 0.990 / 0.898 / 0.798; before issue 18's 41 features 0.990 /
     # 0.991 / 0.884 / 0.767; 8 head positions per station: sparser than the benchmark's scans; the
     # issue's goals .98 / .98 / .95 / .85 are not all met, see README)
     assert ious[0] > 0.975 and ious[1] > 0.975, ious
