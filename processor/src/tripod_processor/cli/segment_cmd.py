@@ -133,6 +133,9 @@ def train_segmenter_cmd(
     steps: int = typer.Option(2000, "--steps", help="optimiser steps"),
     batch: int = typer.Option(4096, "--batch", help="points per step"),
     hidden: str = typer.Option("128,128", "--hidden", help="hidden layer widths of the MLP"),
+    lr: float = typer.Option(3e-3, "--lr", help="peak learning rate (one cycle)"),
+    class_power: float = typer.Option(0.5, "--class-power",
+                                      help="class weights 1/frequency**power (0.5: 1/sqrt)"),
     seed: int = typer.Option(0, "--seed", help="seed of sampling, augmentation and init"),
     threads: int = typer.Option(0, "--threads", help="CPU threads, 0 = all"),
 ) -> None:
@@ -222,12 +225,13 @@ def train_segmenter_cmd(
         if step % 50 == 0:
             bar.set_postfix(loss=f"{loss:.4f}")
 
-    model, rep = train(F, L, seed=seed, steps=steps, batch=batch, hidden=hidden_sizes,
-                       num_threads=threads, progress=prog)
+    model, rep = train(F, L, seed=seed, steps=steps, batch=batch, hidden=hidden_sizes, lr=lr,
+                       class_power=class_power, num_threads=threads, progress=prog)
     bar.close()
     import sys
 
-    meta = {"seed": seed, "steps": steps, "batch": batch, "copies": copies, "synthetic": synthetic,
+    meta = {"seed": seed, "steps": steps, "batch": batch, "lr": lr, "class_power": class_power,
+            "copies": copies, "synthetic": synthetic,
             "procedural": procedural, "families": fams, "keep": keep,
             "data": [str(f) for f in files], "s3dis": str(s3dis) if s3dis else None,
             "s3dis_areas": s3dis_areas if s3dis else None, "train_seconds": rep.seconds,

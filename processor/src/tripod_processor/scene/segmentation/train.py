@@ -76,11 +76,12 @@ def features_of(clouds: Iterable[tuple[np.ndarray, np.ndarray]], copies: int, se
 
 def train(features: np.ndarray, labels: np.ndarray, *, seed: int = 0, steps: int = 3000,
           batch: int = 8192, lr: float = 3e-3, hidden=(128, 128), num_threads: int = 0,
-          progress: Callable | None = None):
+          class_power: float = 0.5, progress: Callable | None = None):
     """Train the per-point MLP; returns (model, TrainReport).
 
     features : (N, F) float32 from :func:`features_of`; labels : (N,) int in [0, 4)
-    Classes are weighted by 1/sqrt(frequency) so that the small "other" class is not drowned.
+    Classes are weighted by 1/frequency**class_power (0.5: 1/sqrt) so that the small "other"
+    class is not drowned; the learning rate follows one cycle (warm-up, cosine decay) to ``lr``.
     """
     import torch
 
@@ -96,7 +97,7 @@ def train(features: np.ndarray, labels: np.ndarray, *, seed: int = 0, steps: int
     model[0].mean.copy_(X.mean(0))
     model[0].inv_std.copy_(1.0 / torch.clamp(std, min=1e-6))
     counts = np.bincount(labels, minlength=NUM_CLASSES).astype(np.float64)
-    w = 1.0 / np.sqrt(np.maximum(counts, 1))
+    w = 1.0 / np.maximum(counts, 1) ** class_power
     w = w / (w * counts).sum() * counts.sum()
     loss_fn = torch.nn.CrossEntropyLoss(weight=torch.tensor(w, dtype=torch.float32))
     opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=1e-4)
@@ -121,9 +122,11 @@ def train(features: np.ndarray, labels: np.ndarray, *, seed: int = 0, steps: int
 
 # ----------------------------------------------------------------- procedural buildings
 #: the recipe of the shipped weights (scripts/train_segmenter.sh): buildings per family of the
-#: generator's train seeds, augmented copies, sampled points per copy, optimiser steps and batch
-RECIPE = {"per_family": 20, "copies": 2, "keep_per_copy": 30_000, "steps": 3000, "batch": 4096,
-          "hidden": (128, 128), "lr": 3e-3}
+#: generator's train seeds, augmented copies, sampled points per copy, optimiser steps and batch,
+#: widths, peak learning rate, class weights 1/frequency**class_power (fourth round of issue 18:
+#: 9 000 steps instead of 3 000 and class_power 0.25 instead of 0.5, dev wall IoU +0.002)
+RECIPE = {"per_family": 20, "copies": 2, "keep_per_copy": 30_000, "steps": 9000, "batch": 4096,
+          "hidden": (128, 128), "lr": 3e-3, "class_power": 0.25}
 
 
 def procedural_clouds(family: str, split: str = "train", n: int = 20):
@@ -154,10 +157,11 @@ def procedural_features(families, split: str = "train", per_family: int = RECIPE
 
 def train_on_families(feats: dict, families, *, seed: int = 0, steps: int = RECIPE["steps"],
                       batch: int = RECIPE["batch"], hidden=RECIPE["hidden"], lr: float = RECIPE["lr"],
-                      num_threads: int = 0, progress: Callable | None = None):
+                      class_power: float = RECIPE["class_power"], num_threads: int = 0,
+                      progress: Callable | None = None):
     """:func:`train` on the rows of ``families`` from :func:`procedural_features` (in the
     order given)."""
     F = np.concatenate([feats[f][0] for f in families])
     L = np.concatenate([feats[f][1] for f in families])
     return train(F, L, seed=seed, steps=steps, batch=batch, lr=lr, hidden=hidden,
-                 num_threads=num_threads, progress=progress)
+                 num_threads=num_threads, class_power=class_power, progress=progress)
