@@ -78,6 +78,10 @@ class CalibrationConfig(StrictModel):
     #: the turns' offset joins the surfaces' fit as a prior (offset and lever arm estimated
     #: together); off: the surfaces fit alone, then an inverse-variance mean when they agree
     joint_time_prior: bool = True
+    #: the lever-arm fit's first iterations with split residuals (a voxel's later points to its
+    #: earlier points' plane: the whole gap a wrong lever arm opens, ``calibration.
+    #: _split_plane_residuals``), then the usual ones; 0: the usual ones only
+    split_iterations: int = Field(default=4, ge=0)
 
 
 class StationConfig(StrictModel):

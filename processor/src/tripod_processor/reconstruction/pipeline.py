@@ -344,7 +344,9 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
     try:
         cal = self_calibrate(rec.lidar, seg.stations, orient, ext, fit_lever=fit_lever,
                              fit_time=fit_time_surf, fit_rotation=fit_rot,
-                             max_stations=cc.max_stations, num_threads=cfg.num_threads, **prior)
+                             max_stations=cc.max_stations, num_threads=cfg.num_threads,
+                             split_iterations=cc.split_iterations if fit_lever else 0,
+                             iterations=8 + (cc.split_iterations if fit_lever else 0), **prior)
         if fit_rot and not cal.rotation_observable:
             # the stations hardly see the mount's tilt (a spin axis near the pan axis in a
             # small room): hand-eye's tilt is the better one; the rest again with it held
@@ -352,6 +354,8 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
                 cal = self_calibrate(rec.lidar, seg.stations, orient, ext, fit_lever=fit_lever,
                                      fit_time=fit_time_surf, fit_rotation=False,
                                      max_stations=cc.max_stations, num_threads=cfg.num_threads,
+                                     split_iterations=cc.split_iterations if fit_lever else 0,
+                                     iterations=8 + (cc.split_iterations if fit_lever else 0),
                                      **prior)
             fit_rot = False
             notes.append("WARNING: mount tilt poorly observable from the stations' surfaces; "
