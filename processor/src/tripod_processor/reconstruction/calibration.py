@@ -335,6 +335,31 @@ class SelfCalibration:
     #: (:func:`time_offset_from_turns`, whose diagnostics ``turns`` holds)
     time_offset_method: str = "surfaces"
     turns: dict | None = None
+    #: (2, 2) [m²] covariance of the lever arm's two components across the pan axis, in the
+    #: basis ``lever_basis_imu`` ((3, 2), IMU frame); None when not fitted
+    lever_arm_cov_m2: np.ndarray | None = None
+    lever_basis_imu: np.ndarray | None = None
+
+    def lever_arm_by_mount(self) -> dict | None:
+        """The lever arm's sigma along the lidar's spin axis (projected across the pan axis)
+        and in its scan plane, with the spin axis's angle from the pan axis [deg]. A lidar on
+        its side sees the spin-axis component only at vertical edges (the scan planes of
+        opposite pan angles coincide, shifted along their normal), the in-plane one at every
+        wall (it doubles walls seen from opposite sides of the pan)."""
+        if self.lever_arm_cov_m2 is None or self.lever_basis_imu is None:
+            return None
+        b = self.pan_axis_imu
+        z = self.R_imu_lidar[:, 2]
+        tilt = float(np.degrees(np.arccos(min(1.0, abs(float(b @ z))))))
+        w = z - b * (b @ z)
+        if np.linalg.norm(w) < 1e-6:
+            return {"spin_axis_from_pan_axis_deg": tilt}
+        w /= np.linalg.norm(w)
+        s = np.cross(b, w)
+        C = self.lever_basis_imu @ self.lever_arm_cov_m2 @ self.lever_basis_imu.T
+        return {"spin_axis_from_pan_axis_deg": tilt,
+                "sigma_along_spin_axis_m": float(np.sqrt(max(w @ C @ w, 0.0))),
+                "sigma_in_scan_plane_m": float(np.sqrt(max(s @ C @ s, 0.0)))}
 
     @property
     def lever_arm_across_m(self) -> float:
@@ -363,6 +388,8 @@ class SelfCalibration:
             "observable": {"lever_arm": self.lever_arm_observable,
                            "time_offset": self.time_offset_observable,
                            "mount_rotation": self.rotation_observable},
+            **({"lever_arm_by_mount": self.lever_arm_by_mount()}
+               if self.lever_arm_by_mount() else {}),
             "stations": self.stations, "residual_m": self.residual_m, "pairs": self.pairs,
         }
 
@@ -769,8 +796,10 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
     l_sig = np.full(2, np.nan)
     t_sig = float("nan")
     r_sig = float("nan")
+    l_cov = None
     if fit_lever:
         l_sig = sig[c:c + 2]
+        l_cov = cov[c:c + 2, c:c + 2].copy()
         c += 2
     if fit_time:
         t_sig = float(sig[c]) * 1e3
@@ -783,7 +812,8 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
         time_offset_observable=bool(fit_time and t_sig < 0.5),
         lever_arm_observable=bool(fit_lever and np.all(l_sig < 0.003)),
         rotation_observable=bool(fit_rotation and r_sig < 0.05),
-        stations=[st.index for st in use], residual_m=s_rob, pairs=n_pairs, iterations=history)
+        stations=[st.index for st in use], residual_m=s_rob, pairs=n_pairs, iterations=history,
+        lever_arm_cov_m2=l_cov, lever_basis_imu=U_l if fit_lever else None)
 
 
 # ---- IMU time offset from the head's turns (lidar sweeps registered against each other) ---------

@@ -82,6 +82,9 @@ class CalibrationConfig(StrictModel):
     #: earlier points' plane: the whole gap a wrong lever arm opens, ``calibration.
     #: _split_plane_residuals``), then the usual ones; 0: the usual ones only
     split_iterations: int = Field(default=4, ge=0)
+    #: a lidar's spin axis at least this far from the pan axis [deg] gets a warning that the
+    #: lever arm along the spin axis is weakly observable (seen only at vertical edges)
+    side_mount_warn_deg: float = Field(default=50.0, ge=0, le=90)
 
 
 class StationConfig(StrictModel):
