@@ -17,7 +17,6 @@ from sim_fixtures import make_rig_capture, true_stations
 from tripod_processor.reconstruction import evaluation as ev
 from tripod_processor.reconstruction.calibration import (_voxel_plane_residuals,
                                                          self_calibrate)
-from tripod_processor.reconstruction.config import CalibrationConfig
 from tripod_processor.reconstruction.inputs import read_recording
 from tripod_processor.reconstruction.placement import Extrinsic, ImuOrientation, fit_clock_map
 
@@ -90,8 +89,7 @@ def test_lever_arm_of_a_lidar_on_its_side(side_room):
     w /= np.linalg.norm(w)
     s = np.cross(b, w)  # in the scan plane, across the pan axis (the strong one)
     o = orient.with_offset(ev.true_time_offset_ns(cap, rec))
-    n_split = CalibrationConfig().split_iterations
-    assert n_split > 0
+    n_split = 4  # calibration.split_iterations (off by default, see its comment)
     cal = self_calibrate(rec.lidar, true_stations(rec, truth), o, Extrinsic(R, np.zeros(3), "t"),
                          fit_rotation=False, fit_time=False, num_threads=2,
                          split_iterations=n_split, iterations=8 + n_split)
