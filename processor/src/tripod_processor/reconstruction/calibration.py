@@ -507,8 +507,7 @@ def _split_plane_residuals(p: np.ndarray, J: np.ndarray, t: np.ndarray, inv: np.
     late = t > (t_lo[inv] + t_hi[inv]) // 2
     e = ~late
     key = inv
-    _, iv, ne = np.unique(key[e], return_inverse=True, return_counts=True)
-    uk = np.unique(key[e])
+    uk, iv, ne = np.unique(key[e], return_inverse=True, return_counts=True)
     W = len(uk)
     iv = iv.reshape(-1)
     pe, Je = p[e], J[e]
@@ -535,86 +534,6 @@ def _split_plane_residuals(p: np.ndarray, J: np.ndarray, t: np.ndarray, inv: np.
     r = np.einsum("qi,qi->q", nn, pl - c[k])
     Jr = np.einsum("qi,qij->qj", nn, Jl - Jbar[k])
     return r, Jr
-
-
-def _thickness(p: np.ndarray, t: np.ndarray, voxel_m: float, sep_ns: int) -> float:
-    """Summed thickness of a cloud: Σ n·λ_min over its ``voxel_m`` voxels (≥ 10 points fired
-    at least ``sep_ns`` apart), λ_min the smallest eigenvalue of a voxel's covariance [m²].
-
-    Unlike the fit's point-to-plane residuals, no voxel is dropped for not being planar: a wall
-    doubled by a wrong lever arm gets thicker (up to the voxel's size) instead of leaving the
-    cost, so the cost grows monotonically with the doubling."""
-    k3 = np.floor(p / voxel_m).astype(np.int64) & 0x1FFFFF
-    keys = (k3[:, 0] << 42) | (k3[:, 1] << 21) | k3[:, 2]
-    _, inv, cnt = np.unique(keys, return_inverse=True, return_counts=True)
-    inv = inv.reshape(-1)
-    V = len(cnt)
-    t_lo = np.full(V, np.iinfo(np.int64).max)
-    t_hi = np.full(V, np.iinfo(np.int64).min)
-    np.minimum.at(t_lo, inv, t)
-    np.maximum.at(t_hi, inv, t)
-    ok = (cnt >= 10) & (t_hi - t_lo > sep_ns)
-    if not ok.any():
-        return 0.0
-    n = cnt.astype(np.float64)
-    s1 = np.stack([np.bincount(inv, p[:, i], V) for i in range(3)], axis=1)
-    c = s1 / n[:, None]
-    cov = np.zeros((V, 3, 3))
-    for i in range(3):
-        for j in range(i, 3):
-            cov[:, i, j] = cov[:, j, i] = (np.bincount(inv, p[:, i] * p[:, j], V) / n
-                                           - c[:, i] * c[:, j])
-    lam = np.linalg.eigvalsh(cov[ok])[:, 0]
-    return float(np.sum(n[ok] * np.maximum(lam, 0.0)))
-
-
-def lever_grid_search(data: list[tuple[np.ndarray, np.ndarray]], orient: ImuOrientation,
-                      R_il: np.ndarray, ell: np.ndarray, U_l: np.ndarray, *,
-                      half_width_m: float = 0.2, step_m: float = 0.04, voxel_m: float = 0.5,
-                      sep_ns: int = 300_000_000, max_points: int = 20_000
-                      ) -> tuple[np.ndarray, dict]:
-    """A start for the lever-arm fit: the two components across the pan axis (``U_l``, (3, 2))
-    on a grid of ``step_m`` within ``half_width_m`` of ``ell``, then a grid of a quarter step
-    around the best, scored by the stations' summed thickness (:func:`_thickness`, voxels of
-    ``voxel_m`` then half that, on every station's first ``max_points`` sample points).
-
-    Gauss–Newton on point-to-plane residuals sees a large lever error only weakly: a wall
-    doubled by more than a voxel's planarity allows leaves the fit instead of pulling it, and
-    the planes refitted each iteration absorb most of the rest; with the lidar on its side the
-    fit then creeps from a zero start (seen: 10-13 mm an iteration for a 10 cm error).
-    Returns (lever arm (3,), diagnostics: the cost at the start and at the best, each grid's
-    best offset)."""
-    stn = []
-    for xyz, t in data:
-        if len(xyz) < 500:
-            continue
-        sel = np.linspace(0, len(xyz) - 1, min(len(xyz), max_points)).astype(np.int64)
-        R_wi = orient.rotation_at(t[sel])
-        p0 = np.einsum("nij,nj->ni", R_wi, xyz[sel] @ R_il.T + ell)
-        stn.append((p0, R_wi @ U_l, t[sel]))
-    if not stn:
-        return ell.copy(), {}
-
-    def cost(a: np.ndarray, vox: float) -> float:
-        return sum(_thickness(p0 + A @ a, t, vox, sep_ns) for p0, A, t in stn)
-
-    centre = np.zeros(2)
-    info: dict = {}
-    for level, (w, s, vox) in enumerate(((half_width_m, step_m, voxel_m),
-                                         (step_m, step_m / 4, voxel_m / 2))):
-        ax = np.arange(-w, w + 1e-9, s)
-        best, best_c = centre, np.inf
-        c0 = cost(centre, vox)
-        for a1 in ax:
-            for a2 in ax:
-                a = centre + np.array([a1, a2])
-                c = cost(a, vox)
-                if c < best_c:
-                    best, best_c = a, c
-        info[f"grid{level}"] = {"voxel_m": vox, "cost_start": c0, "cost_best": best_c,
-                                "offset_m": best.tolist()}
-        centre = best
-    return ell + U_l @ centre, info
 
 
 def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
