@@ -335,6 +335,31 @@ class SelfCalibration:
     #: (:func:`time_offset_from_turns`, whose diagnostics ``turns`` holds)
     time_offset_method: str = "surfaces"
     turns: dict | None = None
+    #: (2, 2) [m²] covariance of the lever arm's two components across the pan axis, in the
+    #: basis ``lever_basis_imu`` ((3, 2), IMU frame); None when not fitted
+    lever_arm_cov_m2: np.ndarray | None = None
+    lever_basis_imu: np.ndarray | None = None
+
+    def lever_arm_by_mount(self) -> dict | None:
+        """The lever arm's sigma along the lidar's spin axis (projected across the pan axis)
+        and in its scan plane, with the spin axis's angle from the pan axis [deg]. A lidar on
+        its side sees the spin-axis component only at vertical edges (the scan planes of
+        opposite pan angles coincide, shifted along their normal), the in-plane one at every
+        wall (it doubles walls seen from opposite sides of the pan)."""
+        if self.lever_arm_cov_m2 is None or self.lever_basis_imu is None:
+            return None
+        b = self.pan_axis_imu
+        z = self.R_imu_lidar[:, 2]
+        tilt = float(np.degrees(np.arccos(min(1.0, abs(float(b @ z))))))
+        w = z - b * (b @ z)
+        if np.linalg.norm(w) < 1e-6:
+            return {"spin_axis_from_pan_axis_deg": tilt}
+        w /= np.linalg.norm(w)
+        s = np.cross(b, w)
+        C = self.lever_basis_imu @ self.lever_arm_cov_m2 @ self.lever_basis_imu.T
+        return {"spin_axis_from_pan_axis_deg": tilt,
+                "sigma_along_spin_axis_m": float(np.sqrt(max(w @ C @ w, 0.0))),
+                "sigma_in_scan_plane_m": float(np.sqrt(max(s @ C @ s, 0.0)))}
 
     @property
     def lever_arm_across_m(self) -> float:
@@ -363,6 +388,8 @@ class SelfCalibration:
             "observable": {"lever_arm": self.lever_arm_observable,
                            "time_offset": self.time_offset_observable,
                            "mount_rotation": self.rotation_observable},
+            **({"lever_arm_by_mount": self.lever_arm_by_mount()}
+               if self.lever_arm_by_mount() else {}),
             "stations": self.stations, "residual_m": self.residual_m, "pairs": self.pairs,
         }
 
@@ -417,7 +444,7 @@ def _world_rate(orient: ImuOrientation, t_ns: np.ndarray, h_ns: int = 100_000_00
 
 
 def _voxel_plane_residuals(p: np.ndarray, J: np.ndarray, t: np.ndarray, voxel_m: float,
-                           sep_ns: int) -> tuple[np.ndarray, np.ndarray]:
+                           sep_ns: int, split: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Point-to-plane residuals (M,) and their Jacobians (M, n_p) of the points of planar voxels
     seen at moments at least ``sep_ns`` apart.
 
@@ -439,6 +466,8 @@ def _voxel_plane_residuals(p: np.ndarray, J: np.ndarray, t: np.ndarray, voxel_m:
     sel = ok_v[inv]
     if sel.sum() < 100:
         return np.zeros(0), np.zeros((0, J.shape[2]))
+    if split:
+        return _split_plane_residuals(p[sel], J[sel], t[sel], inv[sel], t_lo, t_hi)
     # compact the chosen voxels
     vid = np.cumsum(ok_v) - 1
     iv = vid[inv[sel]]
@@ -464,6 +493,49 @@ def _voxel_plane_residuals(p: np.ndarray, J: np.ndarray, t: np.ndarray, voxel_m:
     return r, Jr
 
 
+def _split_plane_residuals(p: np.ndarray, J: np.ndarray, t: np.ndarray, inv: np.ndarray,
+                           t_lo: np.ndarray, t_hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Residuals of each voxel's later points (after the middle of its time span) to the plane
+    of its earlier ones, with Jacobians n·(J − J̄_early).
+
+    The plane of all of a voxel's points sits between a surface and its double (a wrong lever
+    arm shifts what is seen at one part of the pan against another) and tilts to take up part
+    of the gap, so each Gauss–Newton step sees only part of the error; a voxel doubled by more
+    than its planarity allows leaves the fit. The earlier points' plane is the surface as one
+    part of the pan saw it: the later points' residuals are the whole gap, and the voxel stays
+    as long as the earlier points alone are planar."""
+    late = t > (t_lo[inv] + t_hi[inv]) // 2
+    e = ~late
+    key = inv
+    uk, iv, ne = np.unique(key[e], return_inverse=True, return_counts=True)
+    W = len(uk)
+    iv = iv.reshape(-1)
+    pe, Je = p[e], J[e]
+    n = ne.astype(np.float64)
+    c = np.stack([np.bincount(iv, pe[:, i], W) for i in range(3)], axis=1) / n[:, None]
+    d = pe - c[iv]
+    cov = np.zeros((W, 3, 3))
+    for i in range(3):
+        for j in range(i, 3):
+            cov[:, i, j] = cov[:, j, i] = np.bincount(iv, d[:, i] * d[:, j], W) / n
+    ev, evec = np.linalg.eigh(cov)
+    nrm = evec[:, :, 0]
+    good = (ne >= 6) & (ev[:, 0] < 0.2 * ev[:, 1])
+    Jf = Je.reshape(len(Je), -1)
+    Jbar = np.stack([np.bincount(iv, Jf[:, m], W) for m in range(Jf.shape[1])], axis=1)
+    Jbar = (Jbar / n[:, None]).reshape(W, 3, -1)
+    # the later points of the voxels whose earlier points make a plane
+    pos = np.searchsorted(uk, key[late])
+    pos_c = np.minimum(pos, W - 1)
+    has = (pos < W) & (uk[pos_c] == key[late]) & good[pos_c]
+    k = pos_c[has]
+    pl, Jl = p[late][has], J[late][has]
+    nn = nrm[k]
+    r = np.einsum("qi,qi->q", nn, pl - c[k])
+    Jr = np.einsum("qi,qij->qj", nn, Jl - Jbar[k])
+    return r, Jr
+
+
 def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
                    ext: Extrinsic, *, fit_lever: bool = True, fit_time: bool = True,
                    fit_rotation: bool = True, max_stations: int = 4,
@@ -471,7 +543,8 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
                    min_separation_s: float = 0.3, iterations: int = 8,
                    max_range: float = 60.0, sigma_inflation: float = 3.0,
                    num_threads: int = 0, time_prior_ns: int | None = None,
-                   time_prior_sigma_ms: float = float("inf")) -> SelfCalibration:
+                   time_prior_sigma_ms: float = float("inf"), split_iterations: int = 0,
+                   samples: list | None = None) -> SelfCalibration:
     """Lever arm, IMU time offset and mount rotation that make every station self-consistent.
 
     At a standing station the head turns about a fixed pivot, so a surface seen at two moments
@@ -509,7 +582,7 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
     R_il = ext.R_imu_lidar.copy()
     ell = ext.lever_arm_m.astype(np.float64).copy()
     off = orient.time_offset_ns
-    data = _threaded_map(_station_points, [
+    data = samples if samples is not None else _threaded_map(_station_points, [
         (lidar, st, points_per_station, 11 + k, max_range, orient if fit_time else None)
         for k, st in enumerate(use)], workers)
     sep_ns = int(min_separation_s * 1e9)
@@ -528,7 +601,8 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
         all_r, all_J = [], []
         # coarse to fine: a large lever-arm error doubles surfaces by twice its size, which
         # small voxels would see as two planes (or none)
-        vox = voxel_m * max(1.0, 2.4 / (1.0 + it))
+        split = it < split_iterations
+        vox = voxel_m * max(1.0, 2.4 / (1.0 + it - (split_iterations if not split else 0)))
 
         def station_residuals(xyz, t):  # one station's (r, Jr); stations side by side
             if len(xyz) < 500:
@@ -551,7 +625,7 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
                 R_wl = R_wi @ R_il
                 for m in range(2):
                     J[:, :, c + m] = -np.einsum("nij,nj->ni", R_wl, np.cross(xyz, U_r[:, m]))
-            return _voxel_plane_residuals(p, J, t, vox, sep_ns)
+            return _voxel_plane_residuals(p, J, t, vox, sep_ns, split)
 
         for r, Jr in _threaded_map(station_residuals, data, workers):
             if len(r):
@@ -604,8 +678,33 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
                         "lever_arm_m": ell.tolist(), "time_offset_ms": off * 1e-6})
         small = (not fit_lever or np.all(np.abs(step[:2]) < 1e-4)) and (
             not fit_time or abs(step[2 if fit_lever else 0]) < 5e-5)
-        if small and vox <= voxel_m:
+        if small and vox <= voxel_m and not split:
             break
+    if split_iterations > 0 and fit_lever:
+        # the covariance from the split residuals at the result: the all-points planes take up
+        # part of any error along a weakly seen direction (a lidar on its side: the lever arm
+        # along its spin axis), which makes their information, and sigma, optimistic there
+        o = orient.with_offset(off)
+        U_r = _perp_basis(R_il.T @ b)
+        split, vox = True, voxel_m
+        res = [x for x in _threaded_map(station_residuals, data, workers) if len(x[0])]
+        if res:
+            r = np.concatenate([x[0] for x in res])
+            Jr = np.concatenate([x[1] for x in res])
+            s_sp = 1.4826 * float(np.median(np.abs(r - np.median(r)))) + 1e-6
+            hub = 1.345 * s_sp
+            wgt = np.where(np.abs(r) < hub, 1.0, hub / np.maximum(np.abs(r), 1e-12))
+            H_sp = (Jr * wgt[:, None]).T @ Jr
+            if fit_time and time_prior_ns is not None and np.isfinite(time_prior_sigma_ms):
+                H_sp[2, 2] += (s_sp * sigma_inflation / (time_prior_sigma_ms * 1e-3)) ** 2
+            # the larger of the two per parameter (each is a lower bound of the truth's spread)
+            try:
+                c_sp = np.linalg.inv(H_sp) * s_sp**2
+                c_all = np.linalg.inv(H) * s_rob**2
+                if np.all(np.diag(c_sp) >= np.diag(c_all)):
+                    H, s_rob = H_sp, s_sp
+            except np.linalg.LinAlgError:
+                pass
     # covariance: robust residual variance over the information, inflated (shared planes)
     try:
         cov = np.linalg.inv(H) * s_rob**2 * sigma_inflation**2
@@ -616,8 +715,10 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
     l_sig = np.full(2, np.nan)
     t_sig = float("nan")
     r_sig = float("nan")
+    l_cov = None
     if fit_lever:
         l_sig = sig[c:c + 2]
+        l_cov = cov[c:c + 2, c:c + 2].copy()
         c += 2
     if fit_time:
         t_sig = float(sig[c]) * 1e3
@@ -630,7 +731,8 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
         time_offset_observable=bool(fit_time and t_sig < 0.5),
         lever_arm_observable=bool(fit_lever and np.all(l_sig < 0.003)),
         rotation_observable=bool(fit_rotation and r_sig < 0.05),
-        stations=[st.index for st in use], residual_m=s_rob, pairs=n_pairs, iterations=history)
+        stations=[st.index for st in use], residual_m=s_rob, pairs=n_pairs, iterations=history,
+        lever_arm_cov_m2=l_cov, lever_basis_imu=U_l if fit_lever else None)
 
 
 # ---- IMU time offset from the head's turns (lidar sweeps registered against each other) ---------

@@ -344,7 +344,9 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
     try:
         cal = self_calibrate(rec.lidar, seg.stations, orient, ext, fit_lever=fit_lever,
                              fit_time=fit_time_surf, fit_rotation=fit_rot,
-                             max_stations=cc.max_stations, num_threads=cfg.num_threads, **prior)
+                             max_stations=cc.max_stations, num_threads=cfg.num_threads,
+                             split_iterations=cc.split_iterations if fit_lever else 0,
+                             iterations=8 + (cc.split_iterations if fit_lever else 0), **prior)
         if fit_rot and not cal.rotation_observable:
             # the stations hardly see the mount's tilt (a spin axis near the pan axis in a
             # small room): hand-eye's tilt is the better one; the rest again with it held
@@ -352,6 +354,8 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
                 cal = self_calibrate(rec.lidar, seg.stations, orient, ext, fit_lever=fit_lever,
                                      fit_time=fit_time_surf, fit_rotation=False,
                                      max_stations=cc.max_stations, num_threads=cfg.num_threads,
+                                     split_iterations=cc.split_iterations if fit_lever else 0,
+                                     iterations=8 + (cc.split_iterations if fit_lever else 0),
                                      **prior)
             fit_rot = False
             notes.append("WARNING: mount tilt poorly observable from the stations' surfaces; "
@@ -361,6 +365,18 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
                      "their priors")
         return ext, orient, None
     if fit_lever:
+        by_mount = cal.lever_arm_by_mount() or {}
+        tilt = by_mount.get("spin_axis_from_pan_axis_deg", 0.0)
+        if tilt >= cc.side_mount_warn_deg and "sigma_along_spin_axis_m" in by_mount:
+            # the spin-axis component shows only at vertical edges: its sigma from the surfaces
+            # counts no error of the mount's tilt or the time offset, which it takes up
+            notes.append(
+                f"WARNING: lidar spin axis {tilt:.0f}° from the pan axis: the lever arm along it "
+                f"(σ {by_mount['sigma_along_spin_axis_m'] * 1000:.1f} mm from the surfaces; "
+                "not counting a mount-tilt or time-offset error) is seen only at vertical edges "
+                "and can be centimetres off; in the scan plane σ "
+                f"{by_mount['sigma_in_scan_plane_m'] * 1000:.1f} mm. Measure it if it matters "
+                "(--set placement.extrinsic.lever_arm_m=...)")
         if cal.lever_arm_observable:
             pass
         else:
