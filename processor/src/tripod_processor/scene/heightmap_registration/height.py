@@ -6,9 +6,9 @@ neither is shared (a vertical lidar's narrow band of walls sees no floor and no 
 height is left to the level ICP, which walls do not constrain: the pose slides up or down.
 :func:`height_evidence` looks for what does fix it in 3-D: *horizontal patches* both scans
 saw (table and cabinet tops, sills, shelves, the floor or ceiling where one was seen but not
-trusted): 10 cm cells whose points spread in two directions (not one scan line) with a normal
+trusted): 20 cm cells whose points spread in two directions (not one scan line) with a normal
 within 18 deg of vertical and under 1.5 cm of thickness. Every source patch votes, with every
-target patch in the same 10 cm column within 0.5 m, for the height correction between them;
+target patch within 20 cm in plan and 0.5 m in height, for the height correction between them;
 a real surface seen by both gives a peak (2 cm window), a scan without such surfaces a flat
 histogram. The height is *observable* when the peak holds enough votes and stands well above
 the flat level and any other peak 5 cm or more away; otherwise it is reported unobservable (the
@@ -41,7 +41,7 @@ class HeightEvidence:
     observable: bool
 
 
-def horizontal_patches(P: np.ndarray, cell_m: float = 0.10, min_points: int = 8,
+def horizontal_patches(P: np.ndarray, cell_m: float = 0.20, min_points: int = 8,
                        max_thickness_m: float = 0.015, min_spread_m: float = 0.025,
                        max_tilt_cos: float = 0.95) -> np.ndarray:
     """Centres (K, 3) [m] of the horizontal patches of a levelled cloud ``P`` (N, 3), +z up:
@@ -90,7 +90,7 @@ def height_evidence(source_level: np.ndarray, target_level: np.ndarray, min_vote
         return none
     tree = cKDTree(pt[:, :2])
     dz = []
-    for c, js in zip(ps, tree.query_ball_point(ps[:, :2], 0.10)):
+    for c, js in zip(ps, tree.query_ball_point(ps[:, :2], 0.20)):
         if js:
             d = pt[js, 2] - c[2]
             dz.append(d[np.abs(d) < _RANGE_M])
