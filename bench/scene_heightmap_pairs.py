@@ -32,7 +32,10 @@ by its capture seed, for a fresh test split after that. ``--min-overlap`` (devel
 changes the 30 % limit (and with it the pair draw). ``--fragments-only`` makes a split's
 captures and fragments without
 registering anything. Pairs under 30 % true overlap are left out (neither registered nor
-counted; the bench prints how many). Captures and fragments are cached under
+counted; the bench prints how many). Scenes: the twin's five templates and four procedural
+buildings (``pb_*``, :data:`SCENES`); the headline counts the scenes with any asymmetry, the
+exactly symmetric ``hall`` template (:data:`SYMMETRIC`) has its own row beside it. The fresh
+figure of the fifth round: ``--seed 335`` (draw 9), every rig and scene. Captures and fragments are cached under
 ``.cache/scene_data/hm_pairs``.
 """
 
