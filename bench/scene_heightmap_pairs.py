@@ -35,7 +35,8 @@ registering anything. Pairs under 30 % true overlap are left out (neither regist
 counted; the bench prints how many). Scenes: the twin's five templates and four procedural
 buildings (``pb_*``, :data:`SCENES`); the headline counts the scenes with any asymmetry, the
 exactly symmetric ``hall`` template (:data:`SYMMETRIC`) has its own row beside it. The fresh
-figure of the fifth round: ``--seed 335`` (draw 9), every rig and scene. Captures and fragments are cached under
+figure of the fifth round: ``--seed 335`` (draw 9), every rig and scene. Captures and
+fragments are cached under
 ``.cache/scene_data/hm_pairs``.
 """
 

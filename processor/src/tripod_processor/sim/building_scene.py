@@ -87,7 +87,8 @@ def free_route(building: Building, clearance_m: float = 0.45, cell_m: float = 0.
     if max_length_m is not None and seg[-1] > max_length_m:
         s0 = (seg[-1] - max_length_m) / 2
         s1 = s0 + max_length_m
-    keep = np.unique(np.searchsorted(seg, np.r_[np.arange(s0, s1, step_m), s1]).clip(0, len(pts) - 1))
+    at = np.searchsorted(seg, np.r_[np.arange(s0, s1, step_m), s1])
+    keep = np.unique(at.clip(0, len(pts) - 1))
     return pts[keep]
 
 
