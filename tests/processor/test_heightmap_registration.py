@@ -281,3 +281,63 @@ def test_level_height_from_shared_floors_then_ceilings():
     # no floor in the source: its level frame stands 0.3 m off; the ceilings tell by how much
     assert _level_height(scan(2.5, False, True), scan(2.8, True, True)) == pytest.approx(0.3)
     assert _level_height(scan(2.5, False, False), scan(2.8, True, True)) is None
+
+
+def _no_floor_pair(seed: int, head_steps: int, band: bool):
+    """Two stations of a furnished box room (``sim.rooms``) with every floor and ceiling point
+    removed (no shared floor or ceiling fixes the height); ``band``: only what a vertical lidar's
+    +/- 15 deg sees as well (a band of walls). Returns (source, source labels, target, target
+    labels, T_true)."""
+    from tripod_processor.sim.rooms import free_station, make_room, scan
+
+    scene = make_room(seed, kind="box")
+    rng = np.random.default_rng(seed)
+    a, b = free_station(scene, rng), free_station(scene, rng)
+    clouds = []
+    for st, s in ((a, 1), (b, 2)):
+        p, lab = scan(scene, st, head_steps=head_steps, noise_m=0.03, seed=s)
+        d = p - st
+        keep = lab >= 2  # walls and other only
+        if band:
+            keep &= np.abs(d[:, 2]) < np.tan(np.radians(15.0)) * np.linalg.norm(d[:, :2], axis=1)
+        clouds.append(((p[keep] - st).astype(np.float32), lab[keep]))
+    T_true = np.eye(4)
+    T_true[:3, 3] = b - a
+    return clouds[1][0], clouds[1][1], clouds[0][0], clouds[0][1], T_true
+
+
+def test_height_without_shared_floor_or_ceiling():
+    """Neither floor nor ceiling is shared. A band of walls (a vertical lidar's) does not fix the
+    height: here the level ICP leaves the pose 6 cm off in height, which used to come back as
+    ``success = true``; now ``height_observed`` is false and so is ``success``. Where both scans
+    see horizontal surfaces (table and cabinet tops) the height comes from them: within 1 deg /
+    5 cm, trusted."""
+    up = [0.0, 0.0, 1.0]
+    ps, ls_, pt, lt_, T_true = _no_floor_pair(42, 10, band=True)
+    r = hr.register_by_heightmaps(ps, pt, source_labels=ls_, target_labels=lt_, source_up=up,
+                                  target_up=up)
+    ang, dist = _pose_error(r.T_target_source, T_true)
+    assert ang < 1.0  # right in yaw and plan; the height is the guess
+    assert not r.success or dist < 0.05, (ang, dist)  # before: 6.1 cm off, success = true
+    assert not r.height_observed and not r.success
+    # the whole scan less floor and ceiling: the furniture's tops give the height
+    ps, ls_, pt, lt_, T_true = _no_floor_pair(43, 30, band=False)
+    r = hr.register_by_heightmaps(ps, pt, source_labels=ls_, target_labels=lt_, source_up=up,
+                                  target_up=up)
+    ang, dist = _pose_error(r.T_target_source, T_true)
+    assert ang < 1.0 and dist < 0.05, (ang, dist)
+    assert r.height_observed and r.success
+
+
+def test_height_evidence_finds_a_slide_and_rejects_a_flat_histogram():
+    """``height_evidence`` on the furniture's tops of two scans put 20 cm apart in height gives
+    the correction to a centimetre; on a band of walls it says not observable."""
+    from tripod_processor.scene.heightmap_registration.height import height_evidence
+
+    ps, _, pt, _, T_true = _no_floor_pair(43, 30, band=False)
+    placed = ps @ T_true[:3, :3].T + T_true[:3, 3]
+    e = height_evidence(placed + [0.0, 0.0, 0.2], pt)
+    assert e.observable and abs(e.dz + 0.2) < 0.01, e
+    ps, _, pt, _, T_true = _no_floor_pair(42, 10, band=True)
+    e = height_evidence(ps @ T_true[:3, :3].T + T_true[:3, 3], pt)
+    assert not e.observable, e

@@ -52,6 +52,7 @@ def register_heightmaps_cmd(source: Path, target: Path, output: Path | None, thr
            "structure_fitness": r.structure_fitness,
            "free_space_violation": r.free_space_violation, "ambiguity": r.ambiguity,
            "twin_ambiguity": r.twin_ambiguity, "consistent_ratio": r.consistent_ratio,
+           "height_observed": r.height_observed,
            "proposer": r.proposer, "hypotheses": r.hypotheses,
            "fitness": r.fitness, "inlier_rmse_m": r.inlier_rmse, "hu_distance": r.hu_distance,
            "stage_seconds": {k: round(v, 4) for k, v in r.stages.items()},

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .correlation import _search
+from .height import height_evidence
 from .features import (_footprint_mask, _ij_to_xy, _log_hu, hu_moments, match_binary, match_nearest,
                        orb_keypoints, plan_image, rigid_2d_ransac, shape_blobs)
 from .levelling import level_scan
@@ -39,12 +40,16 @@ class HeightmapMatch:
         the scans as well (a symmetric hall), and the answer is then not unique (at most 10)
     twins : (turn [deg], T_target_source, score, features) of every candidate of that choice,
         the verification's answer first (turn 0)
+    height_observed : the relative height is fixed by the data: both floors or both ceilings,
+        or (neither shared, both scans levelled by gravity) the horizontal patches both scans
+        saw (:func:`.height.height_evidence`); False: the height is a guess (a vertical lidar's
+        band of walls) and ``success`` is false
     consistent_ratio : the best other candidate that contradicts nothing (free-space violation
         within the 1 % allowance): its fit over the answer's (such a pose is as valid an
         explanation; > ``max_consistent_ratio``: ambiguous)
     success : structure_fitness >= min_fitness, free_space_violation <= max_violation,
         ambiguity <= max_ambiguity, twin_ambiguity <= max_twin_ambiguity and consistent_ratio
-        <= max_consistent_ratio
+        <= max_consistent_ratio and height_observed
     seconds : wall time; stages : per-stage times [s]
     verified : (proposer, verification score, T_target_source, structure fitness, free-space
         violation) of every verified hypothesis, best first (score = fitness - weight x violation)
@@ -67,6 +72,7 @@ class HeightmapMatch:
     twin_ambiguity: float = 0.0
     twins: list = field(default_factory=list)
     consistent_ratio: float = 0.0
+    height_observed: bool = True
 
 
 def register_by_heightmaps(source, target, *, source_labels=None, target_labels=None,
@@ -172,8 +178,9 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
     t1 = time.perf_counter()
     check = _Verifier(S, source_labels, Tg, target_labels, max_distance, viewpoint_source,
                       viewpoint_target, num_threads)
+    height = _level_height(ls, lt)
     if source_gravity and target_gravity:  # both level by gravity: the ICPs keep them level
-        check.keep_level(ls.T_level_scan, lt.T_level_scan, _level_height(ls, lt))
+        check.keep_level(ls.T_level_scan, lt.T_level_scan, height)
     screened = _screen(proposals, ls, lt, check, 3 * cp, free_space_weight)
     hyps = []
     for _, yaw0, shift0, who in screened[:verify]:
@@ -212,15 +219,42 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
             T, fitness, rmse = cands[k][2], cands[k][3], cands[k][4]
             who = f"{cands[k][0]} (chosen)"
         stages["choice"] = time.perf_counter() - t1
+    # 7. no shared floor or ceiling: the height from the horizontal patches both scans saw
+    height_observed = True
+    if check.level is not None and height is None:
+        t1 = time.perf_counter()
+        T, fitness, rmse, height_observed = _height_from_patches(check, S, Tg, lt, T, fitness,
+                                                                 rmse)
+        stages["height"] = time.perf_counter() - t1
     sfit = check.structure_fitness(T)
     viol = check.free_space_violation(T)
     ok = (sfit >= min_fitness and viol <= max_violation and ambiguity <= max_ambiguity
-          and twin_amb <= max_twin_ambiguity and consistent <= max_consistent_ratio)
+          and twin_amb <= max_twin_ambiguity and consistent <= max_consistent_ratio
+          and height_observed)
     return HeightmapMatch(T, float(best[1]), float(sfit), float(viol), float(ambiguity), fitness,
                           rmse, _footprint_distance(ls, lt), who, len(checked), bool(ok),
                           time.perf_counter() - t0, stages,
                           [(c[2], c[0], c[3], c[4], c[5]) for c in checked], float(twin_amb),
-                          twin_list, float(consistent))
+                          twin_list, float(consistent), bool(height_observed))
+
+
+def _height_from_patches(check, S, Tg, lt, T, fitness, rmse, redo_m: float = 0.03):
+    """(T, fitness, rmse, observed): the pose's height checked against the horizontal patches
+    both scans saw, in the target's level frame; a correction over ``redo_m`` is applied and the
+    pose finished again (the level ICP, height free, from there). Not observable: the pose as
+    it was, ``observed`` False."""
+    L = lt.T_level_scan
+    M = L @ T
+    ev = height_evidence(S @ M[:3, :3].T + M[:3, 3], Tg @ L[:3, :3].T + L[:3, 3])
+    if not ev.observable:
+        return T, fitness, rmse, False
+    if abs(ev.dz) > redo_m:
+        shift = np.eye(4)
+        shift[2, 3] = ev.dz
+        T1 = np.linalg.inv(L) @ shift @ M
+        T2, f2, r2 = check.final(T1)
+        return (T2, f2, r2, True) if np.isfinite(f2) else (T1, fitness, rmse, True)
+    return T, fitness, rmse, True
 
 
 #: turns about the vertical that give the twins of an answer (a rectangle's 180 deg, a square's
