@@ -78,6 +78,15 @@ class CalibrationConfig(StrictModel):
     #: the turns' offset joins the surfaces' fit as a prior (offset and lever arm estimated
     #: together); off: the surfaces fit alone, then an inverse-variance mean when they agree
     joint_time_prior: bool = True
+    #: a mount tilt that ``max_stations`` stations' surfaces do not pin down (sigma over 0.05°:
+    #: a spin axis near the pan axis in a small room) is fitted again on up to this many stations
+    max_tilt_stations: int = Field(default=8, ge=1)
+    #: ... and then taken from the surfaces, mixed with hand-eye's by their variances, when its
+    #: sigma times this is below hand-eye's (the pairs' axis scatter); else hand-eye's is kept.
+    #: The surfaces' sigma is optimistic (a voxel's points share its plane): 2-3x on dev rigs
+    tilt_sigma_inflation: float = Field(default=2.0, gt=0)
+    #: off: hand-eye's tilt is kept whenever the surfaces' sigma is over 0.05° (the old rule)
+    tilt_from_surfaces: bool = True
 
 
 class StationConfig(StrictModel):
