@@ -260,7 +260,27 @@ def calibrate_mount(lidar: LidarPackets, stations: list[Station], orient: ImuOri
              for A, B in zip(A_list, B_list)]
     return Extrinsic(R_il, ell, "calibrated"), {
         "station": st.index, "pairs": len(A_list), "axis_singular_values": S.tolist(),
-        "rotation_residual_deg_median": float(np.median(resid))}
+        "rotation_residual_deg_median": float(np.median(resid)),
+        "tilt_sigma_deg": _axis_tilt_sigma_deg(a, b, R_li)}
+
+
+def _axis_tilt_sigma_deg(a: np.ndarray, b: np.ndarray, R_li: np.ndarray) -> float:
+    """1-sigma [deg] of hand-eye's mount tilt: the RMS angle between each pair's turn axis as the
+    lidar's registration saw it (rows of ``a``, rotation vectors, lidar frame) and the IMU's
+    (``b``, IMU frame) mapped by the fit ``R_li``.
+
+    Not divided by the square root of the pairs: they are one station's sweeps registered
+    against each other, so they share its surfaces and its scan pattern, and their errors do not
+    average out (on a spin axis near the pan axis in a 4 x 4 m room, dev seed 126, the pairs'
+    mean axis is 0.51 deg off with 16 pairs whose RMS is of that size)."""
+    na, nb = np.linalg.norm(a, axis=1), np.linalg.norm(b, axis=1)
+    ok = (na > 1e-9) & (nb > 1e-9)
+    if not ok.any():
+        return float("inf")
+    ua = a[ok] / na[ok, None]
+    ub = (b[ok] @ R_li.T) / nb[ok, None]
+    ang = np.arccos(np.clip(np.sum(ua * ub, axis=1), -1.0, 1.0))
+    return float(np.degrees(np.sqrt(np.mean(ang**2))))
 
 
 # ---- self-calibration: lever arm, time offset and mount rotation from the stations' geometry ----

@@ -87,6 +87,15 @@ class CalibrationConfig(StrictModel):
     #: a lidar's spin axis at least this far from the pan axis [deg] gets a warning that the
     #: lever arm along the spin axis is weakly observable (seen only at vertical edges)
     side_mount_warn_deg: float = Field(default=50.0, ge=0, le=90)
+    #: a mount tilt that ``max_stations`` stations' surfaces do not pin down (sigma over 0.05°:
+    #: a spin axis near the pan axis in a small room) is fitted again on up to this many stations
+    max_tilt_stations: int = Field(default=8, ge=1)
+    #: ... and then taken from the surfaces, mixed with hand-eye's by their variances, when its
+    #: sigma times this is below hand-eye's (the pairs' axis scatter); else hand-eye's is kept.
+    #: The surfaces' sigma is optimistic (a voxel's points share its plane): 2-3x on dev rigs
+    tilt_sigma_inflation: float = Field(default=2.0, gt=0)
+    #: off: hand-eye's tilt is kept whenever the surfaces' sigma is over 0.05° (the old rule)
+    tilt_from_surfaces: bool = True
 
 
 class StationConfig(StrictModel):
