@@ -493,24 +493,31 @@ def _voxel_plane_residuals(p: np.ndarray, J: np.ndarray, t: np.ndarray, voxel_m:
     iv = vid[inv[sel]]
     ps, Js = p[sel], J[sel]
     W = int(ok_v.sum())
-    n = np.bincount(iv, minlength=W).astype(np.float64)
-    c = np.stack([np.bincount(iv, ps[:, i], W) for i in range(3)], axis=1) / n[:, None]
-    d = ps - c[iv]
-    cov = np.zeros((W, 3, 3))
-    for i in range(3):
-        for j in range(i, 3):
-            cov[:, i, j] = cov[:, j, i] = np.bincount(iv, d[:, i] * d[:, j], W) / n
-    ev, evec = np.linalg.eigh(cov)
-    nrm = evec[:, :, 0]
+    c, d, ev, nrm, Jbar = _voxel_planes(ps, Js, iv, W)
     planar = ev[:, 0] < 0.2 * ev[:, 1]
-    Jf = Js.reshape(len(Js), -1)
-    Jbar = np.stack([np.bincount(iv, Jf[:, m], W) for m in range(Jf.shape[1])], axis=1)
-    Jbar = (Jbar / n[:, None]).reshape(W, 3, -1)
     keep = planar[iv]
     nn = nrm[iv][keep]
     r = np.einsum("qi,qi->q", nn, d[keep])
     Jr = np.einsum("qi,qij->qj", nn, Js[keep] - Jbar[iv][keep])
     return r, Jr
+
+
+def _voxel_planes(p: np.ndarray, J: np.ndarray, iv: np.ndarray, W: int):
+    """Per voxel (``iv``: each point's voxel, 0..W-1): centroid c (W, 3), the points' offsets
+    from it d (N, 3), the covariance's eigenvalues ev (W, 3, ascending), the plane normal
+    (W, 3) and the mean Jacobian J̄ (W, 3, K)."""
+    n = np.bincount(iv, minlength=W).astype(np.float64)
+    c = np.stack([np.bincount(iv, p[:, i], W) for i in range(3)], axis=1) / n[:, None]
+    d = p - c[iv]
+    cov = np.zeros((W, 3, 3))
+    for i in range(3):
+        for j in range(i, 3):
+            cov[:, i, j] = cov[:, j, i] = np.bincount(iv, d[:, i] * d[:, j], W) / n
+    ev, evec = np.linalg.eigh(cov)
+    Jf = J.reshape(len(J), -1)
+    Jbar = np.stack([np.bincount(iv, Jf[:, m], W) for m in range(Jf.shape[1])], axis=1)
+    Jbar = (Jbar / n[:, None]).reshape(W, 3, -1)
+    return c, d, ev, evec[:, :, 0], Jbar
 
 
 def _split_plane_residuals(p: np.ndarray, J: np.ndarray, t: np.ndarray, inv: np.ndarray,
@@ -530,20 +537,8 @@ def _split_plane_residuals(p: np.ndarray, J: np.ndarray, t: np.ndarray, inv: np.
     uk, iv, ne = np.unique(key[e], return_inverse=True, return_counts=True)
     W = len(uk)
     iv = iv.reshape(-1)
-    pe, Je = p[e], J[e]
-    n = ne.astype(np.float64)
-    c = np.stack([np.bincount(iv, pe[:, i], W) for i in range(3)], axis=1) / n[:, None]
-    d = pe - c[iv]
-    cov = np.zeros((W, 3, 3))
-    for i in range(3):
-        for j in range(i, 3):
-            cov[:, i, j] = cov[:, j, i] = np.bincount(iv, d[:, i] * d[:, j], W) / n
-    ev, evec = np.linalg.eigh(cov)
-    nrm = evec[:, :, 0]
+    c, _, ev, nrm, Jbar = _voxel_planes(p[e], J[e], iv, W)
     good = (ne >= 6) & (ev[:, 0] < 0.2 * ev[:, 1])
-    Jf = Je.reshape(len(Je), -1)
-    Jbar = np.stack([np.bincount(iv, Jf[:, m], W) for m in range(Jf.shape[1])], axis=1)
-    Jbar = (Jbar / n[:, None]).reshape(W, 3, -1)
     # the later points of the voxels whose earlier points make a plane
     pos = np.searchsorted(uk, key[late])
     pos_c = np.minimum(pos, W - 1)
