@@ -390,6 +390,8 @@ class SelfCalibration:
     def to_dict(self) -> dict:
         from scipy.spatial.transform import Rotation
 
+        by_mount = self.lever_arm_by_mount()
+
         x, y, z, w = Rotation.from_matrix(self.R_imu_lidar).as_quat()
         return {
             "q_imu_lidar": [float(w), float(x), float(y), float(z)],
@@ -408,8 +410,7 @@ class SelfCalibration:
             "observable": {"lever_arm": self.lever_arm_observable,
                            "time_offset": self.time_offset_observable,
                            "mount_rotation": self.rotation_observable},
-            **({"lever_arm_by_mount": self.lever_arm_by_mount()}
-               if self.lever_arm_by_mount() else {}),
+            **({"lever_arm_by_mount": by_mount} if by_mount else {}),
             "stations": self.stations, "residual_m": self.residual_m, "pairs": self.pairs,
         }
 
@@ -502,6 +503,16 @@ def _voxel_plane_residuals(p: np.ndarray, J: np.ndarray, t: np.ndarray, voxel_m:
     return r, Jr
 
 
+def _huber_normal_equations(r: np.ndarray, Jr: np.ndarray):
+    """(robust sigma [m], H, g) of residuals ``r`` (M,) with Jacobians ``Jr`` (M, n): sigma from
+    the MAD, Huber weights at 1.345 sigma, H = Jᵀ W J and g = Jᵀ W r."""
+    s = 1.4826 * float(np.median(np.abs(r - np.median(r)))) + 1e-6
+    hub = 1.345 * s
+    wgt = np.where(np.abs(r) < hub, 1.0, hub / np.maximum(np.abs(r), 1e-12))
+    JW = Jr * wgt[:, None]
+    return s, JW.T @ Jr, JW.T @ r
+
+
 def _voxel_planes(p: np.ndarray, J: np.ndarray, iv: np.ndarray, W: int):
     """Per voxel (``iv``: each point's voxel, 0..W-1): centroid c (W, 3), the points' offsets
     from it d (N, 3), the covariance's eigenvalues ev (W, 3, ascending), the plane normal
@@ -558,8 +569,8 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
                    min_separation_s: float = 0.3, iterations: int = 8,
                    max_range: float = 60.0, sigma_inflation: float = 3.0,
                    num_threads: int = 0, time_prior_ns: int | None = None,
-                   time_prior_sigma_ms: float = float("inf"), split_iterations: int = 0,
-                   samples: list | None = None) -> SelfCalibration:
+                   time_prior_sigma_ms: float = float("inf"),
+                   split_iterations: int = 0) -> SelfCalibration:
     """Lever arm, IMU time offset and mount rotation that make every station self-consistent.
 
     At a standing station the head turns about a fixed pivot, so a surface seen at two moments
@@ -597,7 +608,7 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
     R_il = ext.R_imu_lidar.copy()
     ell = ext.lever_arm_m.astype(np.float64).copy()
     off = orient.time_offset_ns
-    data = samples if samples is not None else _threaded_map(_station_points, [
+    data = _threaded_map(_station_points, [
         (lidar, st, points_per_station, 11 + k, max_range, orient if fit_time else None)
         for k, st in enumerate(use)], workers)
     sep_ns = int(min_separation_s * 1e9)
@@ -651,11 +662,7 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
         r = np.concatenate(all_r)
         Jr = np.concatenate(all_J)
         n_pairs = len(r)
-        s_rob = 1.4826 * float(np.median(np.abs(r - np.median(r)))) + 1e-6
-        hub = 1.345 * s_rob
-        wgt = np.where(np.abs(r) < hub, 1.0, hub / np.maximum(np.abs(r), 1e-12))
-        H = (Jr * wgt[:, None]).T @ Jr
-        g = (Jr * wgt[:, None]).T @ r
+        s_rob, H, g = _huber_normal_equations(r, Jr)
         if fit_time and time_prior_ns is not None and np.isfinite(time_prior_sigma_ms):
             # the offset's prior (the head's turns) as one more residual, in the units of the
             # data's information (H / (s² · inflation²) is the inverse covariance)
@@ -706,10 +713,7 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
         if res:
             r = np.concatenate([x[0] for x in res])
             Jr = np.concatenate([x[1] for x in res])
-            s_sp = 1.4826 * float(np.median(np.abs(r - np.median(r)))) + 1e-6
-            hub = 1.345 * s_sp
-            wgt = np.where(np.abs(r) < hub, 1.0, hub / np.maximum(np.abs(r), 1e-12))
-            H_sp = (Jr * wgt[:, None]).T @ Jr
+            s_sp, H_sp, _ = _huber_normal_equations(r, Jr)
             if fit_time and time_prior_ns is not None and np.isfinite(time_prior_sigma_ms):
                 H_sp[2, 2] += (s_sp * sigma_inflation / (time_prior_sigma_ms * 1e-3)) ** 2
             # the larger of the two per parameter (each is a lower bound of the truth's spread)

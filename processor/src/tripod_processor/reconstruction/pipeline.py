@@ -348,12 +348,12 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
     # the turns' offset joins the surfaces' fit as a prior: offset and lever arm together
     prior = {} if turn is None or not cc.joint_time_prior else {
         "time_prior_ns": turn.offset_ns, "time_prior_sigma_ms": turn.sigma_ms}
+    split = cc.split_iterations if fit_lever else 0  # the lever-arm fit's split-residual steps
     try:
         cal = self_calibrate(rec.lidar, seg.stations, orient, ext, fit_lever=fit_lever,
                              fit_time=fit_time_surf, fit_rotation=fit_rot,
                              max_stations=cc.max_stations, num_threads=cfg.num_threads,
-                             split_iterations=cc.split_iterations if fit_lever else 0,
-                             iterations=8 + (cc.split_iterations if fit_lever else 0), **prior)
+                             split_iterations=split, iterations=8 + split, **prior)
         if fit_rot and not cal.rotation_observable:
             # the stations' surfaces hardly see the mount's tilt (a spin axis near the pan axis
             # in a small room: the tilt's blur is its angle times the range); hand-eye's sees it
@@ -366,8 +366,7 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
                 cal = self_calibrate(rec.lidar, seg.stations, orient, ext, fit_lever=fit_lever,
                                      fit_time=fit_time_surf, fit_rotation=False,
                                      max_stations=cc.max_stations, num_threads=cfg.num_threads,
-                                     split_iterations=cc.split_iterations if fit_lever else 0,
-                                     iterations=8 + (cc.split_iterations if fit_lever else 0),
+                                     split_iterations=split, iterations=8 + split,
                                      **prior)
             fit_rot = False
             notes.append(how)
