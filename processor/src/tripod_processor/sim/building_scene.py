@@ -115,14 +115,12 @@ def _bfs(grid, start):
 
 
 def _largest_component_cell(grid):
-    seen = np.zeros_like(grid, bool)
-    best, best_n = None, 0
-    for c in zip(*np.nonzero(grid)):
-        if seen[c]:
-            continue
-        _, prev = _bfs(grid, c)
-        for k in prev:
-            seen[k] = True
-        if len(prev) > best_n:
-            best, best_n = c, len(prev)
-    return best
+    """The first cell (row-major) of the largest 4-connected free region; None when none."""
+    from scipy import ndimage
+
+    lab, n = ndimage.label(grid)  # the default structure is 4-connected in 2-D
+    if n == 0:
+        return None
+    big = 1 + int(np.argmax(np.bincount(lab.ravel())[1:]))
+    i, j = np.argwhere(lab == big)[0]
+    return (int(i), int(j))
