@@ -26,7 +26,7 @@ from .fragments import Fragment
 from .inputs import Recording, RecordingError, read_recording
 from .odometry import CloudCache
 from .placement import Extrinsic, ImuOrientation, fit_clock_map, pose_world_lidar
-from .scaleout import build_fragments
+from .scaleout import blas_one_thread, build_fragments
 from .slam import SlamResult, inv, run_odometry, run_slam
 from .stations import Segmentation, segment_stations
 
@@ -93,7 +93,18 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
     ``engine`` (:mod:`.engine`, e.g. :func:`.engine.ray_engine`): fragments, odometry pairs and
     loop candidates run as its tasks when the recording has at least ``engine_min_stations``
     stations; the outputs are the same bytes as in process (for the same ``num_threads``).
+
+    BLAS runs on one thread meanwhile (:func:`.scaleout.blas_one_thread`): the stages run their
+    own work side by side on ``num_threads`` threads.
     """
+    with blas_one_thread():
+        return _reconstruct(recording_path, outdir, cfg, imu_log=imu_log, quiet=quiet,
+                            engine=engine, engine_min_stations=engine_min_stations)
+
+
+def _reconstruct(recording_path, outdir, cfg, *, imu_log, quiet, engine, engine_min_stations
+                 ) -> ReconstructResult:
+    """:func:`reconstruct` (its BLAS limit set)."""
     cfg = cfg or ReconstructConfig()
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)
