@@ -351,3 +351,52 @@ def test_station_run_merge_is_the_serial_one_on_threads(rig, monkeypatch):
     assert cast >= 2  # votes were cast
     assert (want, merged) == out1
     assert ctx.rng.bit_generator.state == after1
+
+
+def _quat_at_per_point(orient: ImuOrientation, t_ns: np.ndarray) -> np.ndarray:
+    """The slerp as it was before its per-interval terms were tabled: every term per point."""
+    t = np.asarray(t_ns, dtype=np.int64)
+    ts = orient.t_ns
+    i = np.clip(np.searchsorted(ts, t, side="right") - 1, 0, len(ts) - 2)
+    dt = (ts[i + 1] - ts[i]).astype(np.float64)
+    u = np.clip((t - ts[i]).astype(np.float64) / np.maximum(dt, 1.0), 0.0, 1.0)
+    q0, q1 = orient._q[i], orient._q[i + 1]
+    dot = np.clip(np.einsum("ij,ij->i", q0, q1), -1.0, 1.0)
+    theta = np.arccos(dot)
+    s = np.sin(theta)
+    small = s < 1e-9
+    w0 = np.where(small, 1.0 - u, np.sin((1.0 - u) * theta) / np.where(small, 1.0, s))
+    w1 = np.where(small, u, np.sin(u * theta) / np.where(small, 1.0, s))
+    q = w0[:, None] * q0 + w1[:, None] * q1
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def test_tabled_slerp_is_the_per_point_one_bit_for_bit(rig):
+    _, rec, orient = rig
+    rng = np.random.default_rng(5)
+    t0, t1 = int(orient.t_ns[0]), int(orient.t_ns[-1])
+    # inside, before and after the track (clamped), on the samples themselves
+    t = np.concatenate([rng.integers(t0 - 10**9, t1 + 10**9, 200_000), orient.t_ns[::7]])
+    for o in (orient, orient.with_offset(3_217_000), orient.with_offset(-8_000_001)):
+        assert np.array_equal(o.quat_at(t), _quat_at_per_point(o, t))
+    # repeated samples (a zero interval, a zero angle: the linear branch) and one sample alone
+    from tripod_processor.reconstruction.inputs import ImuTrack
+
+    imu = rec.imu
+    host = np.repeat(np.asarray(imu.host_ns[:50]), 2)
+    q = np.repeat(np.asarray(imu.q_wxyz[:50]), 2, axis=0)
+    for track in (ImuTrack(host, q), ImuTrack(host[:1], q[:1])):
+        o = ImuOrientation(track, 0, 0)
+        tt = rng.integers(int(host[0]) - 10**8, int(host[-1]) + 10**8, 5000)
+        assert np.array_equal(o.quat_at(tt), _quat_at_per_point(o, tt))
+
+
+def test_blas_one_thread_inside_reconstruct_only():
+    from threadpoolctl import threadpool_info
+
+    from tripod_processor.reconstruction.scaleout import blas_one_thread
+
+    before = [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+    with blas_one_thread():
+        assert all(i["num_threads"] == 1 for i in threadpool_info() if i["user_api"] == "blas")
+    assert [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"] == before

@@ -281,22 +281,41 @@ class ImuOrientation:
             self.imu, self.clock, self.host_minus_lidar_ns, self._q, self._base_t,
             self.smooth_s)
         o.time_offset_ns = int(time_offset_ns)
+        if hasattr(self, "_slerp_cache"):
+            o._slerp_cache = self._slerp_cache
         return o
+
+    def _slerp_table(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Per interval k of the samples (k, k+1): (its length [ns] as float64, at least 1;
+        the angle θ_k between the two quaternions [rad]; sin θ_k, 1 where tiny; tiny: sin θ_k
+        < 1e-9). Computed once per track (``with_offset`` copies share it): the slerp's
+        per-interval terms, gathered per point by :meth:`quat_at`, are the same numbers as
+        when computed per point."""
+        cached = getattr(self, "_slerp_cache", None)
+        if cached is None or cached[0] is not self._q:
+            q = self._q
+            if len(q) >= 2:
+                a, b, dt = q[:-1], q[1:], np.diff(self._base_t).astype(np.float64)
+            else:  # one sample: the one interval from it to itself
+                a, b, dt = q[:1], q[:1], np.zeros(1)
+            dt = np.maximum(dt, 1.0)
+            theta = np.arccos(np.clip(np.einsum("ij,ij->i", a, b), -1.0, 1.0))
+            s = np.sin(theta)
+            small = s < 1e-9
+            cached = self._slerp_cache = (q, (dt, theta, np.where(small, 1.0, s), small))
+        return cached[1]
 
     def quat_at(self, t_ns: np.ndarray) -> np.ndarray:
         """Slerp of q_world_imu at lidar times ``t_ns`` (N,) → (N, 4) w, x, y, z; clamped at ends."""
         t = np.asarray(t_ns, dtype=np.int64)
         ts = self.t_ns
         i = np.clip(np.searchsorted(ts, t, side="right") - 1, 0, len(ts) - 2)
-        dt = (ts[i + 1] - ts[i]).astype(np.float64)
-        u = np.clip((t - ts[i]).astype(np.float64) / np.maximum(dt, 1.0), 0.0, 1.0)
+        dt_k, theta_k, s_k, small_k = self._slerp_table()
+        u = np.clip((t - ts[i]).astype(np.float64) / dt_k[i], 0.0, 1.0)
         q0, q1 = self._q[i], self._q[i + 1]
-        dot = np.clip(np.einsum("ij,ij->i", q0, q1), -1.0, 1.0)
-        theta = np.arccos(dot)
-        s = np.sin(theta)
-        small = s < 1e-9
-        w0 = np.where(small, 1.0 - u, np.sin((1.0 - u) * theta) / np.where(small, 1.0, s))
-        w1 = np.where(small, u, np.sin(u * theta) / np.where(small, 1.0, s))
+        theta, s, small = theta_k[i], s_k[i], small_k[i]
+        w0 = np.where(small, 1.0 - u, np.sin((1.0 - u) * theta) / s)
+        w1 = np.where(small, u, np.sin(u * theta) / s)
         q = w0[:, None] * q0 + w1[:, None] * q1
         return q / np.linalg.norm(q, axis=1, keepdims=True)
 
