@@ -95,21 +95,28 @@ def reconstruct(recording_path: str | os.PathLike, outdir: str | os.PathLike,
     stations; the outputs are the same bytes as in process (for the same ``num_threads``).
 
     BLAS runs on one thread meanwhile (:func:`.scaleout.blas_one_thread`): the stages run their
-    own work side by side on ``num_threads`` threads.
+    own work side by side on ``num_threads`` threads. The report's work runs on one background
+    thread beside the stages (pyplot's import while the recording is read, the station timeline
+    and the plane fits while the odometry and the pose graph run, its other pictures and the
+    MCAP while the outputs are written).
     """
-    with blas_one_thread():
-        return _reconstruct(recording_path, outdir, cfg, imu_log=imu_log, quiet=quiet,
-                            engine=engine, engine_min_stations=engine_min_stations)
+    with blas_one_thread(), ThreadPoolExecutor(1) as bg:
+        return _reconstruct(recording_path, outdir, cfg or ReconstructConfig(), bg,
+                            imu_log=imu_log, quiet=quiet, engine=engine,
+                            engine_min_stations=engine_min_stations)
 
 
-def _reconstruct(recording_path, outdir, cfg, *, imu_log, quiet, engine, engine_min_stations
-                 ) -> ReconstructResult:
-    """:func:`reconstruct` (its BLAS limit set)."""
-    cfg = cfg or ReconstructConfig()
+def _reconstruct(recording_path, outdir, cfg: ReconstructConfig, bg: ThreadPoolExecutor, *,
+                 imu_log, quiet, engine, engine_min_stations) -> ReconstructResult:
+    """:func:`reconstruct` (its BLAS limit set; ``bg``: its one background thread)."""
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)
     times: dict[str, float] = {}
     threads = cfg.num_threads
+    if cfg.output.report:
+        from .report import warm_up
+
+        bg.submit(warm_up)  # pyplot's import beside the read
 
     # 1. read
     with _Stage(times, "read", None, quiet):
@@ -200,6 +207,12 @@ def _reconstruct(recording_path, outdir, cfg, *, imu_log, quiet, engine, engine_
                                 anchor_fit=pc.anchor_fit,
                                 anchor_max_deviation_deg=pc.anchor_max_deviation_deg)
     notes += _anchor_notes(frags, pc.anchor_max_deviation_deg)
+    early = None
+    if cfg.output.report:
+        from .report import early_figures
+
+        # the station timeline and the fragments' plane fits beside the odometry and SLAM
+        early = bg.submit(early_figures, out, seg, frags, int(rec.lidar.lidar_ns[0]), cfg)
 
     # 6. odometry
     cache = CloudCache(cfg.odometry.point_sigma_m, threads)
@@ -219,22 +232,21 @@ def _reconstruct(recording_path, outdir, cfg, *, imu_log, quiet, engine, engine_
                             calibration=effective_calibration(ext, orient, pc, calib),
                             engine=eng.name if eng is not None else "in-process")
 
-    # 8. outputs; the report's pictures of the fragments and poses meanwhile on another thread
-    # (the outputs' voxel filter and smoothing run natively, without the GIL)
-    with ThreadPoolExecutor(1) as bg:
-        figures = None
-        if cfg.output.report:
-            from .report import report_figures, write_report
+    # 8. outputs; the report's pictures of the fragments and poses meanwhile on the background
+    # thread (the outputs' voxel filter and smoothing run natively, without the GIL); it runs
+    # its tasks in order, so the early figures are done when the others start
+    figures = None
+    if cfg.output.report:
+        from .report import report_figures, write_report
 
-            figures = bg.submit(report_figures, res, cfg)
-        with _Stage(times, "outputs", None, quiet):
-            pending = _write_outputs(res, cfg, orient, bg)
-        if cfg.output.report:
-            with _Stage(times, "report", None, quiet):
-                res.files["report"] = str(write_report(res, cfg, summary(res),
-                                                       figures.result()))
-        for f in pending:
-            f.result()  # raises what the writer raised
+        figures = bg.submit(lambda: report_figures(res, cfg, early.result()))
+    with _Stage(times, "outputs", None, quiet):
+        pending = _write_outputs(res, cfg, orient, bg)
+    if cfg.output.report:
+        with _Stage(times, "report", None, quiet):
+            res.files["report"] = str(write_report(res, cfg, summary(res), figures.result()))
+    for f in pending:
+        f.result()  # raises what the writer raised
     outputs.write_json(out / "result.json", summary(res))
     res.files["result"] = str(out / "result.json")
     return res

@@ -208,18 +208,29 @@ def calibration_section(cal: dict) -> list[str]:
     return lines
 
 
-def report_figures(res, cfg: ReconstructConfig) -> dict:
+def report_figures(res, cfg: ReconstructConfig, early: list | None = None) -> dict:
     """The report's pictures that need only the fragments and the poses (odometry, station
     timeline, plane-fit violins), and the plane-fit statistics: the pipeline draws them while
-    it writes the outputs (another thread; pyplot is not used elsewhere meanwhile)."""
-    out = res.outdir
+    it writes the outputs (another thread; pyplot is not used elsewhere meanwhile). ``early``:
+    what :func:`early_figures` returned for this run (the station timeline drawn and the plane
+    fits done already)."""
     slam = res.slam
     main = [k for k in range(len(res.fragments)) if slam.component[k] == 0]
-    plot_odometry_vs_optimized(out / "report_odometry.png", slam.T_odometry[main],
+    plot_odometry_vs_optimized(res.outdir / "report_odometry.png", slam.T_odometry[main],
                                slam.T_optimized[main])
-    seg = res.segmentation
-    plot_station_timeline(out / "report_stations.png", seg, int(res.recording.lidar.lidar_ns[0]),
-                          cfg.stations.still_threshold, cfg.stations.still_tilt_deg)
+    if early is None:
+        early = early_figures(res.outdir, res.segmentation, res.fragments,
+                              int(res.recording.lidar.lidar_ns[0]), cfg)
+    return plot_plane_violins(res.outdir / "report_planes.png", early)
+
+
+def early_figures(out: Path, seg, fragments: list, t0_ns: int, cfg: ReconstructConfig
+                  ) -> list[dict[str, np.ndarray]]:
+    """The report's station timeline and every fragment's plane-fit errors (returned, for
+    :func:`report_figures`): they need only the stations and the fragments, so the pipeline
+    runs them on another thread while the odometry and the pose graph run."""
+    plot_station_timeline(out / "report_stations.png", seg, t0_ns, cfg.stations.still_threshold,
+                          cfg.stations.still_tilt_deg)
     # plane fits on a random sample of each fragment: the residuals keep their statistics, the
     # RANSAC gets far cheaper
     rng = np.random.default_rng(0)
@@ -227,9 +238,14 @@ def report_figures(res, cfg: ReconstructConfig) -> dict:
     def sample(p, n=15_000):
         return p if len(p) <= n else p[rng.choice(len(p), n, replace=False)]
 
-    errors = [plane_fit_errors(sample(f.points), f.up_in_lidar, min_inliers=60, seed=k)
-              for k, f in enumerate(res.fragments)]
-    return plot_plane_violins(out / "report_planes.png", errors)
+    return [plane_fit_errors(sample(f.points), f.up_in_lidar, min_inliers=60, seed=k)
+            for k, f in enumerate(fragments)]
+
+
+def warm_up() -> None:
+    """Import pyplot (Agg) ahead of the first picture: ~0.4 s CPU that the pipeline spends on
+    another thread while it reads the recording."""
+    _plt()
 
 
 def write_report(res, cfg: ReconstructConfig, s: dict, stats: dict | None = None) -> Path:
