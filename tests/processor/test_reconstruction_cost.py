@@ -400,3 +400,18 @@ def test_blas_one_thread_inside_reconstruct_only():
     with blas_one_thread():
         assert all(i["num_threads"] == 1 for i in threadpool_info() if i["user_api"] == "blas")
     assert [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"] == before
+
+
+def test_stacked_matmul_is_numpys_stacked_product():
+    from scipy.spatial.transform import Rotation
+
+    from tripod_processor.reconstruction.calibration import stacked_matmul
+    from tripod_processor.reconstruction.scaleout import blas_one_thread
+
+    R = Rotation.random(50_000, random_state=3).as_matrix()
+    U = np.linalg.qr(np.random.default_rng(4).normal(size=(3, 3)))[0]
+    with blas_one_thread():  # as inside reconstruct
+        for M in (U[:, :2], U, Rotation.random(random_state=5).as_matrix()):
+            assert np.array_equal(stacked_matmul(R, M), R @ M)
+    for M in (U[:, :2], U):
+        assert np.array_equal(stacked_matmul(R, M), R @ M)
