@@ -45,7 +45,9 @@ def blas_one_thread():
     windows and pairs side by side on its own threads, each calling BLAS on small matrices
     ((N, 3) @ (3, 3), 3-column least squares); OpenBLAS's own threads then only spin and wait
     for each other (on dev seed 0 at load 6: calibration 5.3 -> 4.3 CPU-s, fragments 4.2 ->
-    3.1). Each product is computed by one thread either way (the same values)."""
+    3.1). Each product is computed by one thread either way (the same values). The limit is
+    process-wide (threadpoolctl): two reconstructions on threads of one process share it, which
+    changes their speed only."""
     from threadpoolctl import threadpool_limits
 
     with threadpool_limits(limits=1, user_api="blas"):
