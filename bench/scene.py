@@ -116,13 +116,13 @@ def bench_procedural(split: str = "test", n_per_family: int = 3, lofo: bool = Tr
         clouds[fam] = []
         for sd in seeds:
             p, lab = labelled_scan(fam, sd)
-            f, pv, sg = voxel_features(p, return_segments=True)
-            clouds[fam].append((p, lab, f, pv, sg))
+            f, pv, sg, cen = voxel_features(p, return_segments=True, return_centroids=True)
+            clouds[fam].append((p, lab, f, pv, sg, cen))
     seg = Segmenter(weights)
     total = np.zeros((4, 4), np.int64)
     for fam in families:
-        c = sum(confusion(lab, seg.probabilities_of(f, pv, sg).argmax(1))
-                for _, lab, f, pv, sg in clouds[fam])
+        c = sum(confusion(lab, seg.probabilities_of(f, pv, sg, cen).argmax(1))
+                for _, lab, f, pv, sg, cen in clouds[fam])
         total += c
         n_pts = sum(len(x[0]) for x in clouds[fam])
         row("segmentation", f"shipped, {fam} ({len(seeds)} buildings, {n_pts / 1e6:.1f} M pts)",
@@ -175,8 +175,8 @@ def bench_procedural(split: str = "test", n_per_family: int = 3, lofo: bool = Tr
                 if saved is not None:
                     save_weights(model, saved, meta)
             m = Segmenter(model=model)
-            c = sum(confusion(lab, m.probabilities_of(f, pv, sg).argmax(1))
-                    for _, lab, f, pv, sg in clouds[fam])
+            c = sum(confusion(lab, m.probabilities_of(f, pv, sg, cen).argmax(1))
+                    for _, lab, f, pv, sg, cen in clouds[fam])
             lofo_total += c
             row("segmentation", f"leave-one-family-out: {fam} unseen ({per}/family, {steps} steps, "
                 f"{how}, {time.perf_counter() - t0:.0f} s)", _ious_text(c))
