@@ -129,3 +129,18 @@ def test_stacked_training_on_whole_copies_is_seeded_and_learns():
     p, lab = clouds[0]
     acc = (Segmenter(model=m1, num_threads=1)(p) == lab).mean()
     assert acc > 0.9, acc
+
+
+def test_cli_trains_two_stages(tmp_path):
+    from tripod_processor.cli import main
+
+    p, lab = room_scan(11, head_steps=6)[:2]
+    np.savez(tmp_path / "room.npz", points=p, labels=lab)
+    out = tmp_path / "w.npz"
+    args = ["train-segmenter", "-o", str(out), "--data", str(tmp_path / "room.npz"), "--steps",
+            "30", "--batch", "512", "--copies", "1", "--keep", "20000", "--threads", "1",
+            "--hidden", "16", "--hidden2", "8"]
+    assert main(args + ["--stages", "2", "--steps2", "20"]) == 0
+    model, meta = load_model(out)
+    assert isinstance(model, Stacked) and meta["steps2"] == 20 and meta["hidden2"] == [8]
+    assert main(args + ["--stages", "3"]) == 2

@@ -66,6 +66,34 @@ class CopyRows:
     labels: np.ndarray
 
 
+class CopyStore:
+    """:class:`CopyRows` kept on disk (one ``.npz`` each, uncompressed, in ``directory``) and
+    read back one at a time on every iteration: the copies of 140 buildings are ~6 GB whole,
+    the second stage needs them twice (stage 1's rows, then its probabilities over each)."""
+
+    def __init__(self, directory) -> None:
+        from pathlib import Path
+
+        self.directory = Path(directory)
+        self.directory.mkdir(parents=True, exist_ok=True)
+        self.files = sorted(self.directory.glob("copy_*.npz"))
+
+    def add(self, c: CopyRows) -> None:
+        fn = self.directory / f"copy_{len(self.files):05d}.npz"
+        np.savez(fn, features=c.features, segment=c.segment.astype(np.int32),
+                 centroids=c.centroids, rows=c.rows, labels=c.labels)
+        self.files.append(fn)
+
+    def __len__(self) -> int:
+        return len(self.files)
+
+    def __iter__(self):
+        for fn in self.files:
+            with np.load(fn) as z:
+                yield CopyRows(z["features"], z["segment"].astype(np.int64), z["centroids"],
+                               z["rows"], z["labels"])
+
+
 def copies_of(clouds: Iterable[tuple[np.ndarray, np.ndarray]], copies: int, seed: int,
               progress: Callable | None = None, keep_per_copy: int = 400_000):
     """Yield a :class:`CopyRows` for each of ``copies`` augmented copies of every labelled cloud
@@ -119,13 +147,15 @@ def stage2_rows(stage1, copies: Iterable[CopyRows]) -> tuple[np.ndarray, np.ndar
     return np.concatenate(X), np.concatenate(L)
 
 
-def train_stacked(copies: list[CopyRows], *, seed: int = 0, steps: int = 3000,
+def train_stacked(copies, *, seed: int = 0, steps: int = 3000, steps2: int | None = None,
                   batch: int = 8192, lr: float = 3e-3, hidden=(128, 128), hidden2=(128, 128),
                   num_threads: int = 0, class_power: float = 0.5, stage1=None,
                   progress: Callable | None = None):
     """Two-stage (auto-context) segmenter: :func:`train` on the sampled rows of ``copies``
-    (or the given ``stage1``), then a second network, same schedule, on :func:`stage2_rows`.
-    Returns (:class:`.model.Stacked`, [TrainReport of each stage trained])."""
+    (:class:`CopyRows`, a list or a :class:`CopyStore`: iterated twice; or the given
+    ``stage1``), then a second network (``steps2`` steps, default ``steps``) on
+    :func:`stage2_rows`. Returns (:class:`.model.Stacked`, [TrainReport of each stage
+    trained])."""
     reports = []
     if stage1 is None:
         F = np.concatenate([c.features[c.rows] for c in copies])
@@ -135,7 +165,7 @@ def train_stacked(copies: list[CopyRows], *, seed: int = 0, steps: int = 3000,
         reports.append(r)
         del F, L
     X, L = stage2_rows(stage1, copies)
-    stage2, r = train(X, L, seed=seed, steps=steps, batch=batch, lr=lr, hidden=hidden2,
+    stage2, r = train(X, L, seed=seed, steps=steps2 or steps, batch=batch, lr=lr, hidden=hidden2,
                       num_threads=num_threads, class_power=class_power, progress=progress)
     reports.append(r)
     return Stacked(stage1, stage2), reports
@@ -192,8 +222,11 @@ def train(features: np.ndarray, labels: np.ndarray, *, seed: int = 0, steps: int
 #: generator's train seeds, augmented copies, sampled points per copy, optimiser steps and batch,
 #: widths, peak learning rate, class weights 1/frequency**class_power (fourth round of issue 18:
 #: 9 000 steps instead of 3 000 and class_power 0.25 instead of 0.5, dev wall IoU +0.002)
+#: Issue 18, fifth round: a second, auto-context stage (:mod:`.context`, :func:`train_stacked`) of
+#: ``hidden2`` widths trained ``steps2`` steps on the same rows with stage 1's context
 RECIPE = {"per_family": 20, "copies": 2, "keep_per_copy": 30_000, "steps": 9000, "batch": 4096,
-          "hidden": (128, 128), "lr": 3e-3, "class_power": 0.25}
+          "hidden": (128, 128), "lr": 3e-3, "class_power": 0.25, "stages": 2,
+          "hidden2": (128, 128), "steps2": 3000}
 
 
 def procedural_clouds(family: str, split: str = "train", n: int = 20):
