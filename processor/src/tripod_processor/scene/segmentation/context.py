@@ -38,8 +38,10 @@ def _group_mean(p: np.ndarray, group: np.ndarray) -> np.ndarray:
     ok = group >= 0
     if not ok.any():
         return out
-    g = np.unique(group[ok], return_inverse=True)[1].ravel()
-    cnt = np.bincount(g).astype(np.float64)
+    g = group[ok]
+    if g.max() > 8 * len(g):  # sparse keys: compact them (a sort); else bins as they are
+        g = np.unique(g, return_inverse=True)[1].ravel()
+    cnt = np.maximum(np.bincount(g), 1).astype(np.float64)
     for k in range(p.shape[1]):
         out[ok, k] = (np.bincount(g, weights=p[ok, k]) / cnt)[g]
     return out
