@@ -34,16 +34,23 @@ CONTEXT_NAMES = tuple(f"ctx_{g}_{c}" for g in _GROUPS for c in _CLASSES) + (
 
 def _group_mean(p: np.ndarray, group: np.ndarray) -> np.ndarray:
     """Each row's mean of ``p`` over the rows of its group (-1: its own row)."""
-    out = p.copy()
     ok = group >= 0
     if not ok.any():
-        return out
-    g = group[ok]
+        return p.copy()
+    every = bool(ok.all())
+    g = group if every else group[ok]
     if g.max() > 8 * len(g):  # sparse keys: compact them (a sort); else bins as they are
         g = np.unique(g, return_inverse=True)[1].ravel()
-    cnt = np.maximum(np.bincount(g), 1).astype(np.float64)
-    for k in range(p.shape[1]):
-        out[ok, k] = (np.bincount(g, weights=p[ok, k]) / cnt)[g]
+    k = p.shape[1]
+    pk = p if every else p[ok]
+    # one bincount over (group, class) bins: each bin sums its rows in order, as one per class
+    sums = np.bincount((g[:, None] * k + np.arange(k)).ravel(), weights=pk.ravel(),
+                       minlength=(int(g.max()) + 1) * k).reshape(-1, k)
+    mean = (sums / np.maximum(np.bincount(g), 1)[:, None])[g].astype(np.float32)
+    if every:
+        return mean
+    out = p.copy()
+    out[ok] = mean
     return out
 
 
