@@ -121,13 +121,14 @@ class Segmenter:
                 raise ValueError("a two-stage segmenter needs the voxel centroids "
                                  "(voxel_features(..., return_centroids=True))")
             self._network(f, vox[:-1], self.model.stage1)
-            ctx = context_features(vox[:-1], segment, centroids)
             if self.stage2_gate >= 1.0:
+                ctx = context_features(vox[:-1], segment, centroids)
                 self._network(np.hstack([f, ctx]), vox[:-1], self.model.stage2)
-            else:  # the doubtful voxels only
+            else:  # the doubtful voxels only (the context's means still over all voxels)
                 idx = np.flatnonzero(vox[:-1].max(1) < self.stage2_gate)
+                ctx = context_features(vox[:-1], segment, centroids, idx)
                 out = np.empty((len(idx), NUM_CLASSES), np.float32)
-                self._network(np.hstack([f[idx], ctx[idx]]), out, self.model.stage2)
+                self._network(np.hstack([f[idx], ctx]), out, self.model.stage2)
                 vox[idx] = out
         else:
             self._network(f, vox[:-1], self.model)

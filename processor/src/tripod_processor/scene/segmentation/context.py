@@ -32,25 +32,26 @@ CONTEXT_NAMES = tuple(f"ctx_{g}_{c}" for g in _GROUPS for c in _CLASSES) + (
     "ctx_log_below", "ctx_log_above")
 
 
-def _group_mean(p: np.ndarray, group: np.ndarray) -> np.ndarray:
-    """Each row's mean of ``p`` over the rows of its group (-1: its own row)."""
+def _group_mean(p: np.ndarray, group: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """Mean of ``p`` over the rows of each group (all rows), for ``rows`` (group -1: the row's
+    own ``p``)."""
     ok = group >= 0
+    out = p[rows]
     if not ok.any():
-        return p.copy()
-    every = bool(ok.all())
-    g = group if every else group[ok]
+        return out
+    g = group[ok]
     if g.max() > 8 * len(g):  # sparse keys: compact them (a sort); else bins as they are
-        g = np.unique(g, return_inverse=True)[1].ravel()
+        uniq = np.unique(g)
+        g = np.searchsorted(uniq, g)
+        want = np.searchsorted(uniq, group[rows])
+    else:
+        want = group[rows]
     k = p.shape[1]
-    pk = p if every else p[ok]
     # one bincount over (group, class) bins: each bin sums its rows in order, as one per class
-    sums = np.bincount((g[:, None] * k + np.arange(k)).ravel(), weights=pk.ravel(),
+    sums = np.bincount((g[:, None] * k + np.arange(k)).ravel(), weights=p[ok].ravel(),
                        minlength=(int(g.max()) + 1) * k).reshape(-1, k)
-    mean = (sums / np.maximum(np.bincount(g), 1)[:, None])[g].astype(np.float32)
-    if every:
-        return mean
-    out = p.copy()
-    out[ok] = mean
+    sel = ok[rows]
+    out[sel] = sums[want[sel]] / np.maximum(np.bincount(g), 1)[want[sel], None]
     return out
 
 
@@ -64,38 +65,36 @@ def _cell_keys(xyz: np.ndarray, cell: float) -> np.ndarray:
     return key
 
 
-def _column(p: np.ndarray, centroids: np.ndarray, cell: float):
-    """Mean ``p`` of the voxels below and above each voxel in its x-y cell, and their counts."""
+def _column(p: np.ndarray, centroids: np.ndarray, cell: float, rows: np.ndarray):
+    """Mean ``p`` of the voxels below and above each of ``rows`` in its x-y cell, and their
+    counts."""
     m = len(p)
     key = _cell_keys(centroids[:, :2], cell)
     order = np.lexsort((centroids[:, 2], key))
     sk = key[order]
     start = np.flatnonzero(np.r_[True, sk[1:] != sk[:-1]])
     size = np.diff(np.r_[start, m])
-    first = np.repeat(start, size)  # sorted position of the first voxel of each one's cell
     cs = np.vstack([np.zeros((1, p.shape[1])), np.cumsum(p[order].astype(np.float64), 0)])
-    pos = np.arange(m)
+    where = np.empty(m, np.int64)
+    where[order] = np.arange(m)
+    pos = where[rows]  # sorted position of each row, the first and the size of its cell
+    cell_of = np.searchsorted(start, pos, side="right") - 1
+    first, n = start[cell_of], size[cell_of]
     below = cs[pos] - cs[first]
-    total = cs[np.repeat(start + size, size)] - cs[first]
-    above = total - below - p[order]
+    above = cs[first + n] - cs[first] - below - p[rows]
     n_below = (pos - first).astype(np.float64)
-    n_above = np.repeat(size, size) - 1 - n_below
-    mb = below / np.maximum(n_below, 1)[:, None]
-    ma = above / np.maximum(n_above, 1)[:, None]
-    out_b, out_a = np.empty_like(mb), np.empty_like(ma)
-    out_b[order], out_a[order] = mb, ma
-    nb, na = np.empty(m), np.empty(m)
-    nb[order], na[order] = n_below, n_above
-    return out_b, out_a, nb, na
+    n_above = n - 1 - n_below
+    return (below / np.maximum(n_below, 1)[:, None], above / np.maximum(n_above, 1)[:, None],
+            n_below, n_above)
 
 
-def context_features(probabilities: np.ndarray, segment: np.ndarray,
-                     centroids: np.ndarray) -> np.ndarray:
-    """(M, len(CONTEXT_NAMES)) float32 context of every voxel.
+def context_features(probabilities: np.ndarray, segment: np.ndarray, centroids: np.ndarray,
+                     rows: np.ndarray | None = None) -> np.ndarray:
+    """(len(rows), len(CONTEXT_NAMES)) float32 context of the voxels ``rows`` (None: all, M).
 
     probabilities : (M, 4) first-stage class probabilities of the voxels;
     segment : (M, 3) int64 10 cm segment, 25 cm segment, wall plane (-1: none);
-    centroids : (M, 3) voxel centroids [m], z up.
+    centroids : (M, 3) voxel centroids [m], z up. The means run over all M voxels.
     """
     p = np.asarray(probabilities, np.float32)
     seg = np.asarray(segment)
@@ -104,15 +103,16 @@ def context_features(probabilities: np.ndarray, segment: np.ndarray,
     if seg.shape != (m, 3) or c.shape != (m, 3):
         raise ValueError(f"context_features: {m} probabilities need (M, 3) segments and "
                          f"centroids, got {seg.shape} and {c.shape}")
-    out = np.empty((m, len(CONTEXT_NAMES)), np.float32)
-    if m == 0:
+    rows = np.arange(m) if rows is None else np.asarray(rows, np.int64)
+    out = np.empty((len(rows), len(CONTEXT_NAMES)), np.float32)
+    if len(rows) == 0:
         return out
-    out[:, 0:4] = p
+    out[:, 0:4] = p[rows]
     for j in range(3):
-        out[:, 4 + 4 * j:8 + 4 * j] = _group_mean(p, seg[:, j])
-    out[:, 16:20] = _group_mean(p, _cell_keys(c, BOX_SMALL))
-    out[:, 20:24] = _group_mean(p, _cell_keys(c, BOX_LARGE))
-    below, above, nb, na = _column(p, c, COLUMN_CELL)
+        out[:, 4 + 4 * j:8 + 4 * j] = _group_mean(p, seg[:, j], rows)
+    out[:, 16:20] = _group_mean(p, _cell_keys(c, BOX_SMALL), rows)
+    out[:, 20:24] = _group_mean(p, _cell_keys(c, BOX_LARGE), rows)
+    below, above, nb, na = _column(p, c, COLUMN_CELL, rows)
     out[:, 24:28], out[:, 28:32] = below, above
     out[:, 32], out[:, 33] = np.log1p(nb), np.log1p(na)
     return out
