@@ -91,8 +91,9 @@ def bench_procedural(split: str = "test", n_per_family: int = 3, lofo: bool = Tr
       developing), IoU per family and over all of them;
     * leave-one-family-out: for each family a model trained by the shipped recipe
       (``train.RECIPE``, optionally fewer buildings or steps) on the other six families only,
-      scored on that family's buildings of the split (``lofo_models``: a folder where each is
-      saved after training and loaded from on later runs, when its recipe and the generator
+      scored on that family's buildings of the split (two-stage recipes train on whole copies,
+      kept under .cache/scene_data/procedural/copies_*, ~1 GB a family; ``lofo_models``: a
+      folder where each is saved after training and loaded from on later runs, when its recipe and the generator
       version, ``procedural.GENERATOR``, match; ``lofo_older_generator``: also when only the
       generator differs, said in the row);
     * inference throughput on the largest of these clouds: wall and CPU time, load average.
@@ -159,8 +160,8 @@ def bench_procedural(split: str = "test", n_per_family: int = 3, lofo: bool = Tr
                 d = cache / (f"copies_{fam}_{per}x{RECIPE['copies']}_{RECIPE['keep_per_copy']}"
                              f"_g{GENERATOR}")
                 st = CopyStore(d)
-                if len(st) != per * RECIPE["copies"] or (len(st) and next(iter(st)).features.shape[1]
-                                                          != len(FEATURE_NAMES)):
+                stale = len(st) and next(iter(st)).features.shape[1] != len(FEATURE_NAMES)
+                if len(st) != per * RECIPE["copies"] or stale:
                     for fn in st.files:
                         fn.unlink()
                     st = CopyStore(d)
