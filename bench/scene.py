@@ -91,8 +91,9 @@ def bench_procedural(split: str = "test", n_per_family: int = 3, lofo: bool = Tr
       developing), IoU per family and over all of them;
     * leave-one-family-out: for each family a model trained by the shipped recipe
       (``train.RECIPE``, optionally fewer buildings or steps) on the other six families only,
-      scored on that family's buildings of the split (``lofo_models``: a folder where each is
-      saved after training and loaded from on later runs, when its recipe and the generator
+      scored on that family's buildings of the split (two-stage recipes train on whole copies,
+      kept under .cache/scene_data/procedural/copies_*, ~1 GB a family; ``lofo_models``: a
+      folder where each is saved after training and loaded from on later runs, when its recipe and the generator
       version, ``procedural.GENERATOR``, match; ``lofo_older_generator``: also when only the
       generator differs, said in the row);
     * inference throughput on the largest of these clouds: wall and CPU time, load average.
@@ -102,8 +103,9 @@ def bench_procedural(split: str = "test", n_per_family: int = 3, lofo: bool = Tr
     from tripod_processor.scene.segmentation.features import FEATURE_NAMES, voxel_features
     from tripod_processor.scene.segmentation.metrics import confusion, iou
     from tripod_processor.scene.segmentation.model import load_model, save_weights
-    from tripod_processor.scene.segmentation.train import (RECIPE, procedural_features,
-                                                           train_on_families)
+    from tripod_processor.scene.segmentation.train import (RECIPE, CopyStore, copies_of,
+                                                           procedural_clouds, procedural_features,
+                                                           train_on_families, train_stacked)
     from tripod_processor.sim.procedural import FAMILIES, GENERATOR, labelled_scan, split_seeds
 
     families = FAMILIES[:2] if quick else (tuple(only_families) if only_families else FAMILIES)
@@ -116,13 +118,13 @@ def bench_procedural(split: str = "test", n_per_family: int = 3, lofo: bool = Tr
         clouds[fam] = []
         for sd in seeds:
             p, lab = labelled_scan(fam, sd)
-            f, pv, sg = voxel_features(p, return_segments=True)
-            clouds[fam].append((p, lab, f, pv, sg))
+            f, pv, sg, cen = voxel_features(p, return_segments=True, return_centroids=True)
+            clouds[fam].append((p, lab, f, pv, sg, cen))
     seg = Segmenter(weights)
     total = np.zeros((4, 4), np.int64)
     for fam in families:
-        c = sum(confusion(lab, seg.probabilities_of(f, pv, sg).argmax(1))
-                for _, lab, f, pv, sg in clouds[fam])
+        c = sum(confusion(lab, seg.probabilities_of(f, pv, sg, cen).argmax(1))
+                for _, lab, f, pv, sg, cen in clouds[fam])
         total += c
         n_pts = sum(len(x[0]) for x in clouds[fam])
         row("segmentation", f"shipped, {fam} ({len(seeds)} buildings, {n_pts / 1e6:.1f} M pts)",
@@ -149,6 +151,44 @@ def bench_procedural(split: str = "test", n_per_family: int = 3, lofo: bool = Tr
                 feats[fam] = (z["F"], z["L"])
             return feats
 
+        stores = {}
+
+        def training_copies(fams):  # two stages: every family's whole copies, cached on disk
+            for fam in FAMILIES:  # (~1 GB a family at the recipe's 20 buildings)
+                if fam in stores:
+                    continue
+                d = cache / (f"copies_{fam}_{per}x{RECIPE['copies']}_{RECIPE['keep_per_copy']}"
+                             f"_g{GENERATOR}")
+                st = CopyStore(d)
+                stale = len(st) and next(iter(st)).features.shape[1] != len(FEATURE_NAMES)
+                if len(st) != per * RECIPE["copies"] or stale:
+                    for fn in st.files:
+                        fn.unlink()
+                    st = CopyStore(d)
+                    for c in copies_of(procedural_clouds(fam, "train", per), RECIPE["copies"],
+                                       seed=FAMILIES.index(fam),
+                                       keep_per_copy=RECIPE["keep_per_copy"]):
+                        st.add(c)
+                stores[fam] = st
+
+            class Chain:  # the families' copies in the given order, iterable more than once
+                def __iter__(self):
+                    for f in fams:
+                        yield from stores[f]
+            return Chain()
+
+        def train_lofo(fam):
+            others = [f for f in FAMILIES if f != fam]
+            if RECIPE.get("stages", 1) == 2:
+                model, _ = train_stacked(training_copies(others), seed=0, steps=steps,
+                                         steps2=min(RECIPE["steps2"], steps), batch=RECIPE["batch"],
+                                         lr=RECIPE["lr"], hidden=RECIPE["hidden"],
+                                         hidden2=RECIPE["hidden2"],
+                                         class_power=RECIPE["class_power"], num_threads=1)
+                return model
+            return train_on_families(feats or training_rows(), others, steps=steps,
+                                     num_threads=1)[0]
+
         lofo_total = np.zeros((4, 4), np.int64)
         for fam in families:
             t0 = time.perf_counter()
@@ -168,15 +208,13 @@ def bench_procedural(split: str = "test", n_per_family: int = 3, lofo: bool = Tr
                 if {k: got.get(k) for k in meta} != meta:
                     model = None  # another recipe or generator: train again
             if model is None:
-                model, _ = train_on_families(feats or training_rows(),
-                                             [f for f in FAMILIES if f != fam], steps=steps,
-                                             num_threads=1)
+                model = train_lofo(fam)
                 how = "trained"
                 if saved is not None:
                     save_weights(model, saved, meta)
             m = Segmenter(model=model)
-            c = sum(confusion(lab, m.probabilities_of(f, pv, sg).argmax(1))
-                    for _, lab, f, pv, sg in clouds[fam])
+            c = sum(confusion(lab, m.probabilities_of(f, pv, sg, cen).argmax(1))
+                    for _, lab, f, pv, sg, cen in clouds[fam])
             lofo_total += c
             row("segmentation", f"leave-one-family-out: {fam} unseen ({per}/family, {steps} steps, "
                 f"{how}, {time.perf_counter() - t0:.0f} s)", _ious_text(c))

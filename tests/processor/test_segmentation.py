@@ -336,9 +336,18 @@ def test_fast_inference_path_is_the_model_bitwise():
     p, _, _, _ = room_scan(9004, head_steps=8)
     p = np.concatenate([p, np.full((3, 3), np.nan, np.float32)])  # non-finite points too
     seg = Segmenter()
-    f, pv, sg = voxel_features(p, return_segments=True)
+    f, pv, sg, cen = voxel_features(p, return_segments=True, return_centroids=True)
     with torch.inference_mode():
-        prob = torch.softmax(seg.model(torch.from_numpy(f)), 1).numpy()
+        if seg.stacked:  # two stages: the second on the voxels the first doubts
+            from tripod_processor.scene.segmentation import STAGE2_GATE
+            from tripod_processor.scene.segmentation.context import context_features
+
+            p1 = torch.softmax(seg.model.stage1(torch.from_numpy(f)), 1).numpy()
+            x = np.hstack([f, context_features(p1, sg, cen)])
+            p2 = torch.softmax(seg.model.stage2(torch.from_numpy(x)), 1).numpy()
+            prob = np.where((p1.max(1) < STAGE2_GATE)[:, None], p2, p1)
+        else:
+            prob = torch.softmax(seg.model(torch.from_numpy(f)), 1).numpy()
     prob = plane_consistent(prob, f, sg)
     want = np.where(pv >= 0, prob.argmax(1)[pv], 3)
     np.testing.assert_array_equal(seg(p), want)

@@ -133,6 +133,12 @@ def train_segmenter_cmd(
     steps: int = typer.Option(2000, "--steps", help="optimiser steps"),
     batch: int = typer.Option(4096, "--batch", help="points per step"),
     hidden: str = typer.Option("128,128", "--hidden", help="hidden layer widths of the MLP"),
+    stages: int = typer.Option(1, "--stages",
+                               help="1: one network; 2: a second, auto-context network on the "
+                                    "first one's probabilities over segments, planes, boxes and "
+                                    "columns (whole copies kept in a temporary folder)"),
+    hidden2: str = typer.Option("128,128", "--hidden2", help="hidden widths of the second stage"),
+    steps2: int = typer.Option(0, "--steps2", help="optimiser steps of the second stage, 0 = --steps"),
     lr: float = typer.Option(3e-3, "--lr", help="peak learning rate (one cycle)"),
     class_power: float = typer.Option(0.5, "--class-power",
                                       help="class weights 1/frequency**power (0.5: 1/sqrt)"),
@@ -201,8 +207,25 @@ def train_segmenter_cmd(
             raise ValueError
     except ValueError:
         fail(f"--hidden: expected widths like 128,128, got {hidden!r}")
+    try:
+        hidden2_sizes = tuple(int(h) for h in hidden2.split(",") if h.strip())
+        if not hidden2_sizes or min(hidden2_sizes) < 1:
+            raise ValueError
+    except ValueError:
+        fail(f"--hidden2: expected widths like 128,128, got {hidden2!r}")
+    if stages not in (1, 2):
+        fail(f"--stages: 1 or 2, got {stages}")
+    if steps2 < 0:
+        fail(f"--steps2: 0 (= --steps) or more, got {steps2}")
     bar = tqdm(total=(len(sources) + procedural * len(fams)) * copies, desc="features",
                unit="cloud")
+    if stages == 2:
+        _train_two_stages(output, sources, fams, files, bar, procedural=procedural,
+                          copies=copies, keep=keep, seed=seed, steps=steps, steps2=steps2 or steps,
+                          batch=batch, hidden=hidden_sizes, hidden2=hidden2_sizes, lr=lr,
+                          class_power=class_power, threads=threads, synthetic=synthetic,
+                          s3dis=s3dis, s3dis_areas=s3dis_areas)
+        return
     Fs, Ls = [], []
     if fams:  # generated buildings first, family by family (train.procedural_features)
         from ..scene.segmentation.train import procedural_features
@@ -246,6 +269,69 @@ def train_segmenter_cmd(
     table.add_row("steps x batch", f"{steps} x {batch}")
     table.add_row("final loss", f"{rep.final_loss:.4f}")
     table.add_row("training time [s]", f"{rep.seconds:.1f}")
+    table.add_row("weights [kB]", f"{output.stat().st_size / 1024:.1f}")
+    console.print(table)
+
+
+def _train_two_stages(output: Path, sources: list, fams: list, files: list, bar, *, procedural: int,
+                      copies: int, keep: int, seed: int, steps: int, steps2: int, batch: int,
+                      hidden: tuple, hidden2: tuple, lr: float, class_power: float, threads: int,
+                      synthetic: int, s3dis, s3dis_areas: str) -> None:
+    """``train-segmenter --stages 2``: the same copies and sampled points as one stage (the
+    first network is the one-stage model), kept whole on disk for the second stage's context."""
+    import sys
+    import tempfile
+
+    from rich.table import Table
+    from tqdm import tqdm
+
+    from ..scene.segmentation.model import save_weights
+    from ..scene.segmentation.train import (CopyStore, copies_of, procedural_clouds,
+                                            train_stacked)
+
+    with tempfile.TemporaryDirectory(prefix="tripod-segmenter-") as tmp:
+        store = CopyStore(tmp)
+        if fams:  # generated buildings first, as train.procedural_features draws them
+            from ..sim.procedural import FAMILIES
+
+            for fam in fams:
+                for c in copies_of(procedural_clouds(fam, "train", procedural), copies,
+                                   seed=seed * 1000 + FAMILIES.index(fam), keep_per_copy=keep,
+                                   progress=lambda: bar.update()):
+                    store.add(c)
+        if sources:
+            for c in copies_of(sources, copies, seed=seed, progress=lambda: bar.update(),
+                               keep_per_copy=keep):
+                store.add(c)
+        bar.close()
+        bar = tqdm(total=steps + steps2, desc="training (2 stages)", unit="step")
+
+        def prog(step, loss):
+            bar.update()
+            if step % 50 == 0:
+                bar.set_postfix(loss=f"{loss:.4f}")
+
+        model, reps = train_stacked(store, seed=seed, steps=steps, steps2=steps2, batch=batch,
+                                    lr=lr, hidden=hidden, hidden2=hidden2,
+                                    num_threads=threads, class_power=class_power, progress=prog)
+        bar.close()
+    seconds = sum(r.seconds for r in reps)
+    meta = {"seed": seed, "steps": steps, "steps2": steps2, "batch": batch, "lr": lr,
+            "class_power": class_power, "copies": copies, "synthetic": synthetic,
+            "procedural": procedural, "families": fams, "keep": keep,
+            "data": [str(f) for f in files], "s3dis": str(s3dis) if s3dis else None,
+            "s3dis_areas": s3dis_areas if s3dis else None, "train_seconds": seconds,
+            "points": reps[0].points, "class_counts": reps[0].class_counts,
+            "command": "tripod " + " ".join(sys.argv[1:])}
+    save_weights(model, output, meta)
+    table = Table(title=f"tripod train-segmenter -> {output}")
+    table.add_column("item")
+    table.add_column("value", justify="right")
+    table.add_row("clouds", str(len(sources) + procedural * len(fams)))
+    table.add_row("training points", f"{reps[0].points:,}")
+    table.add_row("steps x batch", f"{steps} + {steps2} x {batch}")
+    table.add_row("final loss (stage 1, 2)", f"{reps[0].final_loss:.4f}, {reps[1].final_loss:.4f}")
+    table.add_row("training time [s]", f"{seconds:.1f}")
     table.add_row("weights [kB]", f"{output.stat().st_size / 1024:.1f}")
     console.print(table)
 

@@ -192,7 +192,8 @@ def point_features(points, num_threads: int = 0, return_segments: bool = False):
     return (f, np.stack([segment, coarse, planes], 1)) if return_segments else f
 
 
-def voxel_features(points, num_threads: int = 0, return_segments: bool = False):
+def voxel_features(points, num_threads: int = 0, return_segments: bool = False,
+                   return_centroids: bool = False):
     """Features of the occupied 4 cm voxels of a cloud, and each point's voxel.
 
     All the features are neighbourhood statistics at 15 cm and more, so the points of one 4 cm
@@ -205,10 +206,13 @@ def voxel_features(points, num_threads: int = 0, return_segments: bool = False):
     point_voxel : (N,) int32 voxel of every point, -1 for non-finite points
     segment : (M, 3) int64 planar segments (10 cm, 25 cm grid) and wall plane of every voxel,
         only with ``return_segments``
+    centroids : (M, 3) float32 voxel centroids [m], only with ``return_centroids`` (last)
     """
     p = as_cloud(points)
     centroids, point_voxel, _ = voxel_assign(p, LABEL_VOXEL, num_threads)
     if return_segments:
         f, segment = point_features(centroids, num_threads, return_segments=True)
-        return f, point_voxel, segment
-    return point_features(centroids, num_threads), point_voxel
+        out = (f, point_voxel, segment)
+    else:
+        out = (point_features(centroids, num_threads), point_voxel)
+    return out + (np.asarray(centroids, np.float32),) if return_centroids else out

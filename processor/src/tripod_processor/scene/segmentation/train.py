@@ -12,8 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .context import context_features
 from .features import voxel_features
-from .model import NUM_CLASSES, build_model
+from .model import NUM_CLASSES, Stacked, build_model
 
 
 @dataclass
@@ -50,28 +51,124 @@ def augment(points: np.ndarray, labels: np.ndarray, rng: np.random.Generator,
     return p.astype(np.float32), lab
 
 
-def features_of(clouds: Iterable[tuple[np.ndarray, np.ndarray]], copies: int, seed: int,
-                progress: Callable | None = None,
-                keep_per_copy: int = 400_000) -> tuple[np.ndarray, np.ndarray]:
-    """Features and labels of ``copies`` augmented copies of every labelled cloud (the first copy
-    unperturbed). Features are computed on the whole copy (context needs the full density), then
-    at most ``keep_per_copy`` random points of it are kept for training."""
+@dataclass
+class CopyRows:
+    """One augmented copy of a labelled cloud, whole: what the second stage's context needs.
+
+    features : (M, F) float32 of all its voxels; segment : (M, 3) int64 and centroids : (M, 3)
+    float32 [m] of them (``voxel_features(..., return_segments=True, return_centroids=True)``);
+    rows : (K,) int64 voxel of each sampled point; labels : (K,) int64 the point's label.
+    """
+    features: np.ndarray
+    segment: np.ndarray
+    centroids: np.ndarray
+    rows: np.ndarray
+    labels: np.ndarray
+
+
+class CopyStore:
+    """:class:`CopyRows` kept on disk (one ``.npz`` each, uncompressed, in ``directory``) and
+    read back one at a time on every iteration: the copies of 140 buildings are ~6 GB whole,
+    the second stage needs them twice (stage 1's rows, then its probabilities over each)."""
+
+    def __init__(self, directory) -> None:
+        from pathlib import Path
+
+        self.directory = Path(directory)
+        self.directory.mkdir(parents=True, exist_ok=True)
+        self.files = sorted(self.directory.glob("copy_*.npz"))
+
+    def add(self, c: CopyRows) -> None:
+        fn = self.directory / f"copy_{len(self.files):05d}.npz"
+        np.savez(fn, features=c.features, segment=c.segment.astype(np.int32),
+                 centroids=c.centroids, rows=c.rows, labels=c.labels)
+        self.files.append(fn)
+
+    def __len__(self) -> int:
+        return len(self.files)
+
+    def __iter__(self):
+        for fn in self.files:
+            with np.load(fn) as z:
+                yield CopyRows(z["features"], z["segment"].astype(np.int64), z["centroids"],
+                               z["rows"], z["labels"])
+
+
+def copies_of(clouds: Iterable[tuple[np.ndarray, np.ndarray]], copies: int, seed: int,
+              progress: Callable | None = None, keep_per_copy: int = 400_000):
+    """Yield a :class:`CopyRows` for each of ``copies`` augmented copies of every labelled cloud
+    (the first copy unperturbed). Features are computed on the whole copy (context needs the
+    full density), then at most ``keep_per_copy`` random points of it are sampled for
+    training (the same draws as :func:`features_of`)."""
     rng = np.random.default_rng(seed)
-    F, L = [], []
     for points, labels in clouds:
         for k in range(copies):
             p, lab = (np.asarray(points, np.float32), np.asarray(labels)) if k == 0 else augment(
                 points, labels, rng)
-            f, point_voxel = voxel_features(p)
+            f, point_voxel, segment, centroids = voxel_features(p, return_segments=True,
+                                                                return_centroids=True)
             ok = np.flatnonzero((lab >= 0) & (lab < NUM_CLASSES) & (point_voxel >= 0))
             if len(ok) > keep_per_copy:
                 ok = np.sort(rng.choice(ok, keep_per_copy, replace=False))
-            # each sampled point: its voxel's features, its own label (voxels count by points)
-            F.append(f[point_voxel[ok]])
-            L.append(lab[ok].astype(np.int64))
+            # each sampled point: its voxel, its own label (voxels count by points)
+            yield CopyRows(f, segment, centroids, point_voxel[ok].astype(np.int64),
+                           lab[ok].astype(np.int64))
             if progress:
                 progress()
+
+
+def features_of(clouds: Iterable[tuple[np.ndarray, np.ndarray]], copies: int, seed: int,
+                progress: Callable | None = None,
+                keep_per_copy: int = 400_000) -> tuple[np.ndarray, np.ndarray]:
+    """Features and labels of the sampled points of :func:`copies_of` (each point: its voxel's
+    features, its own label)."""
+    F, L = [], []
+    for c in copies_of(clouds, copies, seed, progress, keep_per_copy):
+        F.append(c.features[c.rows])
+        L.append(c.labels)
     return np.concatenate(F), np.concatenate(L)
+
+
+def stage2_rows(stage1, copies: Iterable[CopyRows]) -> tuple[np.ndarray, np.ndarray]:
+    """Second-stage rows of the sampled points: the voxel's features and the context
+    (:func:`.context.context_features`) of ``stage1``'s probabilities over its whole copy,
+    computed as at inference (:class:`..Segmenter`, single-threaded). Stage 1's probabilities
+    of its own training voxels are in-sample: it underfits (wall IoU on its training rows
+    within 0.01 of unseen buildings), so they are close to what it gives on new clouds."""
+    from . import Segmenter
+
+    seg = Segmenter(model=stage1, num_threads=1, plane_consistency=False)
+    X, L = [], []
+    for c in copies:
+        prob = seg._voxel_probabilities(c.features, c.segment)[:-1]
+        ctx = context_features(prob, c.segment, c.centroids)
+        X.append(np.hstack([c.features[c.rows], ctx[c.rows]]))
+        L.append(c.labels)
+    return np.concatenate(X), np.concatenate(L)
+
+
+def train_stacked(copies, *, seed: int = 0, steps: int = 3000, steps2: int | None = None,
+                  batch: int = 8192, lr: float = 3e-3, hidden=(128, 128), hidden2=(128, 128),
+                  num_threads: int = 0, class_power: float = 0.5, stage1=None,
+                  progress: Callable | None = None):
+    """Two-stage (auto-context) segmenter: :func:`train` on the sampled rows of ``copies``
+    (:class:`CopyRows`, a list or a :class:`CopyStore`: iterated twice; or the given
+    ``stage1``), then a second network (``steps2`` steps, default ``steps``) on
+    :func:`stage2_rows`. Returns (:class:`.model.Stacked`, [TrainReport of each stage
+    trained])."""
+    reports = []
+    if stage1 is None:
+        F = np.concatenate([c.features[c.rows] for c in copies])
+        L = np.concatenate([c.labels for c in copies])
+        stage1, r = train(F, L, seed=seed, steps=steps, batch=batch, lr=lr, hidden=hidden,
+                          num_threads=num_threads, class_power=class_power, progress=progress)
+        reports.append(r)
+        del F, L
+    X, L = stage2_rows(stage1, copies)
+    stage2, r = train(X, L, seed=seed, steps=steps2 or steps, batch=batch, lr=lr, hidden=hidden2,
+                      num_threads=num_threads, class_power=class_power, progress=progress)
+    reports.append(r)
+    return Stacked(stage1, stage2), reports
 
 
 def train(features: np.ndarray, labels: np.ndarray, *, seed: int = 0, steps: int = 3000,
@@ -125,8 +222,11 @@ def train(features: np.ndarray, labels: np.ndarray, *, seed: int = 0, steps: int
 #: generator's train seeds, augmented copies, sampled points per copy, optimiser steps and batch,
 #: widths, peak learning rate, class weights 1/frequency**class_power (fourth round of issue 18:
 #: 9 000 steps instead of 3 000 and class_power 0.25 instead of 0.5, dev wall IoU +0.002)
+#: Issue 18, fifth round: a second, auto-context stage (:mod:`.context`, :func:`train_stacked`) of
+#: ``hidden2`` widths trained ``steps2`` steps on the same rows with stage 1's context
 RECIPE = {"per_family": 20, "copies": 2, "keep_per_copy": 30_000, "steps": 9000, "batch": 4096,
-          "hidden": (128, 128), "lr": 3e-3, "class_power": 0.25}
+          "hidden": (128, 128), "lr": 3e-3, "class_power": 0.25, "stages": 2,
+          "hidden2": (128, 128), "steps2": 3000}
 
 
 def procedural_clouds(family: str, split: str = "train", n: int = 20):
@@ -153,6 +253,20 @@ def procedural_features(families, split: str = "train", per_family: int = RECIPE
                                seed=seed * 1000 + FAMILIES.index(fam), progress=progress,
                                keep_per_copy=keep_per_copy)
     return out
+
+
+def procedural_copies(families, split: str = "train", per_family: int = RECIPE["per_family"],
+                      copies: int = RECIPE["copies"], seed: int = 0,
+                      keep_per_copy: int = RECIPE["keep_per_copy"],
+                      progress: Callable | None = None) -> dict:
+    """{family: [CopyRows]} of :func:`procedural_clouds` with :func:`copies_of`, drawn as
+    :func:`procedural_features` draws them (the same sampled points)."""
+    from ...sim.procedural import FAMILIES
+
+    return {fam: list(copies_of(procedural_clouds(fam, split, per_family), copies,
+                                seed=seed * 1000 + FAMILIES.index(fam), progress=progress,
+                                keep_per_copy=keep_per_copy))
+            for fam in families}
 
 
 def train_on_families(feats: dict, families, *, seed: int = 0, steps: int = RECIPE["steps"],
