@@ -5,7 +5,8 @@
   weights on ``--buildings`` buildings per family of the test seeds (from 1 000 000, drawn
   fresh, run only to report; ``--split dev`` gives the dev seeds from 500 000, looked at while
   developing; ``--split test2`` the seeds from 1 100 000, fresh for issue 18's fourth round and
-  run once; the weights were trained on train seeds 0-19), IoU per family and summed; the
+  run once; ``--split test3`` those from 1 200 000, fresh for the fifth (two stages), run
+  once; the weights were trained on train seeds 0-19), IoU per family and summed; the
   leave-one-family-out models (the shipped recipe, ``train.RECIPE``, on the six other families;
   ``--lofo-steps`` / ``--lofo-per-family`` make them smaller), IoU on the family they never saw;
   inference throughput with wall and CPU time and the load average (``--only throughput``:
@@ -34,7 +35,7 @@
   dev|dev2|test|test2`` picks its seeds, else ``--pair-split`` does; ``--hm-scenes`` a subset).
 
 Usage: ``python bench/scene.py [--quick] [--pairs 50] [--pictures] [--only SECTION]
-[--split test|dev|val|test2] [--buildings 3] [--no-lofo] [--lofo-steps N] [--lofo-per-family N]
+[--split test|dev|val|test2|test3] [--buildings 3] [--no-lofo] [--lofo-steps N] [--lofo-per-family N]
 [--lofo-models DIR] [--lofo-older-generator] [--weights NPZ]
 [--no-twin] [--pair-split test|dev] [--hm-split S] [--hm-scenes ...] [--pair-source twin|synthetic] [--no-baselines]``
 (``--pictures`` rewrites docs/*.png; ``--quick``: two families, one building each, small
@@ -582,12 +583,13 @@ def main(argv=None) -> int:
     ap.add_argument("--only", choices=("segmentation", "throughput", "real", "planes",
                                        "registration", "heightmap-pairs"), default=None,
                     help="run one section only")
-    ap.add_argument("--split", choices=("test", "dev", "val", "test2"), default="test",
+    ap.add_argument("--split", choices=("test", "dev", "val", "test2", "test3"), default="test",
                     help="segmentation captures: test (seed 131, fresh, reported), dev (seed "
                          "101, looked at while developing) or val (seed 102); generated "
                          "buildings: test (seeds 1 000 000...), dev (500 000...), test2 (1 100 "
-                         "000...: fresh for issue 18's fourth round, run once; generated "
-                         "buildings only, the twin's captures are skipped)")
+                         "000...: fresh for issue 18's fourth round, run once), test3 (1 200 000...: "
+                         "fresh for the fifth; test2 and test3 are generated buildings only, "
+                         "the twin's captures are skipped)")
     ap.add_argument("--pair-split", choices=("test", "dev"), default="test",
                     help="registration pairs: test (seeds 231-233, draw 1, reported) or dev "
                          "(seeds 201-203, draw 0: the pairs the method was developed on)")
@@ -638,7 +640,7 @@ def main(argv=None) -> int:
                          a.lofo_per_family, a.lofo_steps, a.quick,
                          a.families.split(",") if a.families else None, a.lofo_models,
                          a.lofo_older_generator, a.weights)
-        if not a.no_twin and a.split != "test2":  # the twin's captures have no test2 split
+        if not a.no_twin and a.split not in ("test2", "test3"):  # no such twin captures
             bench_segmentation(a.pictures, a.split, a.quick)
     if a.only == "throughput":  # the inference path alone, 5 runs with all cores and with one
         bench_throughput()
