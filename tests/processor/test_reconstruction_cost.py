@@ -415,3 +415,50 @@ def test_stacked_matmul_is_numpys_stacked_product():
             assert np.array_equal(stacked_matmul(R, M), R @ M)
     for M in (U[:, :2], U):
         assert np.array_equal(stacked_matmul(R, M), R @ M)
+
+
+def _old_offset_shift(lidar, ab, orient, ext, e, n_query, sj, sk, j, k, d_ns):
+    """The per-(window pair, offset) shift that ``stations._ShiftEvaluator`` replaced: both
+    windows placed anew for every offset."""
+    from tripod_processor.reconstruction.stations import _place_window, pivot_shift_fit
+
+    o = orient.with_offset(orient.time_offset_ns + int(d_ns))
+    ref, a_j = _place_window(lidar, int(ab[j, 0]), sj, o, ext)
+    c, a_k = _place_window(lidar, int(ab[k, 0]), sk, o, ext)
+    fit = pivot_shift_fit(ref, c[:n_query])
+    if fit is None:
+        return float("inf")
+    R_j, R_k = o.rotation_at(np.array([a_j, a_k]))
+    d, P = fit
+    return float(np.linalg.norm(P @ (d - (R_k - R_j) @ e)))
+
+
+def test_shift_evaluator_gives_the_per_offset_shifts_bit_for_bit(rig):
+    from concurrent.futures import ThreadPoolExecutor
+
+    from tripod_processor.reconstruction.stations import (_ShiftEvaluator, _window_points,
+                                                          _window_sample, _window_subset)
+
+    _, rec, orient = rig
+    lidar = rec.lidar
+    ext = Extrinsic.from_config(None, None)
+    win, step, gap, n_points, n_query = int(0.1e9), int(0.5e9), 1, 12000, 4000
+    times = np.arange(int(lidar.lidar_ns[0]), int(lidar.lidar_ns[-1]) - win, step)[:12]
+    ab = np.searchsorted(lidar.lidar_ns, np.stack([times, times + win], axis=1))
+    samples = {}
+    for w in range(len(times)):
+        pts = _window_points(lidar, int(ab[w, 0]), int(ab[w, 1]))
+        samples[w] = _window_sample(pts, _window_subset(len(pts[0]), n_points,
+                                                        np.random.default_rng([0x5EED, w])))
+    e = np.array([0.01, -0.02, 0.0])
+    # windows 3, 4, 5 in a row (4 at δ is 5's reference at δ), a lone one, offsets repeated
+    # across the two calls as the fine grid repeats the coarse grid's best
+    coarse = [(k, d) for k in (3, 4, 5, 9) for d in (-12_000_000, 0, 12_000_000)]
+    fine = [(k, d) for k in (3, 4, 9) for d in (-4_000_000, 0, 4_000_000)]
+    with ThreadPoolExecutor(2) as pool:
+        ev = _ShiftEvaluator(lidar, ab, samples, orient, ext, e, gap, n_query, pool)
+        got = ev.values(coarse) + ev.values(fine)
+    want = [_old_offset_shift(lidar, ab, orient, ext, e, n_query, samples[k - gap], samples[k],
+                              k - gap, k, d) for k, d in coarse + fine]
+    assert np.isfinite(want).sum() >= len(want) - 2
+    assert np.array_equal(np.array(got), np.array(want))

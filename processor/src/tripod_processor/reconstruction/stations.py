@@ -455,23 +455,13 @@ def _offset_tolerant_motion(lidar: LidarPackets, times: np.ndarray, win: int, ga
         rng = np.random.default_rng([0x5EED, k])
         return _window_sample(pts, _window_subset(len(pts[0]), n_points, rng))
 
-    def shift(sj: tuple, sk: tuple, j: int, k: int, d_ns: int) -> float:
-        o = orient.with_offset(orient.time_offset_ns + int(d_ns))
-        ref, a_j = _place_window(lidar, int(ab[j, 0]), sj, o, ext)
-        c, a_k = _place_window(lidar, int(ab[k, 0]), sk, o, ext)
-        fit = pivot_shift_fit(ref, c[:n_query])
-        if fit is None:
-            return float("inf")
-        R_j, R_k = o.rotation_at(np.array([a_j, a_k]))
-        d, P = fit
-        return float(np.linalg.norm(P @ (d - (R_k - R_j) @ e)))
-
     grid = np.linspace(-dmax_ns, dmax_ns, n_grid).astype(np.int64)
     step = int(2 * dmax_ns // (n_grid - 1))
     fine = np.linspace(-step, step, n_grid + 2)[1:-1].astype(np.int64)
-    # every window's samples, then every (window, offset) placement and fit, side by side on
-    # threads (decode, placement and k-d trees run without the GIL; each value is computed
-    # alone, so the result does not depend on the threads); blocks bound the samples kept
+    # every window's samples, then every (window, offset) placement and every (window pair,
+    # offset) fit, side by side on threads (decode, placement and k-d trees run without the
+    # GIL; each value is computed alone, so the result does not depend on the threads); blocks
+    # bound the samples kept
     workers = max(1, num_threads or (os.cpu_count() or 1))
     with ThreadPoolExecutor(workers) as pool:
         for b in range(0, len(todo), block):
@@ -479,18 +469,56 @@ def _offset_tolerant_motion(lidar: LidarPackets, times: np.ndarray, win: int, ga
             need = sorted(set(ks) | {k - gap for k in ks})
             samples = dict(zip(need, pool.map(sample, need)))
             ks = [k for k in ks if len(samples[k - gap][0]) > 50 and len(samples[k][0]) > 50]
-
-            def run(tasks: list[tuple[int, int]]) -> list[float]:
-                return list(pool.map(lambda kd: shift(samples[kd[0] - gap], samples[kd[0]],
-                                                      kd[0] - gap, kd[0], kd[1]), tasks))
-
-            vals = np.array(run([(k, int(g)) for k in ks for g in grid])).reshape(len(ks), -1)
+            ev = _ShiftEvaluator(lidar, ab, samples, orient, ext, e, gap, n_query, pool)
+            vals = np.array(ev.values([(k, int(g)) for k in ks for g in grid])
+                            ).reshape(len(ks), -1)
             best = grid[np.argmin(vals, axis=1)] if len(ks) else grid[:0]
-            vf = np.array(run([(k, int(c) + int(f)) for k, c in zip(ks, best)
-                               for f in fine])).reshape(len(ks), -1)
+            vf = np.array(ev.values([(k, int(c) + int(f)) for k, c in zip(ks, best)
+                                     for f in fine])).reshape(len(ks), -1)
             for i, k in enumerate(ks):
                 out[k] = min(float(out[k]), float(vals[i].min()), float(vf[i].min()))
     return out
+
+
+class _ShiftEvaluator:
+    """The shifts of :func:`_offset_tolerant_motion` for one block of windows: the motion of
+    window k against window k − gap, both placed at a time offset δ from the current one.
+
+    Each (window, δ) is placed once (window k at δ is also window k + gap's reference at δ)
+    and each (k, δ) is fitted once (the fine grid's δ = 0 is the coarse grid's best), on the
+    pool's threads; every value is the same number as when computed alone."""
+
+    def __init__(self, lidar: LidarPackets, ab: np.ndarray, samples: dict, orient: ImuOrientation,
+                 ext: Extrinsic, e: np.ndarray, gap: int, n_query: int, pool) -> None:
+        self.lidar, self.ab, self.samples, self.orient, self.ext = lidar, ab, samples, orient, ext
+        self.e, self.gap, self.n_query, self.pool = e, gap, n_query, pool
+        self._shift: dict[tuple[int, int], float] = {}
+
+    def _orient(self, d_ns: int) -> ImuOrientation:
+        return self.orient.with_offset(self.orient.time_offset_ns + int(d_ns))
+
+    def _place(self, w: int, d_ns: int) -> tuple[np.ndarray, int]:
+        return _place_window(self.lidar, int(self.ab[w, 0]), self.samples[w], self._orient(d_ns),
+                             self.ext)
+
+    def _fit(self, k: int, d_ns: int, placed: dict) -> float:
+        ref, a_j = placed[(k - self.gap, d_ns)]
+        c, a_k = placed[(k, d_ns)]
+        fit = pivot_shift_fit(ref, c[:self.n_query])
+        if fit is None:
+            return float("inf")
+        R_j, R_k = self._orient(d_ns).rotation_at(np.array([a_j, a_k]))
+        d, P = fit
+        return float(np.linalg.norm(P @ (d - (R_k - R_j) @ self.e)))
+
+    def values(self, tasks: list[tuple[int, int]]) -> list[float]:
+        """The shift [m] of each (window k, offset δ [ns]) in ``tasks`` (inf: no fit)."""
+        new = [t for t in dict.fromkeys(tasks) if t not in self._shift]
+        keys = sorted({(w, d) for k, d in new for w in (k - self.gap, k)})
+        placed = dict(zip(keys, self.pool.map(lambda wd: self._place(*wd), keys)))
+        for t, v in zip(new, self.pool.map(lambda kd: self._fit(*kd, placed), new)):
+            self._shift[t] = v
+        return [self._shift[t] for t in tasks]
 
 
 def _runs(still: np.ndarray) -> list[tuple[int, int]]:
