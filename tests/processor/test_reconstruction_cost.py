@@ -415,3 +415,147 @@ def test_stacked_matmul_is_numpys_stacked_product():
             assert np.array_equal(stacked_matmul(R, M), R @ M)
     for M in (U[:, :2], U):
         assert np.array_equal(stacked_matmul(R, M), R @ M)
+
+
+def _old_offset_shift(lidar, ab, orient, ext, e, n_query, sj, sk, j, k, d_ns):
+    """The per-(window pair, offset) shift that ``stations._ShiftEvaluator`` replaced: both
+    windows placed anew for every offset."""
+    from tripod_processor.reconstruction.stations import _place_window, pivot_shift_fit
+
+    o = orient.with_offset(orient.time_offset_ns + int(d_ns))
+    ref, a_j = _place_window(lidar, int(ab[j, 0]), sj, o, ext)
+    c, a_k = _place_window(lidar, int(ab[k, 0]), sk, o, ext)
+    fit = pivot_shift_fit(ref, c[:n_query])
+    if fit is None:
+        return float("inf")
+    R_j, R_k = o.rotation_at(np.array([a_j, a_k]))
+    d, P = fit
+    return float(np.linalg.norm(P @ (d - (R_k - R_j) @ e)))
+
+
+def test_shift_evaluator_gives_the_per_offset_shifts_bit_for_bit(rig):
+    from concurrent.futures import ThreadPoolExecutor
+
+    from tripod_processor.reconstruction.stations import (_ShiftEvaluator, _window_points,
+                                                          _window_sample, _window_subset)
+
+    _, rec, orient = rig
+    lidar = rec.lidar
+    ext = Extrinsic.from_config(None, None)
+    win, step, gap, n_points, n_query = int(0.1e9), int(0.5e9), 1, 12000, 4000
+    times = np.arange(int(lidar.lidar_ns[0]), int(lidar.lidar_ns[-1]) - win, step)[:12]
+    ab = np.searchsorted(lidar.lidar_ns, np.stack([times, times + win], axis=1))
+    samples = {}
+    for w in range(len(times)):
+        pts = _window_points(lidar, int(ab[w, 0]), int(ab[w, 1]))
+        samples[w] = _window_sample(pts, _window_subset(len(pts[0]), n_points,
+                                                        np.random.default_rng([0x5EED, w])))
+    e = np.array([0.01, -0.02, 0.0])
+    # windows 3, 4, 5 in a row (4 at δ is 5's reference at δ), a lone one, offsets repeated
+    # across the two calls as the fine grid repeats the coarse grid's best
+    coarse = [(k, d) for k in (3, 4, 5, 9) for d in (-12_000_000, 0, 12_000_000)]
+    fine = [(k, d) for k in (3, 4, 9) for d in (-4_000_000, 0, 4_000_000)]
+    with ThreadPoolExecutor(2) as pool:
+        ev = _ShiftEvaluator(lidar, ab, samples, orient, ext, e, gap, n_query, pool)
+        got = ev.values(coarse) + ev.values(fine)
+    want = [_old_offset_shift(lidar, ab, orient, ext, e, n_query, samples[k - gap], samples[k],
+                              k - gap, k, d) for k, d in coarse + fine]
+    assert np.isfinite(want).sum() >= len(want) - 2
+    assert np.array_equal(np.array(got), np.array(want))
+
+
+def _old_window_shifts(lidar: LidarPackets, times: np.ndarray, win: int, gap: int,
+                   orient: ImuOrientation, ext: Extrinsic, n_points: int, n_query: int,
+                   rng: np.random.Generator, num_threads: int, progress=None,
+                   reuse: dict | None = None, reuse_max_bytes: int = 512 << 20
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The block-wise ``stations._window_shifts`` the pipeline replaced (barriers between
+    the decode, the draw, the placement and the fit of each block of 16 windows)."""
+    import os
+    from concurrent.futures import ThreadPoolExecutor
+
+    from tripod_processor.reconstruction.stations import (_place_window, _window_points,
+                                                          _window_sample, _window_subset,
+                                                          pivot_shift_fit)
+
+    K = len(times)
+    anchors = np.zeros(K, dtype=np.int64)
+    D = np.full((K, 3), np.nan)
+    Pm = np.zeros((K, 3, 3))
+    clouds: dict[int, np.ndarray] = {}
+    ab = np.searchsorted(lidar.lidar_ns, np.stack([times, times + win], axis=1))
+    block = 16
+
+    def fit(k: int):
+        ref, c = clouds.get(k - gap), clouds[k]
+        if ref is not None and len(ref) > 50 and len(c) > 50:
+            return pivot_shift_fit(ref, c[:n_query])
+        return None
+
+    key = (int(times[0]) if K else 0, K, win, n_points, id(lidar))
+    cached = reuse.get("samples") if reuse is not None and reuse.get("key") == key else None
+    keep: list | None = [] if reuse is not None and cached is None else None
+    kept_bytes = 0
+    workers = max(1, num_threads or (os.cpu_count() or 1))
+    with ThreadPoolExecutor(workers) as pool:
+        for s in range(0, K, block):
+            ks = range(s, min(K, s + block))
+            if cached is not None:
+                samples = cached[s:s + len(ks)]
+            else:
+                pts = list(pool.map(lambda k: _window_points(lidar, int(ab[k, 0]),
+                                                             int(ab[k, 1])), ks))
+                samples = [_window_sample(p, _window_subset(len(p[0]), n_points, rng))
+                           for p in pts]
+                if keep is not None:
+                    keep += samples
+                    kept_bytes += sum(x.nbytes + t.nbytes + (0 if o is None else o.nbytes)
+                                      for x, t, o in samples)
+                    if kept_bytes > reuse_max_bytes:
+                        keep = None  # too long a recording to keep: the next pass decodes
+            placed = list(pool.map(lambda i: _place_window(lidar, int(ab[ks[i], 0]),
+                                                           samples[i], orient, ext),
+                                   range(len(ks))))
+            for k, (c, anc) in zip(ks, placed):
+                clouds[k], anchors[k] = c, anc
+            for k, f in zip(ks, pool.map(fit, ks)):
+                if f is not None:
+                    D[k], Pm[k] = f
+            for j in [j for j in clouds if j <= ks[-1] - gap]:
+                del clouds[j]  # bounded memory
+            if progress is not None:
+                progress.update(len(ks))
+    if cached is not None:
+        rng.bit_generator.state = reuse["rng_state"]
+    elif keep is not None:
+        reuse.update(key=key, samples=keep, rng_state=rng.bit_generator.state)
+    return anchors, D, Pm
+
+
+
+def test_window_pipeline_gives_the_block_wise_shifts_bit_for_bit(rig):
+    from tripod_processor.reconstruction.stations import _window_shifts
+
+    _, rec, orient = rig
+    lidar = rec.lidar
+    ext = Extrinsic.from_config(None, None)
+    win, step = int(0.1e9), int(0.5e9)
+    times = np.arange(int(lidar.lidar_ns[0]), int(lidar.lidar_ns[-1]) - win, step)[:40]
+    for gap, n_points, threads, ahead in ((1, 12000, 2, 32), (2, 3000, 1, 32), (1, 3000, 2, 3)):
+        rng_old, rng_new = np.random.default_rng(0), np.random.default_rng(0)
+        want = _old_window_shifts(lidar, times, win, gap, orient, ext, n_points, 4000, rng_old,
+                                  2)
+        reuse: dict = {}
+        got = _window_shifts(lidar, times, win, gap, orient, ext, n_points, 4000, rng_new,
+                             threads, reuse=reuse, ahead=ahead)
+        assert rng_new.bit_generator.state == rng_old.bit_generator.state
+        assert np.isfinite(want[1][:, 0]).sum() > len(times) // 2
+        for w, g in zip(want, got):
+            assert np.array_equal(w, g, equal_nan=True)
+        # the second pass places the kept samples again: the same numbers, the rng moved on
+        rng_again = np.random.default_rng(0)
+        again = _window_shifts(lidar, times, win, gap, orient, ext, n_points, 4000, rng_again,
+                               threads, reuse=reuse, ahead=ahead)
+        assert rng_again.bit_generator.state == rng_old.bit_generator.state
+        for w, g in zip(want, again):
+            assert np.array_equal(w, g, equal_nan=True)

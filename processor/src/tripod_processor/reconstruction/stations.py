@@ -128,67 +128,89 @@ def _place_window(lidar: LidarPackets, a: int, sample: tuple, orient: ImuOrienta
 def _window_shifts(lidar: LidarPackets, times: np.ndarray, win: int, gap: int,
                    orient: ImuOrientation, ext: Extrinsic, n_points: int, n_query: int,
                    rng: np.random.Generator, num_threads: int, progress=None,
-                   reuse: dict | None = None, reuse_max_bytes: int = 512 << 20
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   reuse: dict | None = None, reuse_max_bytes: int = 512 << 20,
+                   ahead: int = 32) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(anchors (K,), pivot shifts D (K, 3) against the window ``gap`` before (NaN: unknown),
     their projectors Pm (K, 3, 3)) of the windows at ``times``.
 
-    Blocks of windows: decoded, then placed and fitted on ``num_threads`` threads (the native
-    decode and placement and the k-d trees run without the GIL); the random subsets are drawn
-    in window order between the two, so the result does not depend on the threads.
+    A pipeline on ``num_threads`` threads (the native decode and placement and the k-d trees
+    run without the GIL), with no barrier between windows: each window's decode is a task;
+    its random subset is drawn on the calling thread in window order as the decodes come in
+    (so the result does not depend on the threads); then one task places the window and fits
+    it against the window ``gap`` before, once that one is placed (tasks start in submission
+    order, so the wait ends). At most ``ahead`` windows are decoded or placed ahead of the
+    oldest unfinished one (bounded memory).
 
     ``reuse``: a dict kept between two passes over one recording (another rig calibration): the
     first keeps the decoded samples there (up to ``reuse_max_bytes``), the second places them
     again instead of decoding and drawing, and leaves ``rng`` where the draws would have."""
-    from concurrent.futures import ThreadPoolExecutor
+    import threading
+    from collections import deque
+    from concurrent.futures import Future, ThreadPoolExecutor
 
     K = len(times)
     anchors = np.zeros(K, dtype=np.int64)
     D = np.full((K, 3), np.nan)
     Pm = np.zeros((K, 3, 3))
-    clouds: dict[int, np.ndarray] = {}
+    placed: dict[int, Future] = {}  # window -> its placed cloud (pivot frame)
+    lock = threading.Lock()
     ab = np.searchsorted(lidar.lidar_ns, np.stack([times, times + win], axis=1))
-    block = 16
-
-    def fit(k: int):
-        ref, c = clouds.get(k - gap), clouds[k]
-        if ref is not None and len(ref) > 50 and len(c) > 50:
-            return pivot_shift_fit(ref, c[:n_query])
-        return None
 
     key = (int(times[0]) if K else 0, K, win, n_points, id(lidar))
     cached = reuse.get("samples") if reuse is not None and reuse.get("key") == key else None
     keep: list | None = [] if reuse is not None and cached is None else None
     kept_bytes = 0
+
+    def place_and_fit(k: int, sample: tuple) -> None:
+        try:
+            c, anchors[k] = _place_window(lidar, int(ab[k, 0]), sample, orient, ext)
+        except BaseException as exc:  # window k + gap waits for this placement
+            placed[k].set_exception(exc)
+            raise
+        with lock:
+            placed[k].set_result(c)
+            ref_f = placed.get(k - gap)
+        ref = ref_f.result() if ref_f is not None else None  # submitted (so started) before k
+        if ref is not None and len(ref) > 50 and len(c) > 50:
+            f = pivot_shift_fit(ref, c[:n_query])
+            if f is not None:
+                D[k], Pm[k] = f
+
     workers = max(1, num_threads or (os.cpu_count() or 1))
     with ThreadPoolExecutor(workers) as pool:
-        for s in range(0, K, block):
-            ks = range(s, min(K, s + block))
+        decoded: deque = deque()  # (window, future of its points), in window order
+        fitted: deque = deque()  # (window, future of its placement and fit), in window order
+        nxt = 0  # next window to decode
+        for k in range(K):
+            while cached is None and nxt < K and nxt < k + ahead:
+                decoded.append((nxt, pool.submit(_window_points, lidar, int(ab[nxt, 0]),
+                                                 int(ab[nxt, 1]))))
+                nxt += 1
             if cached is not None:
-                samples = cached[s:s + len(ks)]
+                sample = cached[k]
             else:
-                pts = list(pool.map(lambda k: _window_points(lidar, int(ab[k, 0]),
-                                                             int(ab[k, 1])), ks))
-                samples = [_window_sample(p, _window_subset(len(p[0]), n_points, rng))
-                           for p in pts]
+                _, pts = decoded.popleft()
+                sample = _window_sample(pts.result(),
+                                        _window_subset(len(pts.result()[0]), n_points, rng))
                 if keep is not None:
-                    keep += samples
-                    kept_bytes += sum(x.nbytes + t.nbytes + (0 if o is None else o.nbytes)
-                                      for x, t, o in samples)
+                    keep.append(sample)
+                    kept_bytes += sum(x.nbytes for x in sample if x is not None)
                     if kept_bytes > reuse_max_bytes:
                         keep = None  # too long a recording to keep: the next pass decodes
-            placed = list(pool.map(lambda i: _place_window(lidar, int(ab[ks[i], 0]),
-                                                           samples[i], orient, ext),
-                                   range(len(ks))))
-            for k, (c, anc) in zip(ks, placed):
-                clouds[k], anchors[k] = c, anc
-            for k, f in zip(ks, pool.map(fit, ks)):
-                if f is not None:
-                    D[k], Pm[k] = f
-            for j in [j for j in clouds if j <= ks[-1] - gap]:
-                del clouds[j]  # bounded memory
+            with lock:
+                placed[k] = Future()
+            fitted.append((k, pool.submit(place_and_fit, k, sample)))
+            while fitted and (len(fitted) >= ahead or fitted[0][1].done()):
+                j, fut = fitted.popleft()
+                fut.result()  # raises what the task raised
+                with lock:
+                    placed.pop(j - gap, None)  # bounded memory: j - gap is no one's reference
+                if progress is not None:
+                    progress.update(1)
+        for j, fut in fitted:
+            fut.result()
             if progress is not None:
-                progress.update(len(ks))
+                progress.update(1)
     if cached is not None:
         rng.bit_generator.state = reuse["rng_state"]
     elif keep is not None:
@@ -455,23 +477,13 @@ def _offset_tolerant_motion(lidar: LidarPackets, times: np.ndarray, win: int, ga
         rng = np.random.default_rng([0x5EED, k])
         return _window_sample(pts, _window_subset(len(pts[0]), n_points, rng))
 
-    def shift(sj: tuple, sk: tuple, j: int, k: int, d_ns: int) -> float:
-        o = orient.with_offset(orient.time_offset_ns + int(d_ns))
-        ref, a_j = _place_window(lidar, int(ab[j, 0]), sj, o, ext)
-        c, a_k = _place_window(lidar, int(ab[k, 0]), sk, o, ext)
-        fit = pivot_shift_fit(ref, c[:n_query])
-        if fit is None:
-            return float("inf")
-        R_j, R_k = o.rotation_at(np.array([a_j, a_k]))
-        d, P = fit
-        return float(np.linalg.norm(P @ (d - (R_k - R_j) @ e)))
-
     grid = np.linspace(-dmax_ns, dmax_ns, n_grid).astype(np.int64)
     step = int(2 * dmax_ns // (n_grid - 1))
     fine = np.linspace(-step, step, n_grid + 2)[1:-1].astype(np.int64)
-    # every window's samples, then every (window, offset) placement and fit, side by side on
-    # threads (decode, placement and k-d trees run without the GIL; each value is computed
-    # alone, so the result does not depend on the threads); blocks bound the samples kept
+    # every window's samples, then every (window, offset) placement and every (window pair,
+    # offset) fit, side by side on threads (decode, placement and k-d trees run without the
+    # GIL; each value is computed alone, so the result does not depend on the threads); blocks
+    # bound the samples kept
     workers = max(1, num_threads or (os.cpu_count() or 1))
     with ThreadPoolExecutor(workers) as pool:
         for b in range(0, len(todo), block):
@@ -479,18 +491,59 @@ def _offset_tolerant_motion(lidar: LidarPackets, times: np.ndarray, win: int, ga
             need = sorted(set(ks) | {k - gap for k in ks})
             samples = dict(zip(need, pool.map(sample, need)))
             ks = [k for k in ks if len(samples[k - gap][0]) > 50 and len(samples[k][0]) > 50]
-
-            def run(tasks: list[tuple[int, int]]) -> list[float]:
-                return list(pool.map(lambda kd: shift(samples[kd[0] - gap], samples[kd[0]],
-                                                      kd[0] - gap, kd[0], kd[1]), tasks))
-
-            vals = np.array(run([(k, int(g)) for k in ks for g in grid])).reshape(len(ks), -1)
+            ev = _ShiftEvaluator(lidar, ab, samples, orient, ext, e, gap, n_query, pool)
+            vals = np.array(ev.values([(k, int(g)) for k in ks for g in grid])
+                            ).reshape(len(ks), -1)
             best = grid[np.argmin(vals, axis=1)] if len(ks) else grid[:0]
-            vf = np.array(run([(k, int(c) + int(f)) for k, c in zip(ks, best)
-                               for f in fine])).reshape(len(ks), -1)
+            vf = np.array(ev.values([(k, int(c) + int(f)) for k, c in zip(ks, best)
+                                     for f in fine])).reshape(len(ks), -1)
             for i, k in enumerate(ks):
                 out[k] = min(float(out[k]), float(vals[i].min()), float(vf[i].min()))
     return out
+
+
+class _ShiftEvaluator:
+    """The shifts of :func:`_offset_tolerant_motion` for one block of windows: the motion of
+    window k against window k − gap, both placed at a time offset δ from the current one.
+
+    Each (window, δ) is placed once (window k at δ is also window k + gap's reference at δ)
+    and each (k, δ) is fitted once (the fine grid's δ = 0 is the coarse grid's best), on the
+    pool's threads; every value is the same number as when computed alone. One call's
+    placements are kept until its fits are done: at most 2 × block windows × the offsets of the
+    call (each 12,000 points × 24 bytes: ~90 MB for a block of 32 isolated windows on the
+    coarse grid of 5)."""
+
+    def __init__(self, lidar: LidarPackets, ab: np.ndarray, samples: dict, orient: ImuOrientation,
+                 ext: Extrinsic, e: np.ndarray, gap: int, n_query: int, pool) -> None:
+        self.lidar, self.ab, self.samples, self.orient, self.ext = lidar, ab, samples, orient, ext
+        self.e, self.gap, self.n_query, self.pool = e, gap, n_query, pool
+        self._shift: dict[tuple[int, int], float] = {}
+
+    def _orient(self, d_ns: int) -> ImuOrientation:
+        return self.orient.with_offset(self.orient.time_offset_ns + int(d_ns))
+
+    def _place(self, w: int, d_ns: int) -> tuple[np.ndarray, int]:
+        return _place_window(self.lidar, int(self.ab[w, 0]), self.samples[w], self._orient(d_ns),
+                             self.ext)
+
+    def _fit(self, k: int, d_ns: int, placed: dict) -> float:
+        ref, a_j = placed[(k - self.gap, d_ns)]
+        c, a_k = placed[(k, d_ns)]
+        fit = pivot_shift_fit(ref, c[:self.n_query])
+        if fit is None:
+            return float("inf")
+        R_j, R_k = self._orient(d_ns).rotation_at(np.array([a_j, a_k]))
+        d, P = fit
+        return float(np.linalg.norm(P @ (d - (R_k - R_j) @ self.e)))
+
+    def values(self, tasks: list[tuple[int, int]]) -> list[float]:
+        """The shift [m] of each (window k, offset δ [ns]) in ``tasks`` (inf: no fit)."""
+        new = [t for t in dict.fromkeys(tasks) if t not in self._shift]
+        keys = sorted({(w, d) for k, d in new for w in (k - self.gap, k)})
+        placed = dict(zip(keys, self.pool.map(lambda wd: self._place(*wd), keys)))
+        for t, v in zip(new, self.pool.map(lambda kd: self._fit(*kd, placed), new)):
+            self._shift[t] = v
+        return [self._shift[t] for t in tasks]
 
 
 def _runs(still: np.ndarray) -> list[tuple[int, int]]:
