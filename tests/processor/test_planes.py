@@ -93,3 +93,26 @@ def test_no_planes_in_an_unlabelled_or_tiny_cloud():
     assert extract_planes(p, np.full(300, 2)) == []
     with pytest.raises(ValueError):
         extract_planes(p, np.zeros(10))
+
+
+def test_a_piece_whose_refit_keeps_too_few_points_is_skipped(monkeypatch):
+    """The second refit of a plane's piece can keep fewer points than a plane needs (none, on a
+    heightmap pair of the dev split): that piece is left out, the extraction goes on."""
+    from tripod_processor.scene import planes as planes_mod
+
+    p, lab, _, _ = room_scan(21, kind="box")
+    real = planes_mod._robust_refine
+    calls = []
+
+    def refine(pts, n, d, min_band, max_band, iters=6):
+        out = real(pts, n, d, min_band, max_band, iters)
+        if iters == 3:  # a piece's refit: every other one keeps no point
+            calls.append(len(pts))
+            if len(calls) % 2:
+                return out[0], out[1], np.zeros_like(out[2]), out[3]
+        return out
+
+    monkeypatch.setattr(planes_mod, "_robust_refine", refine)
+    got = extract_planes(p, lab)
+    assert len(calls) >= 2 and got, "no piece reached the second refit"
+    assert all(len(pl.indices) >= 100 and np.isfinite(pl.origin).all() for pl in got)

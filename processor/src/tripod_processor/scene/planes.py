@@ -330,6 +330,8 @@ class _Search:
             n2, d2, mask2, sig2 = _robust_refine(P[seg], n, d, self.min_band, self.max_band,
                                                  iters=3)
             seg = seg[mask2]
+            if len(seg) < self.min_points:  # the refit's band kept too few (or none)
+                continue
             assigned[seg] = True
             out.append(self._oriented_plane(c, idx_all, P, seg, n2, d2, sig2))
         return out
