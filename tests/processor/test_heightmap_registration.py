@@ -283,6 +283,36 @@ def test_level_height_from_shared_floors_then_ceilings():
     assert _level_height(scan(2.5, False, False), scan(2.8, True, True)) is None
 
 
+def test_only_a_sizeable_ceiling_shares_its_height():
+    """A gravity-levelled scan with no floor: its ceiling plane shares its height with another
+    scan only when it covers at least MIN_TRUSTED_CEILING_M2 (a strip of a soffit seen by a
+    vertical lidar's band passes for a ceiling otherwise)."""
+    from tripod_processor.scene.heightmap_registration.levelling import (
+        MIN_TRUSTED_CEILING_M2, level_scan)
+
+    rng = np.random.default_rng(7)
+
+    def scan(ceiling_side_m):
+        # four walls of a 4 x 4 m room between z = 0.3 and 2.4 (no floor), and a square ceiling
+        # patch at z = 2.5 of the given side (dense, 2 mm noise)
+        n = 40_000
+        t, z = rng.uniform(-2, 2, n), rng.uniform(0.3, 2.4, n)
+        side = rng.integers(0, 4, n)
+        x = np.where(side == 0, -2.0, np.where(side == 1, 2.0, t))
+        y = np.where(side == 2, -2.0, np.where(side == 3, 2.0, t))
+        walls = np.c_[x, y, z]
+        m = 20_000
+        c = np.c_[rng.uniform(-ceiling_side_m / 2, ceiling_side_m / 2, (m, 2)), np.full(m, 2.5)]
+        P = np.r_[walls, c] + rng.normal(0, 0.002, (n + m, 3))
+        lab = np.r_[np.full(n, 2), np.zeros(m, int)]
+        return level_scan(P, lab, gravity=True)
+
+    assert MIN_TRUSTED_CEILING_M2 > 1.0
+    small, large = scan(1.0), scan(2.0)  # 1 and 4 m^2
+    assert not small.floor_trusted and not large.floor_trusted
+    assert large.ceiling_trusted and not small.ceiling_trusted
+
+
 def _no_floor_pair(seed: int, head_steps: int, band: bool):
     """Two stations of a furnished box room (``sim.rooms``) with every floor and ceiling point
     removed (no shared floor or ceiling fixes the height); ``band``: only what a vertical lidar's
