@@ -147,7 +147,6 @@ def train_segmenter_cmd(
 ) -> None:
     """Train the per-point segmenter on labelled clouds (CPU, minutes) and write its weights."""
     import numpy as np
-    from rich.table import Table
     from tqdm import tqdm
 
     from ..scene.segmentation.model import save_weights
@@ -201,18 +200,7 @@ def train_segmenter_cmd(
                  f"{', '.join(FAMILIES)} or all)")
     if not sources and not fams:
         fail("no training data: give --data, --s3dis, --synthetic or --procedural")
-    try:
-        hidden_sizes = tuple(int(h) for h in hidden.split(",") if h.strip())
-        if not hidden_sizes or min(hidden_sizes) < 1:
-            raise ValueError
-    except ValueError:
-        fail(f"--hidden: expected widths like 128,128, got {hidden!r}")
-    try:
-        hidden2_sizes = tuple(int(h) for h in hidden2.split(",") if h.strip())
-        if not hidden2_sizes or min(hidden2_sizes) < 1:
-            raise ValueError
-    except ValueError:
-        fail(f"--hidden2: expected widths like 128,128, got {hidden2!r}")
+    hidden_sizes, hidden2_sizes = _widths(hidden, "--hidden"), _widths(hidden2, "--hidden2")
     if stages not in (1, 2):
         fail(f"--stages: 1 or 2, got {stages}")
     if steps2 < 0:
@@ -251,24 +239,54 @@ def train_segmenter_cmd(
     model, rep = train(F, L, seed=seed, steps=steps, batch=batch, hidden=hidden_sizes, lr=lr,
                        class_power=class_power, num_threads=threads, progress=prog)
     bar.close()
+    meta = _provenance(seed=seed, steps=steps, batch=batch, lr=lr, class_power=class_power,
+                       copies=copies, synthetic=synthetic, procedural=procedural, fams=fams,
+                       keep=keep, files=files, s3dis=s3dis, s3dis_areas=s3dis_areas,
+                       seconds=rep.seconds, report=rep)
+    save_weights(model, output, meta)
+    _print_summary(output, len(sources) + procedural * len(fams), rep.points,
+                   f"{steps} x {batch}", ("final loss", f"{rep.final_loss:.4f}"), rep.seconds)
+
+
+def _widths(text: str, option: str) -> tuple[int, ...]:
+    """Hidden layer widths from ``128,128``; a clear error naming ``option`` otherwise."""
+    try:
+        sizes = tuple(int(h) for h in text.split(",") if h.strip())
+        if not sizes or min(sizes) < 1:
+            raise ValueError
+    except ValueError:
+        fail(f"{option}: expected widths like 128,128, got {text!r}")
+    return sizes
+
+
+def _provenance(*, seed, steps, batch, lr, class_power, copies, synthetic, procedural, fams, keep,
+                files, s3dis, s3dis_areas, seconds, report, **extra) -> dict:
+    """The weight file's provenance: the training options, the data, the time and the command
+    (``extra``: more options, e.g. the second stage's steps)."""
     import sys
 
-    meta = {"seed": seed, "steps": steps, "batch": batch, "lr": lr, "class_power": class_power,
-            "copies": copies, "synthetic": synthetic,
+    return {"seed": seed, "steps": steps, **extra, "batch": batch, "lr": lr,
+            "class_power": class_power, "copies": copies, "synthetic": synthetic,
             "procedural": procedural, "families": fams, "keep": keep,
             "data": [str(f) for f in files], "s3dis": str(s3dis) if s3dis else None,
-            "s3dis_areas": s3dis_areas if s3dis else None, "train_seconds": rep.seconds,
-            "points": rep.points, "class_counts": rep.class_counts,
+            "s3dis_areas": s3dis_areas if s3dis else None, "train_seconds": seconds,
+            "points": report.points, "class_counts": report.class_counts,
             "command": "tripod " + " ".join(sys.argv[1:])}
-    save_weights(model, output, meta)
+
+
+def _print_summary(output: Path, clouds: int, points: int, steps_text: str,
+                   loss: tuple[str, str], seconds: float) -> None:
+    """The results table of ``train-segmenter``."""
+    from rich.table import Table
+
     table = Table(title=f"tripod train-segmenter -> {output}")
     table.add_column("item")
     table.add_column("value", justify="right")
-    table.add_row("clouds", str(len(sources) + procedural * len(fams)))
-    table.add_row("training points", f"{rep.points:,}")
-    table.add_row("steps x batch", f"{steps} x {batch}")
-    table.add_row("final loss", f"{rep.final_loss:.4f}")
-    table.add_row("training time [s]", f"{rep.seconds:.1f}")
+    table.add_row("clouds", str(clouds))
+    table.add_row("training points", f"{points:,}")
+    table.add_row("steps x batch", steps_text)
+    table.add_row(*loss)
+    table.add_row("training time [s]", f"{seconds:.1f}")
     table.add_row("weights [kB]", f"{output.stat().st_size / 1024:.1f}")
     console.print(table)
 
@@ -279,10 +297,8 @@ def _train_two_stages(output: Path, sources: list, fams: list, files: list, bar,
                       synthetic: int, s3dis, s3dis_areas: str) -> None:
     """``train-segmenter --stages 2``: the same copies and sampled points as one stage (the
     first network is the one-stage model), kept whole on disk for the second stage's context."""
-    import sys
     import tempfile
 
-    from rich.table import Table
     from tqdm import tqdm
 
     from ..scene.segmentation.model import save_weights
@@ -316,24 +332,15 @@ def _train_two_stages(output: Path, sources: list, fams: list, files: list, bar,
                                     num_threads=threads, class_power=class_power, progress=prog)
         bar.close()
     seconds = sum(r.seconds for r in reps)
-    meta = {"seed": seed, "steps": steps, "steps2": steps2, "batch": batch, "lr": lr,
-            "class_power": class_power, "copies": copies, "synthetic": synthetic,
-            "procedural": procedural, "families": fams, "keep": keep,
-            "data": [str(f) for f in files], "s3dis": str(s3dis) if s3dis else None,
-            "s3dis_areas": s3dis_areas if s3dis else None, "train_seconds": seconds,
-            "points": reps[0].points, "class_counts": reps[0].class_counts,
-            "command": "tripod " + " ".join(sys.argv[1:])}
+    meta = _provenance(seed=seed, steps=steps, steps2=steps2, batch=batch, lr=lr,
+                       class_power=class_power, copies=copies, synthetic=synthetic,
+                       procedural=procedural, fams=fams, keep=keep, files=files, s3dis=s3dis,
+                       s3dis_areas=s3dis_areas, seconds=seconds, report=reps[0])
     save_weights(model, output, meta)
-    table = Table(title=f"tripod train-segmenter -> {output}")
-    table.add_column("item")
-    table.add_column("value", justify="right")
-    table.add_row("clouds", str(len(sources) + procedural * len(fams)))
-    table.add_row("training points", f"{reps[0].points:,}")
-    table.add_row("steps x batch", f"{steps} + {steps2} x {batch}")
-    table.add_row("final loss (stage 1, 2)", f"{reps[0].final_loss:.4f}, {reps[1].final_loss:.4f}")
-    table.add_row("training time [s]", f"{seconds:.1f}")
-    table.add_row("weights [kB]", f"{output.stat().st_size / 1024:.1f}")
-    console.print(table)
+    _print_summary(output, len(sources) + procedural * len(fams), reps[0].points,
+                   f"{steps} + {steps2} x {batch}",
+                   ("final loss (stage 1, 2)", f"{reps[0].final_loss:.4f}, {reps[1].final_loss:.4f}"),
+                   seconds)
 
 
 @app.command("s3dis-eval", rich_help_panel="Scene understanding")
