@@ -104,8 +104,8 @@ def bench_procedural(split: str = "test", n_per_family: int = 3, lofo: bool = Tr
     from tripod_processor.scene.segmentation.features import FEATURE_NAMES, voxel_features
     from tripod_processor.scene.segmentation.metrics import confusion, iou
     from tripod_processor.scene.segmentation.model import load_model, save_weights
-    from tripod_processor.scene.segmentation.train import (RECIPE, CopyStore, copies_of,
-                                                           procedural_clouds, procedural_features,
+    from tripod_processor.scene.segmentation.train import (RECIPE, CopyStore, procedural_copies,
+                                                           procedural_features,
                                                            train_on_families, train_stacked)
     from tripod_processor.sim.procedural import FAMILIES, GENERATOR, labelled_scan, split_seeds
 
@@ -166,9 +166,7 @@ def bench_procedural(split: str = "test", n_per_family: int = 3, lofo: bool = Tr
                     for fn in st.files:
                         fn.unlink()
                     st = CopyStore(d)
-                    for c in copies_of(procedural_clouds(fam, "train", per), RECIPE["copies"],
-                                       seed=FAMILIES.index(fam),
-                                       keep_per_copy=RECIPE["keep_per_copy"]):
+                    for c in procedural_copies(fam, per):
                         st.add(c)
                 stores[fam] = st
 

@@ -302,19 +302,15 @@ def _train_two_stages(output: Path, sources: list, fams: list, files: list, bar,
     from tqdm import tqdm
 
     from ..scene.segmentation.model import save_weights
-    from ..scene.segmentation.train import (CopyStore, copies_of, procedural_clouds,
+    from ..scene.segmentation.train import (CopyStore, copies_of, procedural_copies,
                                             train_stacked)
 
     with tempfile.TemporaryDirectory(prefix="tripod-segmenter-") as tmp:
         store = CopyStore(tmp)
-        if fams:  # generated buildings first, as train.procedural_features draws them
-            from ..sim.procedural import FAMILIES
-
-            for fam in fams:
-                for c in copies_of(procedural_clouds(fam, "train", procedural), copies,
-                                   seed=seed * 1000 + FAMILIES.index(fam), keep_per_copy=keep,
-                                   progress=lambda: bar.update()):
-                    store.add(c)
+        for fam in fams:  # generated buildings first, as train.procedural_features draws them
+            for c in procedural_copies(fam, procedural, copies, seed=seed, keep_per_copy=keep,
+                                       progress=lambda: bar.update()):
+                store.add(c)
         if sources:
             for c in copies_of(sources, copies, seed=seed, progress=lambda: bar.update(),
                                keep_per_copy=keep):

@@ -255,18 +255,18 @@ def procedural_features(families, split: str = "train", per_family: int = RECIPE
     return out
 
 
-def procedural_copies(families, split: str = "train", per_family: int = RECIPE["per_family"],
+def procedural_copies(family: str, per_family: int = RECIPE["per_family"],
                       copies: int = RECIPE["copies"], seed: int = 0,
                       keep_per_copy: int = RECIPE["keep_per_copy"],
-                      progress: Callable | None = None) -> dict:
-    """{family: [CopyRows]} of :func:`procedural_clouds` with :func:`copies_of`, drawn as
-    :func:`procedural_features` draws them (the same sampled points)."""
+                      progress: Callable | None = None):
+    """Yield the :class:`CopyRows` of ``family``'s train buildings (:func:`procedural_clouds`,
+    :func:`copies_of`), drawn as :func:`procedural_features` draws them (the same sampled
+    points); one at a time, since whole copies are large (~1 GB a family at the recipe)."""
     from ...sim.procedural import FAMILIES
 
-    return {fam: list(copies_of(procedural_clouds(fam, split, per_family), copies,
-                                seed=seed * 1000 + FAMILIES.index(fam), progress=progress,
-                                keep_per_copy=keep_per_copy))
-            for fam in families}
+    yield from copies_of(procedural_clouds(family, "train", per_family), copies,
+                         seed=seed * 1000 + FAMILIES.index(family), progress=progress,
+                         keep_per_copy=keep_per_copy)
 
 
 def train_on_families(feats: dict, families, *, seed: int = 0, steps: int = RECIPE["steps"],
