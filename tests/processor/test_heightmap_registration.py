@@ -313,6 +313,38 @@ def test_only_a_sizeable_ceiling_shares_its_height():
     assert large.ceiling_trusted and not small.ceiling_trusted
 
 
+def test_a_sloped_surface_is_no_trusted_floor():
+    """A gravity-levelled scan that saw no floor (a vertical lidar's band in a small room) but a
+    sloped surface labelled floor, with nothing below it: that slope is neither the floor nor
+    trusted as one (it was, and a pair came back 19 cm off with success = true); a level patch
+    in its place is."""
+    from tripod_processor.scene.heightmap_registration.levelling import (
+        MAX_LEVEL_PLANE_TILT_DEG, level_scan)
+
+    rng = np.random.default_rng(11)
+
+    def scan(lean_deg):
+        # four walls of a 4 x 4 m room between z = 0.3 and 2.4 and a 1.5 x 1.5 m patch labelled
+        # floor at z = 0.3 leaning ``lean_deg`` about x (2 mm noise)
+        n, m = 40_000, 20_000
+        t, z = rng.uniform(-2, 2, n), rng.uniform(0.3, 2.4, n)
+        side = rng.integers(0, 4, n)
+        x = np.where(side == 0, -2.0, np.where(side == 1, 2.0, t))
+        y = np.where(side == 2, -2.0, np.where(side == 3, 2.0, t))
+        u, v = rng.uniform(-0.75, 0.75, (2, m))
+        a = np.radians(lean_deg)
+        patch = np.c_[u, v * np.cos(a), 0.3 + v * np.sin(a)]
+        P = np.r_[np.c_[x, y, z], patch] + rng.normal(0, 0.002, (n + m, 3))
+        lab = np.r_[np.full(n, 2), np.ones(m, int)]
+        return level_scan(P, lab, gravity=True)
+
+    assert 1.5 < MAX_LEVEL_PLANE_TILT_DEG < 8.0
+    level, sloped = scan(0.0), scan(8.0)
+    assert level.floor_trusted
+    assert abs(level.T_level_scan[2, 3] + 0.3) < 0.01  # the patch is the floor
+    assert not sloped.floor_trusted
+
+
 def _no_floor_pair(seed: int, head_steps: int, band: bool):
     """Two stations of a furnished box room (``sim.rooms``) with every floor and ceiling point
     removed (no shared floor or ceiling fixes the height); ``band``: only what a vertical lidar's

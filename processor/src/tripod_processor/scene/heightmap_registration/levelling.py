@@ -110,6 +110,14 @@ def structure_up(planes, *, prior_sigma_deg: float = 0.25, min_sigma_deg: float 
 #: the height 10-20 cm off; the room's whole ceilings seen were 2.4-3.2 m^2)
 MIN_TRUSTED_CEILING_M2 = 2.0
 
+#: [deg] most a gravity-levelled scan's floor or ceiling plane may lean from horizontal (the up
+#: it carries is right to ~1 deg, :func:`structure_up` trusts no more than 1.5): a plane that
+#: leans more is a sloped surface, not the floor (dev heightmap pairs, vertical room of seed
+#: 301: a vertical lidar that saw no floor took a 9 deg slope 30 cm above it for the floor,
+#: trusted it as nothing lay below, and a pair came back 19 cm / 1.3 deg off with success =
+#: true; the true floors and ceilings seen there leant 0.0-0.3 deg)
+MAX_LEVEL_PLANE_TILT_DEG = 3.0
+
 
 def level_scan(points, labels, *, seed: int = 0, max_points: int = 200_000,
                gravity: bool = False, max_tilt_deg: float = 1.5) -> LevelledScan:
@@ -118,12 +126,12 @@ def level_scan(points, labels, *, seed: int = 0, max_points: int = 200_000,
     ``gravity``: the scan's z is already up along gravity (levelled by its IMU up): the level is
     then refined by the structure (:func:`structure_up`: walls vertical, floors and ceilings
     horizontal, fused with the prior by their uncertainties; a structure that says over
-    ``max_tilt_deg`` is not trusted), the floor is the lowest
-    sizeable floor plane within 10 deg of horizontal and gives the height only, and without one
+    ``max_tilt_deg`` is not trusted), the floor is the lowest sizeable floor plane within
+    :data:`MAX_LEVEL_PLANE_TILT_DEG` of horizontal (the ceiling likewise) and gives the height only, and without one
     the height comes from the lowest floor-labelled (else lowest) points: a lidar with its spin
     axis vertical sees little floor in a small room, but gravity and its walls still level it.
     ``floor_trusted``: the floor is a plane with under 1 % of the points below it;
-    ``ceiling_trusted`` (gravity only): the ceiling is a plane within 10 deg of horizontal of at
+    ``ceiling_trusted`` (gravity only): the ceiling is a level plane of at
     least :data:`MIN_TRUSTED_CEILING_M2` with under 1 % of the points above it."""
     P = np.asarray(points, np.float64)
     labels = np.asarray(labels)
@@ -136,8 +144,9 @@ def level_scan(points, labels, *, seed: int = 0, max_points: int = 200_000,
     if gravity:  # the walls' normals, on a subset (they only level)
         few = slice(None, None, max(1, len(P) // 60_000))
         planes += extract_planes(P[few], labels[few], classes=(WALL,), min_points=100, seed=seed)
+    level_cos = np.cos(np.radians(MAX_LEVEL_PLANE_TILT_DEG))
     floors = [p for p in planes if p.label == FLOOR
-              and (not gravity or abs(p.normal[2]) > np.cos(np.radians(10.0)))]
+              and (not gravity or abs(p.normal[2]) > level_cos)]
     T = np.eye(4)
     if gravity:  # gravity, refined by the walls, floors and ceilings; the floor gives the height
         R = _rot_to_z(structure_up(planes, max_tilt_deg=max_tilt_deg))
@@ -164,7 +173,7 @@ def level_scan(points, labels, *, seed: int = 0, max_points: int = 200_000,
     R = T[:3, :3]
     Q = P @ R.T + T[:3, 3]
     ceilings = [p for p in planes if p.label == CEILING
-                and (not gravity or abs(p.normal[2]) > np.cos(np.radians(10.0)))]
+                and (not gravity or abs(p.normal[2]) > level_cos)]
     ceiling_trusted = False
     if ceilings:
         cl = max(ceilings, key=lambda p: len(p.indices))
