@@ -218,6 +218,28 @@ def _window_shifts(lidar: LidarPackets, times: np.ndarray, win: int, gap: int,
     return anchors, D, Pm
 
 
+def matched_directions(u_ref: np.ndarray, u_q: np.ndarray, max_dist: float
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """(dist (M,), idx (M,)): each query direction's nearest reference direction strictly
+    closer than ``max_dist`` (chord length of unit vectors), exactly as
+    ``cKDTree(u_ref).query(u_q, k=1, distance_upper_bound=max_dist)`` gives them (inf /
+    ``len(u_ref)`` where none is).
+
+    A native grid search (no tree to build: ~10x faster here); where two references lie at
+    exactly the same distance from a query (dual returns can give the same direction twice) it
+    does not know which one cKDTree would keep, so the call is answered by cKDTree itself."""
+    from .. import _ext
+
+    dist, idx, ties = _ext.nearest_within(np.ascontiguousarray(u_ref, dtype=np.float64),
+                                          np.ascontiguousarray(u_q, dtype=np.float64),
+                                          float(max_dist))
+    if ties:
+        # an unbalanced tree builds ~2x faster and queries alike here
+        tree = cKDTree(u_ref, balanced_tree=False, compact_nodes=False)
+        dist, idx = tree.query(u_q, k=1, distance_upper_bound=max_dist)
+    return dist, idx
+
+
 def pivot_shift_fit(ref: np.ndarray, query: np.ndarray, max_angle_deg: float = 0.3
                     ) -> tuple[np.ndarray, np.ndarray] | None:
     """The pivot's shift d (3,) [m] between two windows and the projector P (3, 3) onto the
@@ -240,9 +262,7 @@ def pivot_shift_fit(ref: np.ndarray, query: np.ndarray, max_angle_deg: float = 0
     if len(ref) < 50 or len(query) < 50:
         return None
     u_q = query / r_q[:, None]
-    # exact nearest neighbours; an unbalanced tree builds ~2x faster and queries alike here
-    tree = cKDTree(ref / r_ref[:, None], balanced_tree=False, compact_nodes=False)
-    dist, idx = tree.query(u_q, k=1, distance_upper_bound=np.radians(max_angle_deg))
+    dist, idx = matched_directions(ref / r_ref[:, None], u_q, np.radians(max_angle_deg))
     hit = np.isfinite(dist)
     if hit.sum() < 50:
         return None
