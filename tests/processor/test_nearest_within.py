@@ -47,6 +47,16 @@ def test_native_matches_ckdtree_bit_for_bit_without_ties(pan_deg):
     assert _same(dist, want_d) and _same(idx, want_i)
 
 
+def test_float32_directions_as_the_splitter_has_them():
+    # placed clouds are float32: their directions reach cKDTree as float32, converted to float64
+    u_ref = _sweep(12000, 0.0, 6).astype(np.float32)
+    u_q = _sweep(4000, np.radians(3.0), 7).astype(np.float32)
+    dist, idx = matched_directions(u_ref, u_q, RADIUS)
+    want_d, want_i = _scipy(u_ref, u_q)
+    assert np.isfinite(want_d).sum() > 100
+    assert _same(dist, want_d) and _same(idx, want_i)
+
+
 def test_ties_are_counted_and_answered_by_ckdtree():
     u_ref = _sweep(12000, 0.0, 3)
     # dual returns: every 5th direction twice, and queries right on some of them
