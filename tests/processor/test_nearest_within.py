@@ -81,3 +81,16 @@ def test_empty_and_far_queries():
     assert np.isinf(dist).all() and (idx == len(u_ref)).all()
     with pytest.raises(ValueError):
         _ext.nearest_within(u_ref, u_ref, 0.0)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_ranges_round_as_linalg_norm(dtype):
+    from tripod_processor.reconstruction.stations import _beyond, _ranges
+
+    rng = np.random.default_rng(8)
+    for n in [0, 1, 2, 3, 7, 8, 9, 33, 1000, 4000, 12000]:
+        p = (rng.normal(size=(n, 3)) * rng.uniform(0.01, 50.0, (n, 1))).astype(dtype)
+        assert _same(_ranges(p), np.linalg.norm(p, axis=1))
+        kept, r = _beyond(p, 0.3)
+        ok = np.linalg.norm(p, axis=1) > 0.3
+        assert _same(kept, p[ok]) and _same(r, np.linalg.norm(p, axis=1)[ok])

@@ -218,6 +218,21 @@ def _window_shifts(lidar: LidarPackets, times: np.ndarray, win: int, gap: int,
     return anchors, D, Pm
 
 
+def _ranges(p: np.ndarray) -> np.ndarray:
+    """|p| of each row of p (N, 3), rounded as ``np.linalg.norm(p, axis=1)`` rounds it
+    ((x² + y²) + z², then the root) without its reduction's overhead (~8x faster here)."""
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    return np.sqrt(x * x + y * y + z * z)
+
+
+def _beyond(p: np.ndarray, min_range: float) -> tuple[np.ndarray, np.ndarray]:
+    """(the rows of p (N, 3) farther than ``min_range`` [m], their ranges); p itself when
+    every row is (no copy)."""
+    r = _ranges(p)
+    ok = r > min_range
+    return (p, r) if ok.all() else (p[ok], r[ok])
+
+
 def matched_directions(u_ref: np.ndarray, u_q: np.ndarray, max_dist: float
                        ) -> tuple[np.ndarray, np.ndarray]:
     """(dist (M,), idx (M,)): each query direction's nearest reference direction strictly
@@ -255,10 +270,8 @@ def pivot_shift_fit(ref: np.ndarray, query: np.ndarray, max_angle_deg: float = 0
     mismatch of δ moves an oblique surface's range by about r·δ·tan(incidence), so far points
     (a 40 m hall) are noisier by nature, not because the tripod moves.
     """
-    r_ref = np.linalg.norm(ref, axis=1)
-    r_q = np.linalg.norm(query, axis=1)
-    ok_r, ok_q = r_ref > 0.3, r_q > 0.3
-    ref, r_ref, query, r_q = ref[ok_r], r_ref[ok_r], query[ok_q], r_q[ok_q]
+    ref, r_ref = _beyond(ref, 0.3)
+    query, r_q = _beyond(query, 0.3)
     if len(ref) < 50 or len(query) < 50:
         return None
     u_q = query / r_q[:, None]
