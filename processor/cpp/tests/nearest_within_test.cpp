@@ -84,7 +84,8 @@ TEST(NearestWithin, RingsOfUnitVectorsWithTiesMatchBruteForce) {
     const std::vector<double> ref = rings(6000, 0.0, 7, 1);
     std::vector<double> q = rings(2000, 0.31, 0, 2);
     // queries that sit exactly on a duplicated reference: a tie at distance 0
-    for (int k = 0; k < 5; ++k) q.insert(q.end(), ref.begin() + 3 * 7 * k, ref.begin() + 3 * 7 * k + 3);
+    for (int k = 0; k < 5; ++k)
+        q.insert(q.end(), ref.begin() + 3 * 7 * k, ref.begin() + 3 * 7 * k + 3);
     const NearestWithin got = nearest_within(ref.data(), ref.size() / 3, q.data(), q.size() / 3,
                                              radius);
     const Brute want = brute(ref, q, radius);

@@ -32,7 +32,8 @@ void radix_sort(std::vector<std::pair<uint64_t, int64_t>>& a, int bits) {
 
 void check_finite(const double* p, int64_t n, const char* what) {
     for (int64_t i = 0; i < 3 * n; ++i)
-        if (!std::isfinite(p[i])) throw std::invalid_argument(std::string(what) + ": non-finite point");
+        if (!std::isfinite(p[i]))
+            throw std::invalid_argument(std::string(what) + ": non-finite point");
 }
 
 }  // namespace
