@@ -362,6 +362,11 @@ def column_context(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3
     fraction, mean free distance [m], column z-min [m], column z-max [m], log1p(count).
     """
 
+def nearest_within(ref: Annotated[NDArray[numpy.float64], dict(shape=(None, 3), order='C', device='cpu', writable=False)], query: Annotated[NDArray[numpy.float64], dict(shape=(None, 3), order='C', device='cpu', writable=False)], radius: float) -> tuple[Annotated[NDArray[numpy.float64], dict(shape=(None,))], Annotated[NDArray[numpy.int64], dict(shape=(None,))], int]:
+    """
+    (dist, index, ties): per query row the nearest ref row strictly closer than radius, as scipy's cKDTree.query(k=1, distance_upper_bound=radius) gives them (inf / len(ref) where none is); ties counts the queries whose nearest distance two refs share (there the lowest index, where cKDTree keeps the one its traversal meets first). Private: see tripod_processor.reconstruction.stations.
+    """
+
 def place_points(points: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], t_ns: Annotated[NDArray[numpy.int64], dict(shape=(None,), order='C', writable=False)], imu_t_ns: Annotated[NDArray[numpy.int64], dict(shape=(None,), order='C', writable=False)], imu_q_wxyz: Annotated[NDArray[numpy.float64], dict(shape=(None, 4), order='C', writable=False)], R_imu_lidar: Annotated[NDArray[numpy.float64], dict(shape=(3, 3), order='C', writable=False)], lever_arm: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C', writable=False)], anchor_ns: int, num_threads: int = 0) -> Annotated[NDArray[numpy.float32], dict(shape=(None, 3))]:
     """
     De-skew points into the lidar frame at anchor_ns (private: see tripod_processor.reconstruction.placement.place_points).

@@ -218,6 +218,43 @@ def _window_shifts(lidar: LidarPackets, times: np.ndarray, win: int, gap: int,
     return anchors, D, Pm
 
 
+def _ranges(p: np.ndarray) -> np.ndarray:
+    """|p| of each row of p (N, 3), rounded as ``np.linalg.norm(p, axis=1)`` rounds it
+    ((x² + y²) + z², then the root) without its reduction's overhead (~8x faster here)."""
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    return np.sqrt(x * x + y * y + z * z)
+
+
+def _beyond(p: np.ndarray, min_range: float) -> tuple[np.ndarray, np.ndarray]:
+    """(the rows of p (N, 3) farther than ``min_range`` [m], their ranges); p itself when
+    every row is (no copy)."""
+    r = _ranges(p)
+    ok = r > min_range
+    return (p, r) if ok.all() else (p[ok], r[ok])
+
+
+def matched_directions(u_ref: np.ndarray, u_q: np.ndarray, max_dist: float
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """(dist (M,), idx (M,)): each query direction's nearest reference direction strictly
+    closer than ``max_dist`` (chord length of unit vectors), exactly as
+    ``cKDTree(u_ref).query(u_q, k=1, distance_upper_bound=max_dist)`` gives them (inf /
+    ``len(u_ref)`` where none is).
+
+    A native grid search (no tree to build: ~5x faster here); where two references lie at
+    exactly the same distance from a query (dual returns can give the same direction twice) it
+    does not know which one cKDTree would keep, so the call is answered by cKDTree itself."""
+    from .. import _ext
+
+    dist, idx, ties = _ext.nearest_within(np.ascontiguousarray(u_ref, dtype=np.float64),
+                                          np.ascontiguousarray(u_q, dtype=np.float64),
+                                          float(max_dist))
+    if ties:
+        # an unbalanced tree builds ~2x faster and queries alike here
+        tree = cKDTree(u_ref, balanced_tree=False, compact_nodes=False)
+        dist, idx = tree.query(u_q, k=1, distance_upper_bound=max_dist)
+    return dist, idx
+
+
 def pivot_shift_fit(ref: np.ndarray, query: np.ndarray, max_angle_deg: float = 0.3
                     ) -> tuple[np.ndarray, np.ndarray] | None:
     """The pivot's shift d (3,) [m] between two windows and the projector P (3, 3) onto the
@@ -233,16 +270,12 @@ def pivot_shift_fit(ref: np.ndarray, query: np.ndarray, max_angle_deg: float = 0
     mismatch of δ moves an oblique surface's range by about r·δ·tan(incidence), so far points
     (a 40 m hall) are noisier by nature, not because the tripod moves.
     """
-    r_ref = np.linalg.norm(ref, axis=1)
-    r_q = np.linalg.norm(query, axis=1)
-    ok_r, ok_q = r_ref > 0.3, r_q > 0.3
-    ref, r_ref, query, r_q = ref[ok_r], r_ref[ok_r], query[ok_q], r_q[ok_q]
+    ref, r_ref = _beyond(ref, 0.3)
+    query, r_q = _beyond(query, 0.3)
     if len(ref) < 50 or len(query) < 50:
         return None
     u_q = query / r_q[:, None]
-    # exact nearest neighbours; an unbalanced tree builds ~2x faster and queries alike here
-    tree = cKDTree(ref / r_ref[:, None], balanced_tree=False, compact_nodes=False)
-    dist, idx = tree.query(u_q, k=1, distance_upper_bound=np.radians(max_angle_deg))
+    dist, idx = matched_directions(ref / r_ref[:, None], u_q, np.radians(max_angle_deg))
     hit = np.isfinite(dist)
     if hit.sum() < 50:
         return None
