@@ -258,9 +258,9 @@ def tilt_refit(source: np.ndarray, target: np.ndarray, r: PairResult,
     up = np.array([0.0, 0.0, 1.0])
     T0 = np.array(r.T_target_source, dtype=np.float64)
     T0[:3, :3] = level_rotation(T0[:3, :3], R_world_source.T @ up, R_world_target.T @ up)
-    T, _info, fit, rmse = oriented_refine(source, target, T0, cfg, num_threads, cache=cache,
-                                          keys=keys, hold_rotation=T0[:3, :3],
-                                          max_source=TILT_REFIT_MAX_SOURCE)
+    T, _info, fit, _rmse = oriented_refine(source, target, T0, cfg, num_threads, cache=cache,
+                                           keys=keys, hold_rotation=T0[:3, :3],
+                                           max_source=TILT_REFIT_MAX_SOURCE)
     if fit <= 0 or np.linalg.norm(T[:3, 3] - T0[:3, 3]) >= 0.3:
         return r
     return PairResult(T, r.fitness, r.rmse, r.information, r.ok, r.seed, r.violation, r.status)
