@@ -160,6 +160,11 @@ class OdometryConfig(StrictModel):
     #: along its axis overlaps well and is wrong)
     free_space_check: bool = True
     max_free_space_violation: float = Field(default=0.005, ge=0, le=1)
+    #: a pair of stations whose anchor tilts are fitted over their IMU samples
+    #: (``placement.anchor_fit``) is finished at the IMU's relative tilt, its translation
+    #: refitted with the rotation held (``odometry.tilt_refit``): in a small room the
+    #: fragments' range noise tilts a registration by 0.1-0.6° (the IMU's: 0.006°)
+    tilt_from_imu: bool = True
     #: a pair that respects free space is registered down to this overlap (a station round a
     #: corridor's corner shares little with the one before it)
     min_fitness_free_space: float = Field(default=0.15, ge=0, le=1)
@@ -186,8 +191,20 @@ class SlamConfig(StrictModel):
     #: an edge agrees with a start when within this [m] and [deg] of it
     consensus_m: float = Field(default=0.3, gt=0)
     consensus_deg: float = Field(default=3.0, gt=0)
-    #: tilt sigma of the IMU's gravity priors [deg]
+    #: tilt sigma of the IMU's gravity priors [deg] (a station whose anchor attitude is one
+    #: slerped IMU sample: 0.05° of white noise per axis)
     gravity_sigma_deg: float = Field(default=0.1, gt=0)
+    #: ... of a station whose anchor tilt is fitted over all of its IMU samples
+    #: (``placement.anchor_fit``: ``Fragment.anchor`` "fit" or "fit, pan slerped") [deg]: 0.006°
+    #: RMS off the truth on dev seed 126's eight stations, where the registrations' tilts were
+    #: 0.1-0.6° off (``slam.tilt_free_information``); 0: ``gravity_sigma_deg`` for every station
+    gravity_sigma_fitted_deg: float = Field(default=0.01, ge=0)
+    #: an edge between two stations with fitted anchors carries no tilt: its information's two
+    #: tilt directions (about the world's horizontal axes) are marginalised out, so the
+    #: stations' tilts come from the IMU and the registrations give yaw and position only (in a
+    #: small room the fragments' range noise tilts a registration by 0.1-0.6°, which the capped
+    #: information claimed at 0.03°); off: every edge's full information
+    tilt_from_imu: bool = True
 
 
 class OutputConfig(StrictModel):

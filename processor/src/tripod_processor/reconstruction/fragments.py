@@ -42,6 +42,12 @@ class Fragment:
     anchor: str = "slerped"
 
     @property
+    def tilt_fitted(self) -> bool:
+        """Was the anchor's tilt averaged over the station's IMU samples (not one slerped
+        sample)? The pan angle may still be slerped ("fit, pan slerped")."""
+        return self.anchor in ("fit", "fit, pan slerped")
+
+    @property
     def up_in_lidar(self) -> np.ndarray:
         """The world's +z seen in the fragment's frame (the gravity prior)."""
         return self.R_world_lidar.T @ np.array([0.0, 0.0, 1.0])

@@ -119,10 +119,12 @@ def build_fragments(engine, lidar: LidarPackets, stations: list[Station], orient
 def _register_run(pairs: list[tuple], cfg: OdometryConfig, num_threads: int,
                   *points: np.ndarray) -> list[PairResult]:
     """Register a run of pairs in one task, one cache: ``pairs`` are (source, target,
-    R_world_source, R_world_target, T_guess) with source and target positions in ``points``."""
+    R_world_source, R_world_target, T_guess, tilt_known) with source and target positions in
+    ``points``."""
     cache = CloudCache(cfg.point_sigma_m, num_threads)
     return [register_fragments(points[s], points[t], R_s, R_t, cfg, num_threads, T_guess=g,
-                               cache=cache, keys=(s, t)) for s, t, R_s, R_t, g in pairs]
+                               cache=cache, keys=(s, t), tilt_known=tk)
+            for s, t, R_s, R_t, g, tk in pairs]
 
 
 def register_pairs(engine, frags: list[Fragment], pairs: list[tuple[int, int]],
@@ -143,7 +145,8 @@ def register_pairs(engine, frags: list[Fragment], pairs: list[tuple[int, int]],
         def one(j: int, i: int, g) -> PairResult:
             return register_fragments(frags[j].points, frags[i].points, frags[j].R_world_lidar,
                                       frags[i].R_world_lidar, cfg, inner, T_guess=g,
-                                      cache=cache, keys=(j, i))
+                                      cache=cache, keys=(j, i),
+                                      tilt_known=frags[j].tilt_fitted and frags[i].tilt_fitted)
 
         step = (lambda _k: progress.update(1)) if progress is not None else None
         calls = [(j, i, g) for (j, i), g in zip(pairs, guesses)]
@@ -163,7 +166,8 @@ def register_pairs(engine, frags: list[Fragment], pairs: list[tuple[int, int]],
         for k in run:
             j, i = pairs[k]
             s, t = order.setdefault(j, len(order)), order.setdefault(i, len(order))
-            items.append((s, t, frags[j].R_world_lidar, frags[i].R_world_lidar, guesses[k]))
+            items.append((s, t, frags[j].R_world_lidar, frags[i].R_world_lidar, guesses[k],
+                          frags[j].tilt_fitted and frags[i].tilt_fitted))
         calls.append((items, cfg, num_threads, *(engine.put(frags[f].points) for f in order)))
     step = (lambda k: progress.update(len(runs[k]))) if progress is not None else None
     results = engine.map(_register_run, calls, step)
