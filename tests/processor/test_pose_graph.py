@@ -9,19 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from tripod_processor.registration import pose_graph as pg
 
-
-def _T(rotvec, t):
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_rotvec(rotvec).as_matrix()
-    T[:3, 3] = t
-    return T
-
-
-def _inv(T):
-    out = np.eye(4)
-    out[:3, :3] = T[:3, :3].T
-    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
-    return out
+from poses import T_from as _T, inv as _inv
 
 
 def _perturb(T, rng, sigma_t, sigma_r):

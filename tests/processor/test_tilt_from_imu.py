@@ -19,19 +19,7 @@ from tripod_processor.reconstruction.slam import (optimize_graph, station_graph,
                                                   tilt_free_information)
 from tripod_processor.reconstruction.stations import Station
 
-
-def _T(rotvec, t):
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_rotvec(rotvec).as_matrix()
-    T[:3, 3] = t
-    return T
-
-
-def _inv(T):
-    out = np.eye(4)
-    out[:3, :3] = T[:3, :3].T
-    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
-    return out
+from poses import T_from as _T, inv as _inv
 
 
 def _room(n=8, seed=0):
