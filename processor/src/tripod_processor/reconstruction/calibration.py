@@ -151,28 +151,23 @@ def _sweep(lidar: LidarPackets, orient: ImuOrientation, ext: Extrinsic, start_ns
                         num_threads).astype(np.float64)
 
 
-def calibrate_mount(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
-                    num_threads: int = 0, step_s: float = 0.3, window_s: float = 0.1,
-                    max_pairs: int = 16, pair_turn_deg: float = 45.0,
-                    guess: Extrinsic | None = None) -> tuple[Extrinsic, dict]:
-    """The lidar's mount on the IMU (R_imu_lidar, lever arm) from the data (hand-eye).
+def _turn_pairs(lidar: LidarPackets, st: Station, orient: ImuOrientation, R_guess: np.ndarray,
+                num_threads: int, step_s: float, window_s: float, max_pairs: int,
+                pair_turn_deg: float) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """One station's sweep pairs for hand-eye: (A_list, B_list), A the lidar's motion between
+    two short windows (registration, lidar frame, 4x4), B the IMU's relative rotation (IMU
+    frame, 3x3); sweeps de-skewed by the IMU with the mount ``R_guess`` and no lever arm.
 
-    While the head turns at a station, the lidar's motion between two short windows, measured by
-    registering them (A, lidar frame), and the IMU's (B, IMU frame) are one rigid motion seen in
-    two frames: the rotation axes satisfy a = R_lidar_imu·b, and the lidar's translation
-    t_A = R_lidar_imu·(B − I)·ℓ for the lever arm ℓ (pivot → lidar, IMU frame). Rotation: Kabsch
-    on the axis pairs, or the shortest rotation taking b onto a when every turn is about one axis
-    (a pan). What a single axis leaves open — a turn about the pan axis, a shift along it — does
-    not change the fragments (see the reconstruction README), so it is set to zero.
-    Returns (Extrinsic with source "calibrated", diagnostics).
-    """
+    Pairs turned by ``pair_turn_deg`` (a rotation's axis is the better measured the bigger
+    the turn; a near-vertical spin axis sees little of floor and ceiling, and only the axis
+    tells its tilt), spread over the station, the IMU's turn as the registration's start;
+    where big turns share too little view (a mount on its side), smaller ones, then
+    consecutive windows."""
     from scipy.spatial.transform import Rotation
 
-    st = most_turning_station(stations, orient)
     t0 = st.start_ns
     win = int(window_s * 1e9)
     times = np.arange(t0, st.end_ns - win, int(step_s * 1e9), dtype=np.int64)
-    R_guess = np.eye(3) if guess is None else guess.R_imu_lidar
     ext_g = Extrinsic(R_guess, np.zeros(3), "guess")
     R_w = orient.rotation_at(times + win // 2)
     clouds: dict[int, np.ndarray] = {}
@@ -217,11 +212,6 @@ def calibrate_mount(lidar: LidarPackets, stations: list[Station], orient: ImuOri
             B_list.append(B)
         return A_list, B_list
 
-    # pairs turned by ``pair_turn_deg`` (a rotation's axis is the better measured the bigger
-    # the turn; a near-vertical spin axis sees little of floor and ceiling, and only the axis
-    # tells its tilt), spread over the station, the IMU's turn as the registration's start;
-    # where big turns share too little view (a mount on its side), smaller ones, then
-    # consecutive windows
     A_list, B_list = [], []
     for min_deg in (pair_turn_deg, pair_turn_deg / 2, 0.0):
         pairs = pairs_turned(min_deg)
@@ -231,6 +221,31 @@ def calibrate_mount(lidar: LidarPackets, stations: list[Station], orient: ImuOri
             more = measure([p for p in pairs if p not in probe])
             A_list, B_list = A_list + more[0], B_list + more[1]
             break
+    return A_list, B_list
+
+
+def calibrate_mount(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
+                    num_threads: int = 0, step_s: float = 0.3, window_s: float = 0.1,
+                    max_pairs: int = 16, pair_turn_deg: float = 45.0,
+                    guess: Extrinsic | None = None) -> tuple[Extrinsic, dict]:
+    """The lidar's mount on the IMU (R_imu_lidar, lever arm) from the data (hand-eye).
+
+    While the head turns at a station, the lidar's motion between two short windows, measured by
+    registering them (A, lidar frame), and the IMU's (B, IMU frame) are one rigid motion seen in
+    two frames: the rotation axes satisfy a = R_lidar_imu·b, and the lidar's translation
+    t_A = R_lidar_imu·(B − I)·ℓ for the lever arm ℓ (pivot → lidar, IMU frame). Rotation: Kabsch
+    on the axis pairs, or the shortest rotation taking b onto a when every turn is about one axis
+    (a pan). What a single axis leaves open — a turn about the pan axis, a shift along it — does
+    not change the fragments (see the reconstruction README), so it is set to zero.
+    Pairs: :func:`_turn_pairs` on the station the head turns most in.
+    Returns (Extrinsic with source "calibrated", diagnostics).
+    """
+    from scipy.spatial.transform import Rotation
+
+    st = most_turning_station(stations, orient)
+    R_guess = np.eye(3) if guess is None else guess.R_imu_lidar
+    A_list, B_list = _turn_pairs(lidar, st, orient, R_guess, num_threads, step_s, window_s,
+                                 max_pairs, pair_turn_deg)
     if len(A_list) < 3:
         raise ValueError("too few usable turns to calibrate the lidar mount from the data")
     a = np.array([_rotvec(A[:3, :3]) for A in A_list])
@@ -262,6 +277,87 @@ def calibrate_mount(lidar: LidarPackets, stations: list[Station], orient: ImuOri
         "station": st.index, "pairs": len(A_list), "axis_singular_values": S.tolist(),
         "rotation_residual_deg_median": float(np.median(resid)),
         "tilt_sigma_deg": _axis_tilt_sigma_deg(a, b, R_li)}
+
+
+@dataclass
+class TurnLeverArm:
+    """The lever arm across the pan axis from the head's turns at several stations
+    (:func:`lever_arm_from_turns`).
+
+    lever_arm_m : (3,) [m] pivot → lidar, IMU frame (its component along the pan axis is the
+    given extrinsic's); cov_m2 : (2, 2) [m²] covariance of the two components across the pan
+    axis in ``basis_imu`` ((3, 2)); pairs : sweep pairs used; stations : their count."""
+
+    lever_arm_m: np.ndarray
+    cov_m2: np.ndarray
+    basis_imu: np.ndarray
+    pairs: int
+    stations: int
+
+    def sigma_along_m(self, u: np.ndarray) -> float:
+        """1-sigma [m] along the unit direction ``u`` (IMU frame, across the pan axis)."""
+        c = self.basis_imu.T @ u
+        return float(np.sqrt(max(c @ self.cov_m2 @ c, 0.0)))
+
+
+def lever_arm_from_turns(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
+                         ext: Extrinsic, num_threads: int = 0, *, max_stations: int = 8,
+                         step_s: float = 0.3, window_s: float = 0.1, max_pairs: int = 16,
+                         pair_turn_deg: float = 45.0) -> TurnLeverArm | None:
+    """Hand-eye's lever arm (:func:`calibrate_mount`: (B − I)·ℓ = R_il·t_A per sweep pair) with
+    the mount ``ext.R_imu_lidar`` held and the pairs of up to ``max_stations`` stations (those
+    the head turns most in) pooled; only the two components across the pan axis are solved.
+
+    One station's 16 pairs left it 25–130 mm off across the pan axis on a lidar on its side
+    (dev seeds 87, 205: 0.1-s sweeps of a scan fan standing on edge register loosely along the
+    spin axis), and the stations' surfaces cannot correct the component along the spin axis
+    (it moves scan planes along themselves): there the start is the result. Pairs are
+    Huber-weighted (1.345 MAD sigma); the covariance is the residuals' scatter, at least the
+    stations' cluster-robust (sandwich) one (a station's pairs share its surfaces and its
+    scan pattern). None when fewer than 6 pairs register."""
+    use = _pick_stations(stations, orient, max_stations)
+    b = pan_axis_in_imu(orient, use)
+    U = _perp_basis(b)
+    R_il = ext.R_imu_lidar
+    ell_along = b * float(b @ ext.lever_arm_m)
+    Ms, ys, gid = [], [], []
+    for q, st in enumerate(use):
+        A_list, B_list = _turn_pairs(lidar, st, orient, R_il, num_threads, step_s, window_s,
+                                     max_pairs, pair_turn_deg)
+        for A, B in zip(A_list, B_list):
+            Mk = (B - np.eye(3))
+            Ms.append(Mk @ U)
+            ys.append(R_il @ A[:3, 3] - Mk @ ell_along)
+            gid.append(q)
+    if len(Ms) < 6:
+        return None
+    X = np.concatenate(Ms)  # (3n, 2)
+    y = np.concatenate(ys)  # (3n,)
+    g = np.repeat(np.asarray(gid), 3)
+    wgt = np.ones(len(y))
+    c = np.zeros(2)
+    for _ in range(5):  # IRLS, Huber
+        XW = X * wgt[:, None]
+        H = XW.T @ X
+        if np.linalg.cond(H) > 1e10:
+            return None
+        c = np.linalg.solve(H, XW.T @ y)
+        e = y - X @ c
+        sc = 1.4826 * float(np.median(np.abs(e))) + 1e-4
+        wgt = np.minimum(1.0, 1.345 * sc / np.maximum(np.abs(e), 1e-12))
+    XW = X * wgt[:, None]
+    H = XW.T @ X
+    Hi = np.linalg.inv(H)
+    e = y - X @ c
+    dof = max(len(y) - 2, 1)
+    cov = Hi * float(np.sum(wgt * e**2) / dof)
+    groups = np.unique(g)
+    if len(groups) >= 3:
+        S = np.array([XW[g == q].T @ e[g == q] for q in groups])
+        V = Hi @ (S.T @ S) @ Hi * len(groups) / (len(groups) - 1)
+        if np.trace(V) > np.trace(cov):
+            cov = V
+    return TurnLeverArm(ell_along + U @ c, cov, U, len(Ms), len(groups))
 
 
 def _axis_tilt_sigma_deg(a: np.ndarray, b: np.ndarray, R_li: np.ndarray) -> float:

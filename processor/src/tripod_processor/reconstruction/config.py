@@ -87,6 +87,18 @@ class CalibrationConfig(StrictModel):
     #: a lidar's spin axis at least this far from the pan axis [deg] gets a warning that the
     #: lever arm along the spin axis is weakly observable (seen only at vertical edges)
     side_mount_warn_deg: float = Field(default=50.0, ge=0, le=90)
+    #: on a lidar at least ``side_mount_warn_deg`` from the pan axis, the lever-arm fit starts
+    #: from hand-eye's lever arm over the turns of several stations
+    #: (``calibration.lever_arm_from_turns``) instead of one station's: the surfaces cannot
+    #: move its component along the spin axis, so the start is the result there (dev seed 87:
+    #: one station 148 mm off, eight pooled 14 mm)
+    lever_from_turns: bool = True
+    #: ... its stations (those turned most) and sweep pairs a station
+    lever_turn_stations: int = Field(default=8, ge=1)
+    lever_turn_pairs: int = Field(default=32, ge=3)
+    #: ... used when its larger 1-sigma across the pan axis is below this [mm] (else one
+    #: station's, as before)
+    lever_turn_max_sigma_mm: float = Field(default=15.0, gt=0)
     #: a mount tilt that ``max_stations`` stations' surfaces do not pin down (sigma over 0.05°:
     #: a spin axis near the pan axis in a small room) is fitted again on up to this many stations
     max_tilt_stations: int = Field(default=8, ge=1)
