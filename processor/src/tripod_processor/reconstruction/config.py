@@ -89,9 +89,9 @@ class CalibrationConfig(StrictModel):
     side_mount_warn_deg: float = Field(default=50.0, ge=0, le=90)
     #: on a lidar at least ``side_mount_warn_deg`` from the pan axis, the lever-arm fit starts
     #: from hand-eye's lever arm over the turns of several stations
-    #: (``calibration.lever_arm_from_turns``) instead of one station's: the surfaces cannot
-    #: move its component along the spin axis, so the start is the result there (dev seed 87:
-    #: one station 148 mm off, eight pooled 14 mm)
+    #: (``calibration.lever_arm_from_turns``) instead of one station's: the surfaces hardly
+    #: move its component along the spin axis, and a start far off in the scan plane they
+    #: close only part way (dev seed 87: one station's 148 mm off, three pooled 11 mm)
     lever_from_turns: bool = True
     #: ... its stations (those turned most) and sweep pairs a station
     lever_turn_stations: int = Field(default=8, ge=1)
@@ -99,6 +99,10 @@ class CalibrationConfig(StrictModel):
     #: ... used when its larger 1-sigma across the pan axis is below this [mm] (else one
     #: station's, as before)
     lever_turn_max_sigma_mm: float = Field(default=15.0, gt=0)
+    #: ... and then its component along the spin axis joins the surfaces' by inverse variance,
+    #: the surfaces' sigma there times this (they see it only at vertical edges: 1-8 sigma off
+    #: on seven dev rigs, the turns' 0.2-1.6 sigma)
+    lever_spin_sigma_inflation: float = Field(default=3.0, gt=0)
     #: a mount tilt that ``max_stations`` stations' surfaces do not pin down (sigma over 0.05°:
     #: a spin axis near the pan axis in a small room) is fitted again on up to this many stations
     max_tilt_stations: int = Field(default=8, ge=1)
