@@ -93,10 +93,9 @@ class CalibrationConfig(StrictModel):
     #: move its component along the spin axis, and a start far off in the scan plane they
     #: close only part way (dev seed 87: one station's 148 mm off, three pooled 11 mm)
     lever_from_turns: bool = True
-    #: ... its stations (those turned most) and sweep pairs in all (shared among them, at
-    #: least 16 a station; each pair one registration of two 0.1-s sweeps)
+    #: ... its stations (those turned most) and sweep pairs a station
     lever_turn_stations: int = Field(default=8, ge=1)
-    lever_turn_pairs: int = Field(default=96, ge=3)
+    lever_turn_pairs: int = Field(default=32, ge=3)
     #: ... used when its larger 1-sigma across the pan axis is below this [mm] (else one
     #: station's, as before)
     lever_turn_max_sigma_mm: float = Field(default=15.0, gt=0)

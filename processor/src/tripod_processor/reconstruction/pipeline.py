@@ -480,10 +480,9 @@ def _lever_start_from_turns(rec, seg, orient, ext, cfg, notes):
     tilt = float(np.degrees(np.arccos(min(1.0, abs(float(b @ ext.R_imu_lidar[:, 2]))))))
     if tilt < cc.side_mount_warn_deg:
         return ext, None
-    n_st = min(cc.lever_turn_stations, len(seg.stations))
     lt = lever_arm_from_turns(rec.lidar, seg.stations, orient, ext, cfg.num_threads,
                               max_stations=cc.lever_turn_stations,
-                              max_pairs=max(16, -(-cc.lever_turn_pairs // max(n_st, 1))))
+                              max_pairs=cc.lever_turn_pairs)
     if lt is None:
         return ext, None
     sig_mm = 1000 * float(np.sqrt(np.max(np.linalg.eigvalsh(lt.cov_m2))))
