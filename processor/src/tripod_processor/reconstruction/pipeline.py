@@ -471,8 +471,9 @@ def _lever_start_from_turns(rec, seg, orient, ext, cfg, notes):
     ``calibration.side_mount_warn_deg`` from the pan axis, hand-eye's over several stations'
     turns (:func:`calibration.lever_arm_from_turns`, the mount held) when its sigma is below
     ``lever_turn_max_sigma_mm``; else ``ext`` as it is (one station's hand-eye lever arm).
-    On such a mount the surfaces cannot move the component along the spin axis (it shifts scan
-    planes along themselves), so the start is the result there."""
+    On such a mount the surfaces hardly move the component along the spin axis (it shifts scan
+    planes along themselves) and close a start far off in the scan plane only part way, so the
+    start is most of the result (dev seed 87: one station's 148 mm off, the fit's 94 mm)."""
     from .calibration import lever_arm_from_turns, pan_axis_in_imu
 
     cc = cfg.calibration
