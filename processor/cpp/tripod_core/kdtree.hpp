@@ -18,6 +18,7 @@
 #include <limits>
 #include <map>
 #include <numeric>
+#include <stdexcept>
 #include <vector>
 
 #include "tripod_core/parallel_chunks.hpp"
@@ -133,6 +134,11 @@ public:
             if (d < best) {
                 best = d;
                 idx = hint;
+                // closer than half the hint's separation: every other point is farther
+                if (!separation_sq_.empty() && hint_is_nearest(d, separation_sq_[pos])) {
+                    if (sq_dist) *sq_dist = d;
+                    return idx;
+                }
             }
             node = leaf_node_[pos];
             while (node != 0 && !ball_inside(node, q, best)) node = parent_[node];
@@ -140,6 +146,28 @@ public:
         if (!nodes_.empty() && box_dist(node, q) < best) nn_box(node, q, idx, best);
         if (sq_dist) *sq_dist = best;
         return idx;
+    }
+
+    /// Give the tree each stored point's squared distance to its nearest other stored point,
+    /// by tree position (`sq_by_position`: size() values; 0 where unknown, +inf for a lone
+    /// point), e.g. from a k-NN pass the caller makes anyway. nearest_from() then answers a
+    /// hint without a search when the query lies closer to it than half that distance
+    /// (hint_is_nearest()): no other point can be as near, so the answer is the search's, bit
+    /// for bit. Empty: no shortcut.
+    void set_separation(std::vector<float> sq_by_position) {
+        if (!sq_by_position.empty() && sq_by_position.size() != order_.size())
+            throw std::invalid_argument("set_separation: one value per stored point");
+        separation_sq_ = std::move(sq_by_position);
+    }
+    const std::vector<float>& separation() const { return separation_sq_; }
+
+    /// Whether a point at squared distance `d` [as sq() computes it] from a stored point whose
+    /// nearest other stored point lies at squared distance `sep` has that stored point as its
+    /// one nearest: 2 sqrt(d) < sqrt(sep), with a relative margin of 1e-4 on d^2 far above
+    /// the float rounding of both sq() values (a few 1e-7), so that every other point's sq()
+    /// is strictly greater than d (triangle inequality: |q - p_k| >= sqrt(sep) - sqrt(d)).
+    static bool hint_is_nearest(float d, float sep) {
+        return 4.0 * (1.0 + 1e-4) * static_cast<double>(d) < static_cast<double>(sep);
     }
 
     /// The caller's row stored at tree position `pos`, and its coordinates (Dim floats).
@@ -555,6 +583,7 @@ private:
     std::vector<float> cells_;    // per node: its cell (the box its splits bound), lo then hi
     std::vector<int> parent_;     // per node (-1: the root)
     std::vector<int> leaf_node_;  // tree position -> its leaf node
+    std::vector<float> separation_sq_;  // tree position -> sq. distance to the nearest other
 };
 
 }  // namespace tripod

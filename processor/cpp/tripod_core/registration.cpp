@@ -388,13 +388,20 @@ void estimate_gicp_geometry(PreparedCloud& pc, int k, const Eigen::Vector3d& vie
     const int64_t num_chunks = (num_groups + kGroupsPerChunk - 1) / kGroupsPerChunk;
     const int nt = detail::resolve_threads(num_threads);
     std::vector<KdTree<3>::KnnScratch> scratches(std::clamp(nt, 1, 64));
+    // each point's squared distance to its nearest other point, by tree position, from the
+    // same k-NN (KdTree::set_separation: warm-started correspondence searches skip the tree)
+    std::vector<float> separation(n, 0.f);  // 0: unknown (no shortcut)
     auto body = [&](int64_t chunk, int t) {
         KdTree<3>::KnnScratch& scratch = scratches[t];
         for (int64_t g = chunk * kGroupsPerChunk,
                      g_end = std::min(num_groups, (chunk + 1) * kGroupsPerChunk);
              g < g_end; ++g) {
             tree.knn_range(k, groups[g], groups[g + 1], scratch,
-                           [&](int64_t pos, const int* nbr, const float*, int m) {
+                           [&](int64_t pos, const int* nbr, const float* sq_dist, int m) {
+                float sep = std::numeric_limits<float>::infinity();
+                for (int j = 0; j < m; ++j)
+                    if (nbr[j] != pos) sep = std::min(sep, sq_dist[j]);
+                separation[pos] = sep;
                 const int64_t i = tree.row_at(pos);
                 pc.covariances[i] = iso;  // isotropic unless a plane is found
                 if (m < 3) return;
@@ -432,6 +439,7 @@ void estimate_gicp_geometry(PreparedCloud& pc, int k, const Eigen::Vector3d& vie
         }
     };
     detail::parallel_chunks(nt, num_chunks, body, "geometry");
+    pc.tree->set_separation(std::move(separation));
     pc.cov_scale = s2;
     pc.cov_plane = 1 - kEps;
 }
