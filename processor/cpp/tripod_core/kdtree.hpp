@@ -134,10 +134,14 @@ public:
             if (d < best) {
                 best = d;
                 idx = hint;
-                // closer than half the hint's separation: every other point is farther
-                if (!separation_sq_.empty() && hint_is_nearest(d, separation_sq_[pos])) {
-                    if (sq_dist) *sq_dist = d;
-                    return idx;
+                // the hint's neighbour list, when the query is close enough to the hint for
+                // the nearest to be on it (the search's answer, bit for bit; see set_hints)
+                if (!hint_reach_sq_.empty()) {
+                    const int found = nearest_on_list(q, pos, d, idx, best);
+                    if (found != kUndecided) {
+                        if (sq_dist) *sq_dist = best;
+                        return found;
+                    }
                 }
             }
             node = leaf_node_[pos];
@@ -148,26 +152,37 @@ public:
         return idx;
     }
 
-    /// Give the tree each stored point's squared distance to its nearest other stored point,
-    /// by tree position (`sq_by_position`: size() values; 0 where unknown, +inf for a lone
-    /// point), e.g. from a k-NN pass the caller makes anyway. nearest_from() then answers a
-    /// hint without a search when the query lies closer to it than half that distance
-    /// (hint_is_nearest()): no other point can be as near, so the answer is the search's, bit
-    /// for bit. Empty: no shortcut.
-    void set_separation(std::vector<float> sq_by_position) {
-        if (!sq_by_position.empty() && sq_by_position.size() != order_.size())
-            throw std::invalid_argument("set_separation: one value per stored point");
-        separation_sq_ = std::move(sq_by_position);
-    }
-    const std::vector<float>& separation() const { return separation_sq_; }
+    /// Others on a stored point's hint list (set_hints()).
+    static constexpr int kHintList = 7;
 
-    /// Whether a point at squared distance `d` [as sq() computes it] from a stored point whose
-    /// nearest other stored point lies at squared distance `sep` has that stored point as its
-    /// one nearest: 2 sqrt(d) < sqrt(sep), with a relative margin of 1e-4 on d^2 far above
-    /// the float rounding of both sq() values (a few 1e-7), so that every other point's sq()
-    /// is strictly greater than d (triangle inequality: |q - p_k| >= sqrt(sep) - sqrt(d)).
-    static bool hint_is_nearest(float d, float sep) {
-        return 4.0 * (1.0 + 1e-4) * static_cast<double>(d) < static_cast<double>(sep);
+    /// Give the tree each stored point's nearest other stored points, by tree position, e.g.
+    /// from a k-NN pass the caller makes anyway: `list` holds kHintList tree positions per
+    /// position (ascending distance, -1 after the last when there are fewer), `first_sq` per
+    /// position a squared distance no other point is nearer than (the first listed one's),
+    /// `reach_sq` one no unlisted point is nearer than (+inf when every other point is
+    /// listed; 0 for either: unknown). nearest_from() then answers without the tree when the query lies
+    /// closer to its hint than half the reach: the nearest is then the hint or on its list
+    /// (triangle inequality), and the list's strictly nearest, or the hint when none is
+    /// nearer, is the search's answer bit for bit; an exact tie on the list goes to the
+    /// search, which breaks it as before. Empty vectors: no lists.
+    void set_hints(std::vector<int> list, std::vector<float> first_sq,
+                   std::vector<float> reach_sq) {
+        if (!(list.empty() && first_sq.empty() && reach_sq.empty()) &&
+            (reach_sq.size() != order_.size() || first_sq.size() != order_.size() ||
+             list.size() != order_.size() * kHintList))
+            throw std::invalid_argument("set_hints: kHintList positions and two values per point");
+        hint_list_ = std::move(list);
+        hint_first_sq_ = std::move(first_sq);
+        hint_reach_sq_ = std::move(reach_sq);
+    }
+    bool has_hints() const { return !hint_reach_sq_.empty(); }
+
+    /// Whether every point farther than sqrt(`reach`) from a stored point p is farther from q
+    /// than p is, when q lies at squared distance `d` from p (both as sq() computes them):
+    /// 2 sqrt(d) < sqrt(reach), with a relative margin of 1e-4 on the squares, far above the
+    /// float rounding of the sq() values (a few 1e-7): those points' sq() to q then exceeds d.
+    static bool within_half(float d, float reach) {
+        return 4.0 * (1.0 + 1e-4) * static_cast<double>(d) < static_cast<double>(reach);
     }
 
     /// The caller's row stored at tree position `pos`, and its coordinates (Dim floats).
@@ -583,7 +598,35 @@ private:
     std::vector<float> cells_;    // per node: its cell (the box its splits bound), lo then hi
     std::vector<int> parent_;     // per node (-1: the root)
     std::vector<int> leaf_node_;  // tree position -> its leaf node
-    std::vector<float> separation_sq_;  // tree position -> sq. distance to the nearest other
+    /// nearest_from() by the hint's list (hint at tree position `pos`, sq() `d` from q, below
+    /// the search's bound): the answer's row (`best` its sq()), or kUndecided when the list
+    /// cannot decide (q too far from the hint for the list to cover, or a tie on the list).
+    static constexpr int kUndecided = -2;
+    int nearest_on_list(const float* q, int pos, float d, int hint, float& best) const {
+        if (within_half(d, hint_first_sq_[pos])) return hint;  // nearer than any other point
+        if (!within_half(d, hint_reach_sq_[pos])) return kUndecided;
+        const int* list = hint_list_.data() + static_cast<size_t>(pos) * kHintList;
+        float m = d;
+        int arg = -1, ties = 0;
+        for (int j = 0; j < kHintList && list[j] >= 0; ++j) {
+            const float dj = sq(q, point_at(list[j]));
+            if (dj < m) {
+                m = dj;
+                arg = list[j];
+                ties = 0;
+            } else if (dj == m && arg >= 0) {
+                ++ties;
+            }
+        }
+        if (arg < 0) return hint;  // none strictly nearer: the hint, as the search keeps it
+        if (ties > 0) return kUndecided;
+        best = m;
+        return static_cast<int>(order_[arg]);
+    }
+
+    std::vector<int> hint_list_;        // tree position -> kHintList tree positions (-1: none)
+    std::vector<float> hint_reach_sq_;  // tree position -> no unlisted point nearer [sq()]
+    std::vector<float> hint_first_sq_;  // tree position -> sq() to the first listed point
 };
 
 }  // namespace tripod
