@@ -101,6 +101,36 @@ TEST(NearestHint, ListsGiveTheSearchesAnswerBitForBit) {
     }
 }
 
+TEST(NearestHint, GuessedGivesTheUnhintedSearchesAnswerBitForBit) {
+    const PointsXYZ pts = cloud_with_ties();
+    Neighborhood nb;
+    nb.k_neighbors = 12;
+    const auto pc = prepare_cloud(pts, nb, Eigen::Vector3d(3, 2, 1.3), 0.005, 2);
+    const KdTree<3> ref(pc->points.data(), pc->points.rows(), 20, 1);  // no lists
+    std::mt19937 rng(9);
+    std::uniform_int_distribution<int> pick(0, static_cast<int>(pts.rows()) - 1);
+    int64_t checked = 0, found = 0;
+    for (float step : {0.002f, 0.01f, 0.05f}) {
+        const std::vector<Query> qs = queries(pc->points, step, 12000);
+        for (size_t k = 0; k < qs.size(); ++k) {
+            // guesses: the query's own row, the previous query's row, a random row, none
+            const int guesses[4] = {qs[k].hint, k ? qs[k - 1].hint : -1, pick(rng), -1};
+            for (int g : guesses)
+                for (float max_sq : {0.0004f, 1.0f, std::numeric_limits<float>::infinity()}) {
+                    float d_new = -1, d_ref = -1;
+                    const int j_new = pc->tree->nearest_guessed(qs[k].q.data(), max_sq, g, &d_new);
+                    const int j_ref = ref.nearest_from(qs[k].q.data(), max_sq, -1, &d_ref);
+                    ASSERT_EQ(j_new, j_ref) << "step " << step << " guess " << g;
+                    ASSERT_EQ(std::memcmp(&d_new, &d_ref, sizeof d_new), 0);
+                    ++checked;
+                    found += j_new >= 0;
+                }
+        }
+    }
+    EXPECT_GT(checked, 100000);
+    EXPECT_GT(found, checked / 3);
+}
+
 TEST(NearestHint, ListsAreUsed) {
     // a wrong list (every point's only "neighbour" row 0, nothing unlisted nearer than 100 m)
     // must change the answers: the shortcut is taken, not just the search
@@ -119,6 +149,14 @@ TEST(NearestHint, ListsAreUsed) {
                   ref.nearest_from(q.data(), 1e30f, hint, nullptr);
     }
     EXPECT_GT(differ, 100);
+    int guessed_differ = 0;  // the guess's list too
+    for (Eigen::Index i = 1; i < pts.rows(); i += 7) {
+        const Eigen::Vector3f q = pts.row(i).transpose();
+        const int guess = static_cast<int>((i * 37) % pts.rows());
+        guessed_differ += tree.nearest_guessed(q.data(), 1e30f, guess, nullptr) !=
+                          ref.nearest_from(q.data(), 1e30f, -1, nullptr);
+    }
+    EXPECT_GT(guessed_differ, 100);
 }
 
 TEST(NearestHint, BadListsThrow) {

@@ -153,7 +153,7 @@ public:
     }
 
     /// Others on a stored point's hint list (set_hints()).
-    static constexpr int kHintList = 7;
+    static constexpr int kHintList = 11;
 
     /// Give the tree each stored point's nearest other stored points, by tree position, e.g.
     /// from a k-NN pass the caller makes anyway: `list` holds kHintList tree positions per
@@ -183,6 +183,44 @@ public:
     /// float rounding of the sq() values (a few 1e-7): those points' sq() to q then exceeds d.
     static bool within_half(float d, float reach) {
         return 4.0 * (1.0 + 1e-4) * static_cast<double>(d) < static_cast<double>(reach);
+    }
+
+    /// nearest_from(q, max_sq_dist, -1, sq_dist), the search without a hint, bit for bit, tried
+    /// first on the hint list of `guess` (a row likely near q, e.g. a neighbouring query's
+    /// answer; -1: none): when q is close enough to the guess for the nearest to be the guess
+    /// or on its list (set_hints()) and that nearest is unique, it is the search's answer
+    /// whatever order the search visits; a tie (the guess included) goes to the search.
+    int nearest_guessed(const float* q, float max_sq_dist, int guess, float* sq_dist) const {
+        if (guess >= 0 && !hint_reach_sq_.empty()) {
+            const int pos = pos_[guess];
+            const float d = sq(q, point_at(pos));
+            int arg = -1;
+            float m = d;
+            if (within_half(d, hint_first_sq_[pos])) {
+                arg = pos;  // nearer than any other point
+            } else if (within_half(d, hint_reach_sq_[pos])) {
+                const int* list = hint_list_.data() + static_cast<size_t>(pos) * kHintList;
+                int ties = 0;
+                arg = pos;
+                for (int j = 0; j < kHintList && list[j] >= 0; ++j) {
+                    const float dj = sq(q, point_at(list[j]));
+                    if (dj < m) {
+                        m = dj;
+                        arg = list[j];
+                        ties = 0;
+                    } else if (dj == m) {
+                        ++ties;
+                    }
+                }
+                if (ties > 0) arg = -1;
+            }
+            if (arg >= 0) {  // the unique nearest: the answer when within the bound, else none
+                const bool in = m < max_sq_dist;
+                if (sq_dist) *sq_dist = in ? m : max_sq_dist;
+                return in ? static_cast<int>(order_[arg]) : -1;
+            }
+        }
+        return nearest_from(q, max_sq_dist, -1, sq_dist);
     }
 
     /// The caller's row stored at tree position `pos`, and its coordinates (Dim floats).
