@@ -6,6 +6,8 @@
 // surfaces, and a node's cell is mostly empty space) and its cell (the box its splits bound):
 // a warm-started nearest-neighbour query climbs from the hint's leaf only to the first cell that
 // holds its ball (ICP's later iterations, where points barely move, scan a leaf or two).
+// With hint lists (each point's nearest others, set_hints(), from prepare_cloud()'s k-NN) most
+// warm-started queries are answered from the hint's list alone, with the search's answer.
 #pragma once
 
 #include <omp.h>
@@ -160,10 +162,10 @@ public:
     /// position (ascending distance, -1 after the last when there are fewer), `first_sq` per
     /// position a squared distance no other point is nearer than (the first listed one's),
     /// `reach_sq` one no unlisted point is nearer than (+inf when every other point is
-    /// listed; 0 for either: unknown). nearest_from() then answers without the tree when the query lies
-    /// closer to its hint than half the reach: the nearest is then the hint or on its list
-    /// (triangle inequality), and the list's strictly nearest, or the hint when none is
-    /// nearer, is the search's answer bit for bit; an exact tie on the list goes to the
+    /// listed; 0 for either: unknown). nearest_from() then answers without the tree when the
+    /// query lies closer to its hint than half the reach: the nearest is then the hint or on
+    /// its list (triangle inequality), and the list's strictly nearest, or the hint when none
+    /// is nearer, is the search's answer bit for bit; an exact tie on the list goes to the
     /// search, which breaks it as before. Empty vectors: no lists.
     void set_hints(std::vector<int> list, std::vector<float> first_sq,
                    std::vector<float> reach_sq) {
