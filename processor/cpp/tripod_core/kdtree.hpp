@@ -6,6 +6,8 @@
 // surfaces, and a node's cell is mostly empty space) and its cell (the box its splits bound):
 // a warm-started nearest-neighbour query climbs from the hint's leaf only to the first cell that
 // holds its ball (ICP's later iterations, where points barely move, scan a leaf or two).
+// With hint lists (each point's nearest others, set_hints(), from prepare_cloud()'s k-NN) most
+// warm-started queries are answered from the hint's list alone, with the search's answer.
 #pragma once
 
 #include <omp.h>
@@ -18,6 +20,7 @@
 #include <limits>
 #include <map>
 #include <numeric>
+#include <stdexcept>
 #include <vector>
 
 #include "tripod_core/parallel_chunks.hpp"
@@ -133,6 +136,15 @@ public:
             if (d < best) {
                 best = d;
                 idx = hint;
+                // the hint's neighbour list, when the query is close enough to the hint for
+                // the nearest to be on it (the search's answer, bit for bit; see set_hints)
+                if (!hint_reach_sq_.empty()) {
+                    const int found = nearest_on_list(q, pos, d, idx, best);
+                    if (found != kUndecided) {
+                        if (sq_dist) *sq_dist = best;
+                        return found;
+                    }
+                }
             }
             node = leaf_node_[pos];
             while (node != 0 && !ball_inside(node, q, best)) node = parent_[node];
@@ -140,6 +152,77 @@ public:
         if (!nodes_.empty() && box_dist(node, q) < best) nn_box(node, q, idx, best);
         if (sq_dist) *sq_dist = best;
         return idx;
+    }
+
+    /// Others on a stored point's hint list (set_hints()).
+    static constexpr int kHintList = 11;
+
+    /// Give the tree each stored point's nearest other stored points, by tree position, e.g.
+    /// from a k-NN pass the caller makes anyway: `list` holds kHintList tree positions per
+    /// position (ascending distance, -1 after the last when there are fewer), `first_sq` per
+    /// position a squared distance no other point is nearer than (the first listed one's),
+    /// `reach_sq` one no unlisted point is nearer than (+inf when every other point is
+    /// listed; 0 for either: unknown). nearest_from() then answers without the tree when the
+    /// query lies closer to its hint than half the reach: the nearest is then the hint or on
+    /// its list (triangle inequality), and the list's strictly nearest, or the hint when none
+    /// is nearer, is the search's answer bit for bit; an exact tie on the list goes to the
+    /// search, which breaks it as before. Empty vectors: no lists.
+    void set_hints(std::vector<int> list, std::vector<float> first_sq,
+                   std::vector<float> reach_sq) {
+        if (!(list.empty() && first_sq.empty() && reach_sq.empty()) &&
+            (reach_sq.size() != order_.size() || first_sq.size() != order_.size() ||
+             list.size() != order_.size() * kHintList))
+            throw std::invalid_argument("set_hints: kHintList positions and two values per point");
+        hint_list_ = std::move(list);
+        hint_first_sq_ = std::move(first_sq);
+        hint_reach_sq_ = std::move(reach_sq);
+    }
+    bool has_hints() const { return !hint_reach_sq_.empty(); }
+
+    /// Whether every point farther than sqrt(`reach`) from a stored point p is farther from q
+    /// than p is, when q lies at squared distance `d` from p (both as sq() computes them):
+    /// 2 sqrt(d) < sqrt(reach), with a relative margin of 1e-4 on the squares, far above the
+    /// float rounding of the sq() values (a few 1e-7): those points' sq() to q then exceeds d.
+    static bool within_half(float d, float reach) {
+        return 4.0 * (1.0 + 1e-4) * static_cast<double>(d) < static_cast<double>(reach);
+    }
+
+    /// nearest_from(q, max_sq_dist, -1, sq_dist), the search without a hint, bit for bit, tried
+    /// first on the hint list of `guess` (a row likely near q, e.g. a neighbouring query's
+    /// answer; -1: none): when q is close enough to the guess for the nearest to be the guess
+    /// or on its list (set_hints()) and that nearest is unique, it is the search's answer
+    /// whatever order the search visits; a tie (the guess included) goes to the search.
+    int nearest_guessed(const float* q, float max_sq_dist, int guess, float* sq_dist) const {
+        if (guess >= 0 && !hint_reach_sq_.empty()) {
+            const int pos = pos_[guess];
+            const float d = sq(q, point_at(pos));
+            int arg = -1;
+            float m = d;
+            if (within_half(d, hint_first_sq_[pos])) {
+                arg = pos;  // nearer than any other point
+            } else if (within_half(d, hint_reach_sq_[pos])) {
+                const int* list = hint_list_.data() + static_cast<size_t>(pos) * kHintList;
+                int ties = 0;
+                arg = pos;
+                for (int j = 0; j < kHintList && list[j] >= 0; ++j) {
+                    const float dj = sq(q, point_at(list[j]));
+                    if (dj < m) {
+                        m = dj;
+                        arg = list[j];
+                        ties = 0;
+                    } else if (dj == m) {
+                        ++ties;
+                    }
+                }
+                if (ties > 0) arg = -1;
+            }
+            if (arg >= 0) {  // the unique nearest: the answer when within the bound, else none
+                const bool in = m < max_sq_dist;
+                if (sq_dist) *sq_dist = in ? m : max_sq_dist;
+                return in ? static_cast<int>(order_[arg]) : -1;
+            }
+        }
+        return nearest_from(q, max_sq_dist, -1, sq_dist);
     }
 
     /// The caller's row stored at tree position `pos`, and its coordinates (Dim floats).
@@ -555,6 +638,35 @@ private:
     std::vector<float> cells_;    // per node: its cell (the box its splits bound), lo then hi
     std::vector<int> parent_;     // per node (-1: the root)
     std::vector<int> leaf_node_;  // tree position -> its leaf node
+    /// nearest_from() by the hint's list (hint at tree position `pos`, sq() `d` from q, below
+    /// the search's bound): the answer's row (`best` its sq()), or kUndecided when the list
+    /// cannot decide (q too far from the hint for the list to cover, or a tie on the list).
+    static constexpr int kUndecided = -2;
+    int nearest_on_list(const float* q, int pos, float d, int hint, float& best) const {
+        if (within_half(d, hint_first_sq_[pos])) return hint;  // nearer than any other point
+        if (!within_half(d, hint_reach_sq_[pos])) return kUndecided;
+        const int* list = hint_list_.data() + static_cast<size_t>(pos) * kHintList;
+        float m = d;
+        int arg = -1, ties = 0;
+        for (int j = 0; j < kHintList && list[j] >= 0; ++j) {
+            const float dj = sq(q, point_at(list[j]));
+            if (dj < m) {
+                m = dj;
+                arg = list[j];
+                ties = 0;
+            } else if (dj == m && arg >= 0) {
+                ++ties;
+            }
+        }
+        if (arg < 0) return hint;  // none strictly nearer: the hint, as the search keeps it
+        if (ties > 0) return kUndecided;
+        best = m;
+        return static_cast<int>(order_[arg]);
+    }
+
+    std::vector<int> hint_list_;        // tree position -> kHintList tree positions (-1: none)
+    std::vector<float> hint_reach_sq_;  // tree position -> no unlisted point nearer [sq()]
+    std::vector<float> hint_first_sq_;  // tree position -> sq() to the first listed point
 };
 
 }  // namespace tripod

@@ -15,6 +15,7 @@
 #include <Eigen/SVD>
 #include <cmath>
 #include <cstdlib>
+#include <cstring>
 #include <limits>
 #include <memory>
 #include <optional>
@@ -388,13 +389,47 @@ void estimate_gicp_geometry(PreparedCloud& pc, int k, const Eigen::Vector3d& vie
     const int64_t num_chunks = (num_groups + kGroupsPerChunk - 1) / kGroupsPerChunk;
     const int nt = detail::resolve_threads(num_threads);
     std::vector<KdTree<3>::KnnScratch> scratches(std::clamp(nt, 1, 64));
+    // each point's nearest others, by tree position, from the same k-NN (KdTree::set_hints:
+    // warm-started correspondence searches mostly skip the tree)
+    constexpr int kList = KdTree<3>::kHintList;
+    std::vector<int> hint_list(static_cast<size_t>(n) * kList, -1);
+    std::vector<float> hint_reach(n, 0.f), hint_first(n, 0.f);  // 0: no shortcut
     auto body = [&](int64_t chunk, int t) {
         KdTree<3>::KnnScratch& scratch = scratches[t];
         for (int64_t g = chunk * kGroupsPerChunk,
                      g_end = std::min(num_groups, (chunk + 1) * kGroupsPerChunk);
              g < g_end; ++g) {
             tree.knn_range(k, groups[g], groups[g + 1], scratch,
-                           [&](int64_t pos, const int* nbr, const float*, int m) {
+                           [&](int64_t pos, const int* nbr, const float* sq_dist, int m) {
+                {
+                    // the kList nearest others, ascending (insertion into a short sorted list;
+                    // ties keep the k-NN's order, itself deterministic)
+                    float ld[kList];
+                    int lp[kList];
+                    int take = 0, others = 0;
+                    for (int j = 0; j < m; ++j) {
+                        if (nbr[j] == pos) continue;
+                        ++others;
+                        const float dj = sq_dist[j];
+                        if (take == kList && !(dj < ld[kList - 1])) continue;
+                        int at = take < kList ? take++ : kList - 1;
+                        while (at > 0 && dj < ld[at - 1]) {
+                            ld[at] = ld[at - 1];
+                            lp[at] = lp[at - 1];
+                            --at;
+                        }
+                        ld[at] = dj;
+                        lp[at] = nbr[j];
+                    }
+                    int* out = hint_list.data() + static_cast<size_t>(pos) * kList;
+                    std::copy(lp, lp + take, out);
+                    // unlisted points lie no nearer than the last listed one: the k-NN is
+                    // exact (KdTree::knn_range); when it holds the whole cloud, none is unlisted
+                    const bool all = take == others && m == tree.size();
+                    hint_reach[pos] = all ? std::numeric_limits<float>::infinity()
+                                          : (take > 0 ? ld[take - 1] : 0.f);
+                    hint_first[pos] = take > 0 ? ld[0] : hint_reach[pos];
+                }
                 const int64_t i = tree.row_at(pos);
                 pc.covariances[i] = iso;  // isotropic unless a plane is found
                 if (m < 3) return;
@@ -432,6 +467,7 @@ void estimate_gicp_geometry(PreparedCloud& pc, int k, const Eigen::Vector3d& vie
         }
     };
     detail::parallel_chunks(nt, num_chunks, body, "geometry");
+    pc.tree->set_hints(std::move(hint_list), std::move(hint_first), std::move(hint_reach));
     pc.cov_scale = s2;
     pc.cov_plane = 1 - kEps;
 }

@@ -378,12 +378,15 @@ void associate(const Problem& P, const Eigen::Isometry3d& T, double max_sq_dist,
     const int64_t m = static_cast<int64_t>(P.rows.size());
     constexpr int64_t kChunk = 128;
     parallel_chunks(P.num_threads, (m + kChunk - 1) / kChunk, [&](int64_t chunk) {
+        int guess = -1;  // as in linearize_model: the chunk's previous match
         for (int64_t k = chunk * kChunk, end = std::min(m, k + kChunk); k < end; ++k) {
             const int64_t i = P.rows[k];
             const Eigen::Vector3f p = R * P.src.points.row(i).transpose() + t;
             float d;
-            corr[i] = P.tgt.tree->nearest_from(p.data(), static_cast<float>(max_sq_dist),
-                                               corr[i], &d);
+            const float max_sq = static_cast<float>(max_sq_dist);
+            corr[i] = corr[i] >= 0 ? P.tgt.tree->nearest_from(p.data(), max_sq, corr[i], &d)
+                                   : P.tgt.tree->nearest_guessed(p.data(), max_sq, guess, &d);
+            if (corr[i] >= 0) guess = corr[i];
         }
     }, "associate");
 }
