@@ -102,8 +102,9 @@ def test_lever_arm_of_a_lidar_on_its_side(side_room):
 def test_spin_axis_lever_arm_from_several_stations_turns(side_room):
     """The lever arm's component along the spin axis, which the surfaces see only at vertical
     edges: their fit drifts there, its sigma small (here 17 mm off at sigma 2 mm, from
-    hand-eye's start 3 mm off), so on a lidar on its side the fit starts from hand-eye over
-    every station's turns and that component joins the turns' by inverse variance
+    hand-eye's start 3 mm off, until hand-eye's mount stopped summing a reversed pair against
+    the others: now 2.1 mm, the turns' 2.9 mm), so on a lidar on its side the fit starts from
+    hand-eye over every station's turns and that component joins the turns' by inverse variance
     (``calibration.lever_from_turns``): within 6 mm and 2 of its sigmas. As ``reconstruct``
     has it where the mount's tilt is held at hand-eye's (time offset known here)."""
     from types import SimpleNamespace
@@ -138,6 +139,8 @@ def test_spin_axis_lever_arm_from_several_stations_turns(side_room):
     assert any("stations' turns" in n for n in notes), notes
     assert err_w < 0.006 and err_w < 2 * sig_w, out
     assert err_s < 0.006, out
-    # the surfaces' own estimate along the spin axis: more than 3 of its sigmas off
-    old_w, old_sig, _, _ = out[False]
-    assert old_w > 3 * old_sig and old_w > err_w + 0.005, out
+    # the surfaces' own estimate along the spin axis: 16.6 mm off at sigma 2.2 mm while
+    # hand-eye's mount summed a reversed pair against the others (i12-hall3,
+    # test_mount_reversal.py); with that fixed they are within 6 mm here too
+    old_w = out[False][0]
+    assert old_w < 0.006, out
