@@ -111,6 +111,7 @@ class CalibrationConfig(StrictModel):
     #: 135 mm off; continued: 10 mm). Not lower: from a near start the split fit can drift (dev
     #: seed 383, moved 31 mm: 5 -> 21 mm off if continued); 0: off
     lever_refit_move_mm: float = Field(default=40.0, ge=0)
+    #: ... the continuation's split-residual iterations (each a Gauss-Newton step)
     lever_refit_split_iterations: int = Field(default=4, ge=1)
     #: ... then this many of the usual ones (all points' planes)
     lever_refit_usual_iterations: int = Field(default=8, ge=0)
