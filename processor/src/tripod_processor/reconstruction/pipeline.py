@@ -510,7 +510,9 @@ def _refit_far_lever(rec, seg, orient, ext, cfg, cal, fit_time, fit_rot, prior, 
     73°, 19.1-cm lever from a zero start: 135 mm off; its turns' lever was too uncertain and
     hand-eye's one-station lever 2 m off). The split residuals (a voxel's later points to its
     earlier points' plane) see the whole gap; run from the start they misplaced a hall's station
-    (dev seed 8399), so only here, from a result the usual fit has already brought near."""
+    (dev seed 8399), so only here, from a result the usual fit has already brought near. The
+    continuation is kept only when it moved the lever arm more than ``lever_refit_keep_mm``
+    further: from a converged result the split fit drifts a few mm instead (dev seed 245)."""
     from scipy.spatial.transform import Rotation
 
     from .calibration import self_calibrate
@@ -537,9 +539,14 @@ def _refit_far_lever(rec, seg, orient, ext, cfg, cal, fit_time, fit_rot, prior, 
     except ValueError:
         return cal
     d2 = more.lever_arm_m - cal.lever_arm_m
+    further_mm = 1000 * float(np.linalg.norm(d2 - b * (b @ d2)))
+    keep = further_mm > cc.lever_refit_keep_mm
     notes.append(f"lever-arm fit moved {moved_mm:.0f} mm from its start (lidar spin axis "
                  f"{tilt:.0f}° from the pan axis): continued with {k} split-residual "
-                 f"iterations, {1000 * float(np.linalg.norm(d2 - b * (b @ d2))):.0f} mm further")
+                 f"iterations, {further_mm:.0f} mm further: "
+                 + ("kept" if keep else "the first kept (it had converged)"))
+    if not keep:
+        return cal
     more.rotation_change_deg = float(np.degrees(Rotation.from_matrix(
         ext.R_imu_lidar.T @ more.R_imu_lidar).magnitude()))
     return more
