@@ -144,3 +144,39 @@ def test_spin_axis_lever_arm_from_several_stations_turns(side_room):
     # test_mount_reversal.py); with that fixed they are within 6 mm here too
     old_w = out[False][0]
     assert old_w < 0.006, out
+
+
+def test_far_lever_start_continued_with_split_residuals(side_room):
+    """A lever-arm fit that starts far off (zero, 18 cm from the truth; no turns' start) and
+    ends far from its start: the all-points planes close it only part way (dev seed 455 in a
+    hall: 135 mm off), so ``reconstruct`` continues it with split residuals
+    (``calibration.lever_refit_move_mm``): across the pan axis within 6 mm, where the fit
+    alone stays over 20 mm off. Mount and time offset known (as the test above)."""
+    from types import SimpleNamespace
+
+    from scipy.spatial.transform import Rotation
+
+    from tripod_processor.reconstruction import pipeline
+    from tripod_processor.reconstruction.config import ReconstructConfig
+
+    cap, truth, rec, orient = side_room
+    q = truth["q_imu_lidar_wxyz"]
+    R = Rotation.from_quat([q[1], q[2], q[3], q[0]]).as_matrix()
+    b = np.asarray(truth["pan_axis_imu"])
+    o = orient.with_offset(ev.true_time_offset_ns(cap, rec))
+    seg = SimpleNamespace(stations=true_stations(rec, truth))
+    out = {}
+    for move_mm in (0.0, 40.0):
+        cfg = ReconstructConfig()
+        cfg.num_threads = 2
+        cfg.calibration.lever_from_turns = False
+        cfg.calibration.lever_refit_move_mm = move_mm
+        notes: list[str] = []
+        ext, _, _ = pipeline._self_calibrate(rec, seg, o, Extrinsic(R, np.zeros(3), "t"), cfg,
+                                             True, False, False, notes)
+        d = ext.lever_arm_m - np.asarray(truth["lever_arm_imu_m"])
+        out[move_mm] = (float(np.linalg.norm(d - b * (b @ d))), notes)
+    assert not any("split-residual" in n for n in out[0.0][1]), out
+    assert out[0.0][0] > 0.020, out  # the premise: the usual fit alone closes it part way
+    assert any("split-residual" in n for n in out[40.0][1]), out
+    assert out[40.0][0] < 0.006, out

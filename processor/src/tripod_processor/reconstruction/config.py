@@ -103,6 +103,23 @@ class CalibrationConfig(StrictModel):
     #: the surfaces' sigma there times this (they see it only at vertical edges: 1-8 sigma off
     #: on seven dev rigs, the turns' 0.2-1.6 sigma)
     lever_spin_sigma_inflation: float = Field(default=3.0, gt=0)
+    #: on a lidar at least ``side_mount_warn_deg`` from the pan axis, a lever-arm fit (without
+    #: split residuals) whose result is more than this [mm] across the pan axis from its start is
+    #: continued from that result with ``lever_refit_split_iterations`` split-residual
+    #: iterations: the all-points planes close a start far off in the scan plane only part way
+    #: (dev seed 455, a 33 x 23 m hall, 73°, 19-cm lever started from 0: moved 54 mm, ended
+    #: 135 mm off; continued: 10 mm). Not lower: from a near start the split fit can drift (dev
+    #: seed 383, moved 31 mm: 5 -> 21 mm off if continued); 0: off
+    lever_refit_move_mm: float = Field(default=40.0, ge=0)
+    #: ... the continuation's split-residual iterations (each a Gauss-Newton step)
+    lever_refit_split_iterations: int = Field(default=4, ge=1)
+    #: ... then this many of the usual ones (all points' planes)
+    lever_refit_usual_iterations: int = Field(default=8, ge=0)
+    #: ... and the continuation replaces the first fit only when it moved the lever arm more
+    #: than this [mm] further across the pan axis (the first had stopped part way: 455 135 mm,
+    #: the side-room test 64 mm); a smaller move means the first had converged and the split fit
+    #: drifted from it (dev seed 245: 2.9 -> 7.3 mm off, ATE 0.55 -> 1.06 cm; 383 16 mm further)
+    lever_refit_keep_mm: float = Field(default=30.0, ge=0)
     #: a mount tilt that ``max_stations`` stations' surfaces do not pin down (sigma over 0.05°:
     #: a spin axis near the pan axis in a small room) is fitted again on up to this many stations
     max_tilt_stations: int = Field(default=8, ge=1)

@@ -400,6 +400,9 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
         notes.append(f"self-calibration failed ({exc}): the lever arm and time offset stay at "
                      "their priors")
         return ext, orient, None
+    if fit_lever and split == 0:
+        cal = _refit_far_lever(rec, seg, orient, ext, cfg, cal, fit_time_surf, fit_rot, prior,
+                               notes)
     if turn_lever is not None:
         _spin_axis_lever_from_turns(cal, turn_lever, cc.lever_spin_sigma_inflation)
     if fit_lever:
@@ -494,6 +497,59 @@ def _lever_start_from_turns(rec, seg, orient, ext, cfg, notes):
     notes.append(f"lever-arm fit started from {lt.stations} stations' turns ({lt.pairs} sweep "
                  f"pairs, σ {sig_mm:.1f} mm; lidar spin axis {tilt:.0f}° from the pan axis)")
     return Extrinsic(ext.R_imu_lidar, lt.lever_arm_m, ext.source), lt
+
+
+def _refit_far_lever(rec, seg, orient, ext, cfg, cal, fit_time, fit_rot, prior, notes):
+    """``cal``, or the lever-arm fit continued from it with split residuals
+    (``calibration.lever_refit_split_iterations``) when the lidar is on its side (at least
+    ``side_mount_warn_deg`` from the pan axis) and ``cal``'s lever arm ended more than
+    ``lever_refit_move_mm`` across the pan axis from its start (``ext``'s).
+
+    The all-points planes sit between a surface and its double and take up part of the gap, so
+    a start far off in the scan plane is closed only part way (dev seed 455, 33 x 23 m hall,
+    73°, 19.1-cm lever from a zero start: 135 mm off; its turns' lever was too uncertain and
+    hand-eye's one-station lever 2 m off). The split residuals (a voxel's later points to its
+    earlier points' plane) see the whole gap; run from the start they misplaced a hall's station
+    (dev seed 8399), so only here, from a result the usual fit has already brought near. The
+    continuation is kept only when it moved the lever arm more than ``lever_refit_keep_mm``
+    further: from a converged result the split fit drifts a few mm instead (dev seed 245)."""
+    from scipy.spatial.transform import Rotation
+
+    from .calibration import self_calibrate
+
+    cc = cfg.calibration
+    if cc.lever_refit_move_mm <= 0:
+        return cal
+    b = cal.pan_axis_imu
+    R = cal.R_imu_lidar if fit_rot else ext.R_imu_lidar
+    tilt = float(np.degrees(np.arccos(min(1.0, abs(float(b @ R[:, 2]))))))
+    d = cal.lever_arm_m - ext.lever_arm_m
+    moved_mm = 1000 * float(np.linalg.norm(d - b * (b @ d)))
+    if tilt < cc.side_mount_warn_deg or not moved_mm > cc.lever_refit_move_mm:
+        return cal
+    k = cc.lever_refit_split_iterations
+    start = Extrinsic(R, cal.lever_arm_m.copy(), ext.source)
+    o = orient.with_offset(cal.time_offset_ns) if fit_time else orient
+    try:
+        more = self_calibrate(rec.lidar, seg.stations, o, start, fit_lever=True,
+                              fit_time=fit_time, fit_rotation=fit_rot,
+                              max_stations=cc.max_stations, num_threads=cfg.num_threads,
+                              split_iterations=k, iterations=k + cc.lever_refit_usual_iterations,
+                              **prior)
+    except ValueError:
+        return cal
+    d2 = more.lever_arm_m - cal.lever_arm_m
+    further_mm = 1000 * float(np.linalg.norm(d2 - b * (b @ d2)))
+    keep = further_mm > cc.lever_refit_keep_mm
+    notes.append(f"lever-arm fit moved {moved_mm:.0f} mm from its start (lidar spin axis "
+                 f"{tilt:.0f}° from the pan axis): continued with {k} split-residual "
+                 f"iterations, {further_mm:.0f} mm further: "
+                 + ("kept" if keep else "the first kept (it had converged)"))
+    if not keep:
+        return cal
+    more.rotation_change_deg = float(np.degrees(Rotation.from_matrix(
+        ext.R_imu_lidar.T @ more.R_imu_lidar).magnitude()))
+    return more
 
 
 def _spin_axis_lever_from_turns(cal, lt, inflation: float) -> None:
