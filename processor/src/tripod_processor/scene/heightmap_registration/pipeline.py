@@ -279,10 +279,7 @@ def _plane_height_contradicted(S, Tg, ls, lt, T, margin_m: float = 0.10
     else:
         top = lt.height - margin_m
         Ps, Pt = Ps[Ps[:, 2] < top], Pt[Pt[:, 2] < top]
-    return plane_height_contradicted(
-        Ps, Pt, floors=floors,
-        source_ceiling_m=ls.height if ls.ceiling_trusted else None,
-        target_ceiling_m=lt.height if lt.ceiling_trusted else None)
+    return plane_height_contradicted(Ps, Pt)
 
 
 #: turns about the vertical that give the twins of an answer (a rectangle's 180 deg, a square's
