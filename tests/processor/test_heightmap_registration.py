@@ -403,3 +403,41 @@ def test_height_evidence_finds_a_slide_and_rejects_a_flat_histogram():
     ps, _, pt, _, T_true = _no_floor_pair(42, 10, band=True)
     e = height_evidence(ps @ T_true[:3, :3].T + T_true[:3, 3], pt)
     assert not e.observable, e
+
+
+def test_a_table_top_taken_for_the_floor_is_no_observed_height():
+    """Two gravity-levelled scans of a furnished room: the target sees its floor, the source (a
+    vertical lidar's band sees little near the floor) nothing below a level patch 18 cm up that
+    is labelled floor, so both "floors" are trusted and fix the height 18 cm off. The horizontal
+    patches both scans saw above the floors (desk and cabinet tops) contradict it: the height is
+    reported unobservable and ``success`` is false (it was ``success = true``, 18 cm off, as a
+    vertical rig's pair of reconstruct's fragments came back 23 cm off on a fresh split); with
+    the true floor in the source the pair stays right and trusted."""
+    from tripod_processor.sim.rooms import free_station, make_room
+
+    seed = 43
+    ps, ls_, pt, lt_, T_true = _no_floor_pair(seed, 30, band=False)
+    rng = np.random.default_rng(seed)  # the stations of _no_floor_pair: floor at -z in each frame
+    st_t, st_s = free_station(make_room(seed, kind="box"), rng), free_station(
+        make_room(seed, kind="box"), rng)
+    rng = np.random.default_rng(5)
+
+    def floor_patch(z, side, n):  # a level patch labelled floor, 3 mm noise
+        u = rng.uniform(-side / 2, side / 2, (n, 2))
+        return np.c_[u, z + rng.normal(0, 0.003, n)].astype(np.float32), np.ones(n, int)
+
+    fp, fl = floor_patch(-st_t[2], 3.0, 8000)
+    pt, lt_ = np.r_[pt, fp], np.r_[lt_, fl]
+    up = [0.0, 0.0, 1.0]
+    for lift, wrong in ((0.0, False), (0.18, True)):
+        keep = ps[:, 2] > -st_s[2] + lift - 0.08  # nothing seen below the patch
+        fp, fl = floor_patch(-st_s[2] + lift, 2.0, 6000)
+        r = hr.register_by_heightmaps(np.r_[ps[keep], fp], pt, source_labels=np.r_[ls_[keep], fl],
+                                      target_labels=lt_, source_up=up, target_up=up)
+        ang, dist = _pose_error(r.T_target_source, T_true)
+        assert ang < 1.0, ang
+        if wrong:  # the shared "floors" put it off by the patch's height: not trusted
+            assert dist > 0.1, dist
+            assert not r.height_observed and not r.success
+        else:
+            assert dist < 0.05 and r.height_observed and r.success, (dist, r.success)

@@ -13,6 +13,14 @@ a real surface seen by both gives a peak (2 cm window), a scan without such surf
 histogram. The height is *observable* when the peak holds enough votes and stands well above
 the flat level and any other peak 5 cm or more away; otherwise it is reported unobservable (the
 registration's ``success`` is then false: its height is a guess).
+
+A height that shared planes gave (both floors, else both ceilings: :func:`.pipeline._level_height`)
+is checked against an independent measure of it (:func:`plane_height_contradicted`): the
+horizontal patches at the final pose, less the planes that gave it. A gravity-levelled scan
+that saw no floor (a vertical lidar's band) can take a level table or bed top with nothing seen
+below it for a trusted floor, and its pair then slides by that surface's height with
+``success`` true; when the patches say the height is off by more than
+:data:`MAX_HEIGHT_DISAGREEMENT_M` the height is reported unobservable instead.
 """
 
 from __future__ import annotations
@@ -20,6 +28,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+#: [m] most the height from shared floors (or ceilings) may differ from the horizontal patches'
+#: peak before it is not trusted: the success limit of the heightmap pairs (5 cm); the true
+#: floors and ceilings of the dev vertical pairs agreed within ~3 cm (their planes' medians)
+MAX_HEIGHT_DISAGREEMENT_M = 0.05
 
 #: votes within 0.5 m, 1 cm bins; the peak is the best 5-bin (+/- 2 cm) window
 _RANGE_M, _BIN_M, _HALF_WINDOW = 0.5, 0.01, 2
@@ -111,3 +124,19 @@ def height_evidence(source_level: np.ndarray, target_level: np.ndarray, min_vote
     ok = peak >= min_votes and ratio >= min_ratio and runner <= max_runner_up
     return HeightEvidence(float(dz[sel].mean()) if ok else 0.0, peak, len(dz), float(ratio),
                           runner, bool(ok))
+
+
+def plane_height_contradicted(source_level: np.ndarray, target_level: np.ndarray, *,
+                              max_disagreement_m: float = MAX_HEIGHT_DISAGREEMENT_M
+                              ) -> tuple[bool, str]:
+    """Whether the height a registered pair took from shared planes (floors or ceilings) is
+    contradicted, both clouds in the target's level frame (+z up, the source placed by the
+    registration), the planes that gave the height left out: the horizontal patches both scans
+    saw give an observable correction (:func:`height_evidence`) larger than
+    ``max_disagreement_m``. (The ceilings' difference on shared floors is no such measure: a
+    procedural open plan's two trusted ceilings differed by 1.49 m at the true pose on dev seed
+    302.) Returns (contradicted, why)."""
+    ev = height_evidence(source_level, target_level)
+    if ev.observable and abs(ev.dz) > max_disagreement_m:
+        return True, f"horizontal patches say {ev.dz * 100:.1f} cm"
+    return False, ""

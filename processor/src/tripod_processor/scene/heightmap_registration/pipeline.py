@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .correlation import _search
-from .height import height_evidence
+from .height import height_evidence, plane_height_contradicted
 from .features import (_footprint_mask, _ij_to_xy, _log_hu, hu_moments, match_binary, match_nearest,
                        orb_keypoints, plan_image, rigid_2d_ransac, shape_blobs)
 from .levelling import level_scan
@@ -43,7 +43,9 @@ class HeightmapMatch:
     height_observed : the relative height is fixed by the data: both floors or both ceilings,
         or (neither shared, both scans levelled by gravity) the horizontal patches both scans
         saw (:func:`.height.height_evidence`); False: the height is a guess (a vertical lidar's
-        band of walls) and ``success`` is false
+        band of walls), or the shared planes' height is contradicted by another measure of it
+        (:func:`.height.plane_height_contradicted`: a table top taken for a floor), and
+        ``success`` is false
     consistent_ratio : the best other candidate that contradicts nothing (free-space violation
         within the 1 % allowance): its fit over the answer's (such a pose is as valid an
         explanation; > ``max_consistent_ratio``: ambiguous)
@@ -226,6 +228,10 @@ def register_by_heightmaps(source, target, *, source_labels=None, target_labels=
         T, fitness, rmse, height_observed = _height_from_patches(check, S, Tg, lt, T, fitness,
                                                                  rmse)
         stages["height"] = time.perf_counter() - t1
+    elif check.level is not None:  # the shared planes' height, checked against other measures
+        t1 = time.perf_counter()
+        height_observed = not _plane_height_contradicted(S, Tg, ls, lt, T)[0]
+        stages["height"] = time.perf_counter() - t1
     sfit = check.structure_fitness(T)
     viol = check.free_space_violation(T)
     ok = (sfit >= min_fitness and viol <= max_violation and ambiguity <= max_ambiguity
@@ -255,6 +261,25 @@ def _height_from_patches(check, S, Tg, lt, T, fitness, rmse, redo_m: float = 0.0
         T2, f2, r2 = check.final(T1)
         return (T2, f2, r2, True) if np.isfinite(f2) else (T1, fitness, rmse, True)
     return T, fitness, rmse, True
+
+
+def _plane_height_contradicted(S, Tg, ls, lt, T, margin_m: float = 0.10
+                                ) -> tuple[bool, str]:
+    """:func:`.height.plane_height_contradicted` of the pose ``T`` whose height shared floors
+    (or ceilings) gave (:func:`_level_height`), in the target's level frame, the points within
+    ``margin_m`` [m] of the planes that gave it left out."""
+    L = lt.T_level_scan
+    M = L @ T
+    floors = ls.floor_trusted and lt.floor_trusted
+    Ps, Pt = S @ M[:3, :3].T + M[:3, 3], Tg @ L[:3, :3].T + L[:3, 3]
+    # the planes that gave the height are left out (a table top taken for the floor lies on the
+    # other's floor at this pose): above the floors, else below the target's ceiling, 10 cm
+    if floors:
+        Ps, Pt = Ps[Ps[:, 2] > margin_m], Pt[Pt[:, 2] > margin_m]
+    else:
+        top = lt.height - margin_m
+        Ps, Pt = Ps[Ps[:, 2] < top], Pt[Pt[:, 2] < top]
+    return plane_height_contradicted(Ps, Pt)
 
 
 #: turns about the vertical that give the twins of an answer (a rectangle's 180 deg, a square's
