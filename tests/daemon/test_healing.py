@@ -87,8 +87,8 @@ def test_stalled_lidar_and_imu_are_flagged_and_cleared(tmp_path):
         with RunningDaemon(cfg) as d:
             assert d.wait_for(lambda: set(d.daemon.health) == {"lidar_stalled", "imu_stalled"},
                               timeout=10)
-            # the status is published on the tick after the check that raised the flags: wait
-            # for it rather than read it between the two
+            # the status is published right after the check that raised the flags, on the
+            # daemon's thread: wait for it rather than read it between the two
             assert d.wait_for(lambda: b"lidar stalled: no data for" in d.daemon.status_json()
                               and b"IMU stalled" in d.daemon.status_json(), timeout=5)
             assert "IMU stalled" in d.daemon._status_line()

@@ -427,9 +427,10 @@ class Daemon:
         now_mono = time.monotonic()
         if self.zenoh_error and now_mono >= self._zenoh_retry_mono:
             self._open_publisher()
-        health_before = dict(self.health)
+        problems_before = set(self.health)
         self._check_health(now_mono)
-        force = force or self.health != health_before  # a problem raised or cleared shows at once
+        # a problem raised or cleared shows at once (not a stall's growing seconds: the interval)
+        force = force or set(self.health) != problems_before
         if force or now_mono - self._last_status_mono >= self.cfg.status.interval_s * 0.95:
             self._last_status_mono = now_mono
             self._publish_status()
