@@ -422,6 +422,18 @@ def _perp_basis(b: np.ndarray) -> np.ndarray:
     return np.stack([u, np.cross(b, u)], axis=1)
 
 
+
+def across_axis(v: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """The component of ``v`` across the unit vector ``axis`` (the pan axis: the lever arm's
+    part that the pan moves)."""
+    return v - axis * (axis @ v)
+
+
+def spin_axis_from_pan_axis_deg(pan_axis: np.ndarray, R_imu_lidar: np.ndarray) -> float:
+    """Angle [deg, 0-90] of the lidar's spin axis from the pan axis (IMU frame): 0 upright,
+    90 on its side."""
+    return float(np.degrees(np.arccos(min(1.0, abs(float(pan_axis @ R_imu_lidar[:, 2]))))))
+
 @dataclass
 class SelfCalibration:
     """Rig calibration estimated from the stations' own geometry (``self_calibrate``).
@@ -474,8 +486,8 @@ class SelfCalibration:
             return None
         b = self.pan_axis_imu
         z = self.R_imu_lidar[:, 2]
-        tilt = float(np.degrees(np.arccos(min(1.0, abs(float(b @ z))))))
-        w = z - b * (b @ z)
+        tilt = spin_axis_from_pan_axis_deg(b, self.R_imu_lidar)
+        w = across_axis(z, b)
         if np.linalg.norm(w) < 1e-6:
             return {"spin_axis_from_pan_axis_deg": tilt}
         w /= np.linalg.norm(w)
@@ -489,7 +501,7 @@ class SelfCalibration:
     def lever_arm_across_m(self) -> float:
         """Length of the lever arm across the pan axis [m]."""
         b = self.pan_axis_imu
-        return float(np.linalg.norm(self.lever_arm_m - b * (b @ self.lever_arm_m)))
+        return float(np.linalg.norm(across_axis(self.lever_arm_m, b)))
 
     def to_dict(self) -> dict:
         from scipy.spatial.transform import Rotation

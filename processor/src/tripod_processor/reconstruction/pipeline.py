@@ -477,11 +477,11 @@ def _lever_start_from_turns(rec, seg, orient, ext, cfg, notes):
     On such a mount the surfaces hardly move the component along the spin axis (it shifts scan
     planes along themselves) and close a start far off in the scan plane only part way, so the
     start is most of the result (dev seed 87: one station's 148 mm off, the fit's 94 mm)."""
-    from .calibration import lever_arm_from_turns, pan_axis_in_imu
+    from .calibration import lever_arm_from_turns, pan_axis_in_imu, spin_axis_from_pan_axis_deg
 
     cc = cfg.calibration
     b = pan_axis_in_imu(orient, seg.stations)
-    tilt = float(np.degrees(np.arccos(min(1.0, abs(float(b @ ext.R_imu_lidar[:, 2]))))))
+    tilt = spin_axis_from_pan_axis_deg(b, ext.R_imu_lidar)
     if tilt < cc.side_mount_warn_deg:
         return ext, None
     lt = lever_arm_from_turns(rec.lidar, seg.stations, orient, ext, cfg.num_threads,
@@ -515,16 +515,15 @@ def _refit_far_lever(rec, seg, orient, ext, cfg, cal, fit_time, fit_rot, prior, 
     further: from a converged result the split fit drifts a few mm instead (dev seed 245)."""
     from scipy.spatial.transform import Rotation
 
-    from .calibration import self_calibrate
+    from .calibration import across_axis, self_calibrate, spin_axis_from_pan_axis_deg
 
     cc = cfg.calibration
     if cc.lever_refit_move_mm <= 0:
         return cal
     b = cal.pan_axis_imu
     R = cal.R_imu_lidar if fit_rot else ext.R_imu_lidar
-    tilt = float(np.degrees(np.arccos(min(1.0, abs(float(b @ R[:, 2]))))))
-    d = cal.lever_arm_m - ext.lever_arm_m
-    moved_mm = 1000 * float(np.linalg.norm(d - b * (b @ d)))
+    tilt = spin_axis_from_pan_axis_deg(b, R)
+    moved_mm = 1000 * float(np.linalg.norm(across_axis(cal.lever_arm_m - ext.lever_arm_m, b)))
     if tilt < cc.side_mount_warn_deg or not moved_mm > cc.lever_refit_move_mm:
         return cal
     k = cc.lever_refit_split_iterations
@@ -538,8 +537,7 @@ def _refit_far_lever(rec, seg, orient, ext, cfg, cal, fit_time, fit_rot, prior, 
                               **prior)
     except ValueError:
         return cal
-    d2 = more.lever_arm_m - cal.lever_arm_m
-    further_mm = 1000 * float(np.linalg.norm(d2 - b * (b @ d2)))
+    further_mm = 1000 * float(np.linalg.norm(across_axis(more.lever_arm_m - cal.lever_arm_m, b)))
     keep = further_mm > cc.lever_refit_keep_mm
     notes.append(f"lever-arm fit moved {moved_mm:.0f} mm from its start (lidar spin axis "
                  f"{tilt:.0f}° from the pan axis): continued with {k} split-residual "
