@@ -509,7 +509,8 @@ def _refit_far_lever(rec, seg, orient, ext, cfg, cal, fit_time, fit_rot, prior, 
     ``lever_refit_uncertain_start``, whatever its move when ``uncertain_start`` (the start was
     not the turns' lever arm but one station's hand-eye one: the all-points planes hardly move
     the component along the spin axis, so a start far off there ends far off, dev seed 8399:
-    85 -> 83 mm; the movement gate cannot tell that from a converged fit, dev seed 383).
+    85 -> 83 mm; the movement gate cannot tell that from a converged fit, dev seed 383, whose
+    continuation the keep rule below drops).
 
     The all-points planes sit between a surface and its double and take up part of the gap, so
     a start far off in the scan plane is closed only part way (dev seed 455, 33 x 23 m hall,
