@@ -131,6 +131,8 @@ def run_one(work: str, seed: int, threads: int, sets: dict | None = None,
                    stage_wall_s={k: v for k, v in res.stage_s.items() if k != "_cpu"},
                    stage_cpu_s=dict(res.stage_s.get("_cpu", {})),
                    **calibration_errors(result, truth, _true_offset_ms(cap, res)))
+        # the lever-arm fit's own account (where a start or refit rule fired)
+        row["lever_notes"] = [n for n in res.notes if "lever-arm fit" in n or "lever arm from" in n]
     except Exception as exc:  # a crash is a result of the benchmark too: one line, counted
         row["error"] = f"{type(exc).__name__}: {exc}".splitlines()[0][:160]
         row["trace"] = traceback.format_exc(limit=3)

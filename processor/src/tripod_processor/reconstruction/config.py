@@ -122,6 +122,16 @@ class CalibrationConfig(StrictModel):
     #: mm further, 9.1 -> 26.9 mm off, ATE 1.04 -> 2.53 cm; 245 2.9 -> 7.3 mm; 383 16 mm further;
     #: 97, 98 0-1 mm; 30 until a wider dev sweep found 40)
     lever_refit_keep_mm: float = Field(default=50.0, ge=0)
+    #: ... and continued whatever its move when its start was not the turns' lever arm (their
+    #: sigma over ``lever_turn_max_sigma_mm``, none, or ``lever_from_turns`` off: one station's
+    #: hand-eye lever arm, centimetres off on such a mount). The all-points planes hardly see
+    #: the lever arm along the spin axis: on dev seed 8399 (37 x 14 m hall, 86°, 14-cm lever,
+    #: true mount and offset given) they move a start 75 mm off there 8 mm whichever side it
+    #: lies, and its first fit moved 21 mm (85 -> 83 mm off); continued, 55 mm further, kept:
+    #: 29 mm). A converged fit is kept by ``lever_refit_keep_mm`` (dev seed 383, also started
+    #: from one station: its continuation drifts 16 mm and is dropped, bit-identical). Rigs
+    #: started from the turns keep the movement gate alone; off: the movement gate alone
+    lever_refit_uncertain_start: bool = True
     #: a mount tilt that ``max_stations`` stations' surfaces do not pin down (sigma over 0.05°:
     #: a spin axis near the pan axis in a small room) is fitted again on up to this many stations
     max_tilt_stations: int = Field(default=8, ge=1)
