@@ -138,12 +138,13 @@ def _register_sweeps(src: np.ndarray, tgt: np.ndarray, init: np.ndarray, num_thr
 
 
 def _sweep(lidar: LidarPackets, orient: ImuOrientation, ext: Extrinsic, start_ns: int,
-           win_ns: int, num_threads: int) -> np.ndarray:
+           win_ns: int, num_threads: int, min_range: float = 0.5) -> np.ndarray:
     """The packets of [start_ns, start_ns + win_ns) (lidar time) de-skewed by the IMU to the
-    window's middle with ``ext``: (N, 3) float64 [m]."""
+    window's middle with ``ext``: (N, 3) float64 [m]; returns nearer than ``min_range`` [m]
+    left out."""
     a, b = np.searchsorted(lidar.lidar_ns, [start_ns, start_ns + win_ns])
     pts = decode_timed_points(lidar.payload, lidar.lidar_ns, int(a), int(b),
-                              min_range=0.5, max_range=40.0)
+                              min_range=min_range, max_range=40.0)
     xyz = np.stack([pts["x"], pts["y"], pts["z"]], 1)
     if not len(xyz):
         return xyz
@@ -884,17 +885,20 @@ class TurnTimeOffset:
     """IMU time offset from sweep-to-sweep registrations (``time_offset_from_turns``).
 
     offset_ns : int, added to the IMU's lidar-clock stamps; sigma_ms : 1-sigma [ms] (inf when
-    nothing was measured); pairs : registrations used; rate_change_deg_s : RMS change of the pan
-    rate between the two sweeps of a pair (what makes the offset visible)."""
+    nothing was measured); pairs : registrations used (stations' and carries'); rate_change_deg_s :
+    RMS change of the rotation rate between the two sweeps of a pair (what makes the offset
+    visible); carry_pairs : how many of the pairs were taken while the tripod was carried."""
 
     offset_ns: int
     sigma_ms: float
     pairs: int
     rate_change_deg_s: float
+    carry_pairs: int = 0
 
     def to_dict(self) -> dict:
         return {"imu_time_offset_ms": self.offset_ns * 1e-6, "sigma_ms": self.sigma_ms,
-                "pairs": self.pairs, "rate_change_deg_s": self.rate_change_deg_s}
+                "pairs": self.pairs, "rate_change_deg_s": self.rate_change_deg_s,
+                "carry_pairs": self.carry_pairs}
 
 
 def time_offset_from_turns(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
@@ -916,6 +920,15 @@ def time_offset_from_turns(lidar: LidarPackets, stations: list[Station], orient:
     return res
 
 
+def carry_spans(stations: list[Station], min_s: float = 1.0) -> list[tuple[int, int]]:
+    """Lidar-time spans [ns] between consecutive stations, at least ``min_s`` long: the tripod
+    is being carried (lifted, walked, turned, set down), its head turning faster and more
+    unevenly than most pans."""
+    order = sorted(stations, key=lambda s: s.start_ns)
+    return [(a.end_ns, b.start_ns) for a, b in zip(order[:-1], order[1:])
+            if b.start_ns - a.end_ns >= min_s * 1e9]
+
+
 def max_pair_turn_deg(a_lidar: np.ndarray, band_deg: float = 12.0, floor_deg: float = 20.0
                       ) -> float:
     """The largest turn [deg] about the pan axis (``a_lidar``: unit, lidar frame) at which two
@@ -931,13 +944,46 @@ def max_pair_turn_deg(a_lidar: np.ndarray, band_deg: float = 12.0, floor_deg: fl
     return float(max(floor_deg, 2.0 * np.degrees(np.arcsin(band_deg / tilt))))
 
 
+def _rotation_whitener(information: np.ndarray) -> np.ndarray:
+    """W (3, 3) with Wᵀ W = the rotation's information of a registration (its 6x6 information,
+    rotation first, with the translation marginalised out: Schur complement), the symmetric
+    square root; directions with no information get a millionth of the largest."""
+    I6 = np.asarray(information, dtype=np.float64)
+    I_rr = I6[:3, :3] - I6[:3, 3:] @ np.linalg.pinv(I6[3:, 3:]) @ I6[3:, :3]
+    ew, EV = np.linalg.eigh(0.5 * (I_rr + I_rr.T))
+    ew = np.maximum(ew, 1e-6 * max(float(ew.max()), 1e-12))
+    return (EV * np.sqrt(ew)) @ EV.T
+
+
+def _pick_pairs(dr: np.ndarray, k: np.ndarray, j: np.ndarray, n_times: int, n_pairs: int
+                ) -> list[tuple[int, int, float]]:
+    """The candidate sweep pairs (k, j) with the largest rate change ``dr`` first (ties in
+    (k, j) order), each sweep in one pair, at most ``n_pairs`` (none for 0)."""
+    if n_pairs <= 0:
+        return []
+    order = np.lexsort((j, k, -dr))
+    used = np.zeros(n_times, dtype=bool)
+    chosen = []
+    for m in order:
+        a, b = int(k[m]), int(j[m])
+        if used[a] or used[b]:
+            continue
+        chosen.append((a, b, float(dr[m])))
+        used[a] = used[b] = True
+        if len(chosen) >= n_pairs:
+            break
+    return chosen
+
+
 def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
                       ext: Extrinsic, num_threads: int = 0, *, max_stations: int = 8,
                       pairs_per_station: int = 6, step_s: float = 0.1,
                       window_s: float = 0.1, min_turn_deg: float = 3.0,
                       max_turn_deg: float | None = None, max_pair_s: float = 10.0,
-                      min_rate_change_deg_s: float = 4.0, sigma_inflation: float = 2.0
-                      ) -> TurnTimeOffset:
+                      min_rate_change_deg_s: float = 4.0, sigma_inflation: float = 2.0,
+                      carries: list[tuple[int, int]] | None = None, max_carries: int = 8,
+                      pairs_per_carry: int = 6, carry_pair_s: tuple[float, float] = (0.2, 0.5),
+                      carry_min_range_m: float = 1.5) -> TurnTimeOffset:
     """One pass of the IMU time offset from the head's turns.
 
     Two short sweeps of a station (``window_s``, de-skewed by the IMU) are registered against
@@ -954,10 +1000,23 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
     (a slow turn about the vertical that a fused attitude without magnetometer accumulates:
     0.5°/min is 0.02° over a 2-s pair, as much as a 1-ms error at 20°/s of rate change) are
     the least-squares fit of the registrations' angles about the pan axis (a mount tilt error
-    turns them about other axes), outliers trimmed. δ's sigma: from the residuals' scatter, at
-    least the stations' cluster-robust (sandwich) one (a station's pairs share its errors), times
-    ``sigma_inflation`` (on 6 development rigs the errors were 2.3 sigma RMS without it). A pan
-    at a perfectly constant rate with no ramp gives no pair (sigma inf).
+    turns them about other axes), outliers trimmed.
+
+    ``carries`` (lidar-time spans [ns] between stations, :func:`carry_spans`; up to
+    ``max_carries``, the longest): while the tripod is carried its head turns about every axis,
+    lifted, swayed and turned to the next heading, with rate changes of tens of °/s within half a
+    second — far more than a slow hand pan's few °/s, and present whatever the pan profile. Up to
+    ``pairs_per_carry`` pairs of sweeps ``carry_pair_s`` apart (close enough for the carry's
+    unknown shift to stay within the registration's reach; the rotation is all that is used)
+    join the fit with all three components of their rotation error (δ·(ω_j − ω_k) about any
+    axis; the yaw drift about the world's vertical seen in the sweep's frame). Returns nearer
+    than ``carry_min_range_m`` are left out of them (the operator carrying it, the tripod's own
+    legs). Each kind's residuals are weighed by its own robust scale.
+
+    δ's sigma: from the residuals' scatter, at least the stations' and carries' cluster-robust
+    (sandwich) one (a station's pairs share its errors), times ``sigma_inflation`` (on 6
+    development rigs the errors were 2.3 sigma RMS without it). A pan at a perfectly constant
+    rate with no ramp and no carry gives no pair (sigma inf).
     """
     from scipy.spatial.transform import Rotation
 
@@ -976,13 +1035,42 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
         T = pose_world_lidar(o, ext, np.array([tk, tj], dtype=np.int64))
         return np.linalg.inv(T[0]) @ T[1]
 
+    def register_chosen(times: np.ndarray, mids: np.ndarray, chosen, num_threads: int,
+                        min_range: float, moving: bool = False) -> list[tuple[int, int, np.ndarray, float]]:
+        """(t_k, t_j, A measured, rate change [°/s]) of the chosen pairs that registered well."""
+        meas: list[tuple[int, int, np.ndarray, float]] = []
+        clouds: dict[int, np.ndarray] = {}
+
+        def cloud(k: int) -> np.ndarray:
+            if k not in clouds:
+                clouds[k] = _sweep(lidar, orient, ext, int(times[k]), win, num_threads,
+                                   min_range)
+            return clouds[k]
+
+        for k, j, dr in chosen:
+            ck, cj = cloud(k), cloud(j)
+            if len(ck) < 500 or len(cj) < 500:
+                continue
+            init = rel(orient, int(mids[k]), int(mids[j]))
+            r = _register_sweeps(cj, ck, init, num_threads)
+            if r is None:
+                continue
+            A = r.T_target_source
+            slip = np.degrees(Rotation.from_matrix(init[:3, :3].T @ A[:3, :3]).magnitude())
+            if r.fitness < 0.5 or slip > 1.0:
+                continue
+            # a carry's rotation error is used about every axis, each as well as the
+            # registration saw it (a lidar on its side sees a fan: some turns hardly show)
+            W = _rotation_whitener(r.information) if moving else None
+            meas.append((int(mids[k]), int(mids[j]), A, float(np.degrees(dr)), W))
+        return meas
+
     def station_turns(st: Station, num_threads: int) -> list[tuple[int, int, np.ndarray, float]]:
         """One station's measurements (t_k, t_j, A measured, rate change); stations run side
         by side on threads (each registration on ``num_threads``, bit-identical on any)."""
-        meas: list[tuple[int, int, np.ndarray, float]] = []
         times = np.arange(st.start_ns, st.end_ns - win, int(step_s * 1e9), dtype=np.int64)
         if len(times) < 3:
-            return meas
+            return []
         mids = times + win // 2
         R_w = orient.rotation_at(mids)
         rate = np.einsum("ni,ni->n", _world_rate(orient, mids, 50_000_000),
@@ -999,90 +1087,120 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
             cand_k.append(np.full(int(ok.sum()), k))
             cand_j.append(j[ok])
         if not cand_dr:
-            return meas
-        dr_all = np.concatenate(cand_dr)
-        k_all = np.concatenate(cand_k)
-        j_all = np.concatenate(cand_j)
-        # largest rate change first; ties in (k, j) order, as the serial loop had them
-        order = np.lexsort((j_all, k_all, -dr_all))
-        used = np.zeros(len(times), dtype=bool)
-        chosen = []
-        for m in order:
-            k, j = int(k_all[m]), int(j_all[m])
-            if used[k] or used[j]:
-                continue
-            chosen.append((k, j, float(dr_all[m])))
-            used[k] = used[j] = True
-            if len(chosen) >= pairs_per_station:
-                break
-        clouds: dict[int, np.ndarray] = {}
+            return []
+        chosen = _pick_pairs(np.concatenate(cand_dr), np.concatenate(cand_k),
+                             np.concatenate(cand_j), len(times), pairs_per_station)
+        return register_chosen(times, mids, chosen, num_threads, 0.5)
 
-        def cloud(k: int) -> np.ndarray:
-            if k not in clouds:
-                clouds[k] = _sweep(lidar, orient, ext, int(times[k]), win, num_threads)
-            return clouds[k]
+    def carry_turns(span: tuple[int, int], num_threads: int
+                    ) -> list[tuple[int, int, np.ndarray, float]]:
+        """One carry's measurements, as :func:`station_turns`: sweeps ``carry_pair_s`` apart
+        where the carried head's rotation rate (a vector) changes most."""
+        times = np.arange(span[0], span[1] - win, int(step_s * 1e9), dtype=np.int64)
+        lo = max(1, int(round(carry_pair_s[0] / step_s)))
+        hi = max(lo, int(round(carry_pair_s[1] / step_s)))
+        if len(times) <= lo:
+            return []
+        mids = times + win // 2
+        R_w = orient.rotation_at(mids)
+        w_w = _world_rate(orient, mids, 50_000_000)  # (N, 3) [rad/s]
+        cand_dr, cand_k, cand_j = [], [], []
+        for lag in range(lo, min(hi, len(times) - 1) + 1):
+            k = np.arange(len(times) - lag)
+            j = k + lag
+            ang = np.degrees(Rotation.from_matrix(
+                np.einsum("nji,njk->nik", R_w[k], R_w[j])).magnitude())
+            dr = np.linalg.norm(w_w[j] - w_w[k], axis=1)
+            ok = (np.degrees(dr) >= min_rate_change_deg_s) & (ang <= turn_max)
+            cand_dr.append(dr[ok])
+            cand_k.append(k[ok])
+            cand_j.append(j[ok])
+        chosen = _pick_pairs(np.concatenate(cand_dr), np.concatenate(cand_k),
+                             np.concatenate(cand_j), len(times), pairs_per_carry)
+        return register_chosen(times, mids, chosen, num_threads, carry_min_range_m, True)
 
-        for k, j, dr in chosen:
-            ck, cj = cloud(k), cloud(j)
-            if len(ck) < 500 or len(cj) < 500:
-                continue
-            init = rel(orient, int(mids[k]), int(mids[j]))
-            r = _register_sweeps(cj, ck, init, num_threads)
-            if r is None:
-                continue
-            A = r.T_target_source
-            slip = np.degrees(Rotation.from_matrix(init[:3, :3].T @ A[:3, :3]).magnitude())
-            if r.fitness < 0.5 or slip > 1.0:
-                continue
-            meas.append((int(mids[k]), int(mids[j]), A, float(np.degrees(dr))))
-        return meas
-
-    workers = thread_workers(num_threads, len(use))
+    spans = sorted(carries or [], key=lambda c: c[0] - c[1])[:max_carries]  # longest first
+    jobs = [(station_turns, st) for st in use] + [(carry_turns, c) for c in sorted(spans)]
+    workers = thread_workers(num_threads, len(jobs))
     inner = num_threads if workers == 1 else 1
-    per_station = _threaded_map(station_turns, [(st, inner) for st in use], workers)
-    meas = [m for ms in per_station for m in ms]
-    st_of = np.concatenate([np.full(len(ms), i) for i, ms in enumerate(per_station)] or [[]])
+    per_job = _threaded_map(lambda f, x: f(x, inner), jobs, workers)
+    meas = [m for ms in per_job for m in ms]
     if len(meas) < 4:
         return TurnTimeOffset(off0, float("inf"), len(meas), 0.0)
+    n_st = len(use)
+    is_carry = np.concatenate([np.full(len(ms), q >= n_st) for q, ms in enumerate(per_job)])
+    # rows: a station's pair gives its angle about the pan axis, a carry's all three; each row
+    # knows its pair, cluster (station or carry) and kind
+    row_pair = np.concatenate([np.full(3 if c else 1, m) for m, c in enumerate(is_carry)])
+    cl_of = np.concatenate([np.full(len(ms), q) for q, ms in enumerate(per_job)])[row_pair]
+    row_carry = is_carry[row_pair]
+    dt_s = np.array([(m[1] - m[0]) * 1e-9 for m in meas])  # [s] between the sweeps
+    z_j = np.zeros((len(meas), 3))  # the world's vertical in the later sweep's lidar frame
+    if is_carry.any():
+        t_j = np.array([m[1] for m in meas], dtype=np.int64)
+        z_j = pose_world_lidar(orient, ext, t_j)[:, 2, :3]
+    drift = np.concatenate([(meas[m][4] @ z_j[m] if c else np.ones(1)) * dt_s[m]
+                            for m, c in enumerate(is_carry)])
     keep = np.ones(len(meas), dtype=bool)
+    w_row = np.ones(len(row_pair))  # a carry row's weight: the stations' scale over its own
     off = off0
     sig = float("inf")
-    dt_s = np.array([(tj - tk) * 1e-9 for tk, tj, _, _ in meas])  # [s] between the sweeps
     for it in range(4):
         o = orient.with_offset(off)
         oh = orient.with_offset(off + h_ns)
-        r_, g_ = np.zeros(len(meas)), np.zeros(len(meas))
-        for m, (tk, tj, A, _) in enumerate(meas):
+        r_parts, g_parts = [], []
+        for m, (tk, tj, A, _, W) in enumerate(meas):
             P = rel(o, tk, tj)[:3, :3]
-            r_[m] = a_l @ Rotation.from_matrix(P.T @ A[:3, :3]).as_rotvec()
-            g_[m] = a_l @ Rotation.from_matrix(P.T @ rel(oh, tk, tj)[:3, :3]).as_rotvec() / (
-                h_ns * 1e-9)
-        # r = g·δ + Δt·c: δ the offset's correction [s], c the IMU's yaw drift [rad/s]
-        X = np.stack([g_, dt_s], axis=1)
-        n = int(keep.sum())
-        H = X[keep].T @ X[keep]
+            rv = Rotation.from_matrix(P.T @ A[:3, :3]).as_rotvec()
+            gv = Rotation.from_matrix(P.T @ rel(oh, tk, tj)[:3, :3]).as_rotvec() / (h_ns * 1e-9)
+            if is_carry[m]:
+                r_parts.append(W @ rv)
+                g_parts.append(W @ gv)
+            else:
+                r_parts.append([a_l @ rv])
+                g_parts.append([a_l @ gv])
+        r_ = np.concatenate(r_parts)
+        g_ = np.concatenate(g_parts)
+        # r = g·δ + drift·c: δ the offset's correction [s], c the IMU's yaw drift [rad/s]
+        X = np.stack([g_, drift], axis=1)
+        rk = keep[row_pair]
+        n = int(rk.sum())
+        Xk, wk = X[rk], w_row[rk]
+        H = Xk.T @ (Xk * wk[:, None])
         if not np.all(np.isfinite(H)) or H[0, 0] <= 0:
             break
         if n < 6 or np.linalg.cond(H) > 1e12:
             X, H = X[:, :1], H[:1, :1]  # too few pairs for the drift: δ alone
-        sol = np.linalg.solve(H, X[keep].T @ r_[keep])
+            Xk = X[rk]
+        sol = np.linalg.solve(H, Xk.T @ (wk * r_[rk]))
         e = r_ - X @ sol
         d = float(sol[0])
         dof = max(n - X.shape[1], 1)
-        s_res = float(np.sqrt(np.sum(e[keep] ** 2) / dof))
+        s_res = float(np.sqrt(np.sum(wk * e[rk] ** 2) / dof))
         Hi = np.linalg.inv(H)
         sig = float(np.sqrt(Hi[0, 0])) * s_res * 1e3 if n >= 3 else float("inf")
-        # pairs of one station share its errors (its pan axis, its view): the cluster-robust
-        # (sandwich) variance over the stations, when there are enough, bounds sigma below
-        groups = np.unique(st_of[keep])
+        # pairs of one station (or carry) share its errors (its pan axis, its view): the
+        # cluster-robust (sandwich) variance over them, when there are enough, bounds sigma below
+        groups = np.unique(cl_of[rk])
         if len(groups) >= 3:
-            U = np.array([X[keep & (st_of == q)].T @ e[keep & (st_of == q)] for q in groups])
+            we = w_row * e
+            U = np.array([X[rk & (cl_of == q)].T @ we[rk & (cl_of == q)] for q in groups])
             V = Hi @ (U.T @ U) @ Hi * len(groups) / (len(groups) - 1)
             sig = max(sig, float(np.sqrt(max(V[0, 0], 0.0))) * 1e3)
         off = int(round(off + np.clip(d, -0.05, 0.05) * 1e9))
-        scale = 1.4826 * float(np.median(np.abs(e[keep]))) + np.radians(0.005)
-        new_keep = np.abs(e) < 3.0 * scale
+        scales = {}
+        for kind in (False, True):
+            sel = rk & (row_carry == kind)
+            if sel.any():
+                scales[kind] = 1.4826 * float(np.median(np.abs(e[sel]))) + np.radians(0.005)
+        scale_row = np.where(row_carry, scales.get(True, np.inf), scales.get(False, np.inf))
+        bad = np.zeros(len(meas), dtype=bool)
+        np.logical_or.at(bad, row_pair, ~(np.abs(e) < 3.0 * scale_row))
+        new_keep = ~bad  # a pair is trimmed when any of its rows is an outlier
         if new_keep.sum() >= 4:
             keep = new_keep
+        if len(scales) == 2:
+            w_row = np.where(row_carry, (scales[False] / scales[True]) ** 2, 1.0)
     rc = float(np.sqrt(np.mean([m[3] ** 2 for m, k in zip(meas, keep) if k])))
-    return TurnTimeOffset(off, sig * sigma_inflation, int(keep.sum()), rc)
+    return TurnTimeOffset(off, sig * sigma_inflation, int(keep.sum()), rc,
+                          int((keep & is_carry).sum()))

@@ -70,6 +70,10 @@ class CalibrationConfig(StrictModel):
     time_offset_from_turns: bool = True
     #: stations the turns' offset pools (one offset for the recording; those turned most)
     max_turn_stations: int = Field(default=8, ge=1)
+    #: the turns' offset also registers sweeps taken while the tripod is carried between
+    #: stations (its head turns about every axis, with rate changes of tens of °/s: the
+    #: offset shows there even when the pans are slow or at a constant rate)
+    time_offset_from_carries: bool = True
     #: the turns' offset is applied up to this sigma [ms] (their sigma comes from the pairs'
     #: scatter, inflated to be honest; an estimate that sure still beats the prior 0 against IMU
     #: latencies of up to 10 ms, and the station splitter's refit tolerates ±12 ms); above

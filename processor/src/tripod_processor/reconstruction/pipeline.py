@@ -354,16 +354,17 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
     against which a mount tilt the surfaces see poorly is weighed (:func:`_weigh_tilt`)."""
     from .calibration import self_calibrate
 
-    from .calibration import time_offset_from_turns
+    from .calibration import carry_spans, time_offset_from_turns
 
     cc = cfg.calibration
     turn = None
     fit_time_surf = fit_time
     if fit_time and cc.time_offset_from_turns:
-        # the time offset first, from the head's turns (registrations, blind to the lever
-        # arm): the surfaces' fit below starts from it
+        # the time offset first, from the head's turns and the carries' (registrations, blind
+        # to the lever arm): the surfaces' fit below starts from it
+        carries = carry_spans(seg.stations) if cc.time_offset_from_carries else None
         turn = time_offset_from_turns(rec.lidar, seg.stations, orient, ext, cfg.num_threads,
-                                      max_stations=cc.max_turn_stations)
+                                      max_stations=cc.max_turn_stations, carries=carries)
         if turn.sigma_ms <= cc.max_turns_time_offset_sigma_ms:
             orient = orient.with_offset(turn.offset_ns)
         else:
