@@ -51,3 +51,15 @@ def true_stations(rec, truth):
         pa, pb = np.searchsorted(rec.lidar.lidar_ns, [a, b])
         out.append(Station(k, a, b, int(pa), int(pb)))
     return out
+
+
+def truth_extrinsic(truth):
+    """The simulator's true lidar-IMU extrinsic (``meta.json["truth"]``) as an ``Extrinsic``."""
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    from tripod_processor.reconstruction.placement import Extrinsic
+
+    q = truth["q_imu_lidar_wxyz"]
+    return Extrinsic(Rotation.from_quat([q[1], q[2], q[3], q[0]]).as_matrix(),
+                     np.asarray(truth["lever_arm_imu_m"], float), "truth")

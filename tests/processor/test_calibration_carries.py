@@ -12,25 +12,20 @@ import json
 import numpy as np
 import pytest
 
-from sim_fixtures import make_rig_capture, true_stations
+from sim_fixtures import make_rig_capture, true_stations, truth_extrinsic
 from tripod_processor.reconstruction import evaluation as ev
 from tripod_processor.reconstruction.calibration import carry_spans, time_offset_from_turns
 from tripod_processor.reconstruction.inputs import read_recording
-from tripod_processor.reconstruction.placement import Extrinsic, ImuOrientation, fit_clock_map
+from tripod_processor.reconstruction.placement import ImuOrientation, fit_clock_map
 from tripod_processor.reconstruction.stations import Station
 
 
 @pytest.fixture(scope="module")
 def rig(tmp_path_factory):
-    from scipy.spatial.transform import Rotation
-
     cap = make_rig_capture(tmp_path_factory.mktemp("carry"), "carry", imu={"latency_ms": 8.0})
     truth = json.loads((cap / "meta.json").read_text())["truth"]
     rec = read_recording(cap)
-    q = truth["q_imu_lidar_wxyz"]
-    ext = Extrinsic(Rotation.from_quat([q[1], q[2], q[3], q[0]]).as_matrix(),
-                    np.asarray(truth["lever_arm_imu_m"], float), "truth")
-    return rec, truth, ext, ev.true_time_offset_ns(cap, rec)
+    return rec, truth, truth_extrinsic(truth), ev.true_time_offset_ns(cap, rec)
 
 
 def test_carry_spans_are_the_gaps_between_stations():

@@ -16,22 +16,14 @@ import json
 import numpy as np
 import pytest
 
-from sim_fixtures import make_rig_capture, true_stations
+from sim_fixtures import make_rig_capture, true_stations, truth_extrinsic
 from tripod_processor.reconstruction import evaluation as ev
 from tripod_processor.reconstruction.calibration import time_offset_from_turns
 from tripod_processor.reconstruction.config import ReconstructConfig
 from tripod_processor.reconstruction.inputs import read_recording
 from tripod_processor.reconstruction.pipeline import reconstruct
-from tripod_processor.reconstruction.placement import Extrinsic, ImuOrientation, fit_clock_map
+from tripod_processor.reconstruction.placement import ImuOrientation, fit_clock_map
 from tripod_processor.sim.truth import score_stations
-
-
-def _truth_extrinsic(truth):
-    from scipy.spatial.transform import Rotation
-
-    q = truth["q_imu_lidar_wxyz"]
-    return Extrinsic(Rotation.from_quat([q[1], q[2], q[3], q[0]]).as_matrix(),
-                     np.asarray(truth["lever_arm_imu_m"], float), "truth")
 
 
 def test_time_offset_from_turns_on_a_motor_pan(tmp_path):
@@ -45,7 +37,7 @@ def test_time_offset_from_turns_on_a_motor_pan(tmp_path):
     t_true = ev.true_time_offset_ns(cap, rec)
     assert t_true < -5e6  # the offset to find is far from the prior 0
     est = time_offset_from_turns(rec.lidar, true_stations(rec, truth), orient,
-                                 _truth_extrinsic(truth), 2)
+                                 truth_extrinsic(truth), 2)
     assert est.pairs >= 3 and est.rate_change_deg_s > 10.0
     assert abs(est.offset_ns - t_true) < 1e6, (est, t_true)
     assert 0 < est.sigma_ms < 1.0

@@ -11,16 +11,15 @@ the same stations at ±10 ms as at the true offset, the carries still splits."""
 
 import json
 
-import numpy as np
 import pytest
-from sim_fixtures import make_rig_capture
+from sim_fixtures import make_rig_capture, truth_extrinsic
 
 from tripod_shared.config_io import load_config
 
 from tripod_processor.reconstruction import evaluation as ev
 from tripod_processor.reconstruction.config import ReconstructConfig
 from tripod_processor.reconstruction.inputs import read_recording
-from tripod_processor.reconstruction.placement import Extrinsic, ImuOrientation, fit_clock_map
+from tripod_processor.reconstruction.placement import ImuOrientation, fit_clock_map
 from tripod_processor.reconstruction.stations import segment_stations
 from tripod_processor.sim.truth import score_stations
 
@@ -29,8 +28,6 @@ from tripod_processor.sim.truth import score_stations
 def hall(tmp_path_factory):
     """A 26 x 25 m hall, 3 stations of a 20-s hand pan turning back 16°, 22° mount, 11 cm lever
     arm, 6.8 ms IMU latency, dual returns (~100 s of recording)."""
-    from scipy.spatial.transform import Rotation
-
     cap = make_rig_capture(
         tmp_path_factory.mktemp("reversal"), "hall",
         scene_size={"width_m": 26.0, "depth_m": 25.0, "height_m": 6.0},
@@ -39,10 +36,7 @@ def hall(tmp_path_factory):
         imu={"latency_ms": 6.8}, lidar={"return_mode": "dual"})
     truth = json.loads((cap / "meta.json").read_text())["truth"]
     rec = read_recording(cap)
-    q = truth["q_imu_lidar_wxyz"]
-    ext = Extrinsic(Rotation.from_quat([q[1], q[2], q[3], q[0]]).as_matrix(),
-                    np.asarray(truth["lever_arm_imu_m"], float), "truth")
-    return rec, truth, ext, ev.true_time_offset_ns(cap, rec)
+    return rec, truth, truth_extrinsic(truth), ev.true_time_offset_ns(cap, rec)
 
 
 def _score(hall, err_ms: float, **sets):
