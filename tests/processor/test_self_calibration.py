@@ -121,6 +121,11 @@ def test_report_calibration_section_and_timeline(run):
     assert "## Calibration" in text
     assert "lever arm along the pan axis" in text and "unobservable" in text
     assert "| IMU time offset |" in text
+    cal = json.loads((out / "calibration.json").read_text())["estimate"]
+    turns = cal["imu_time_offset_turns"]
+    assert turns["carry_pairs"] > 0  # 3 stations: 2 carries
+    assert (f"{turns['pairs']} pairs of sweeps registered against each other "
+            f"({turns['carry_pairs']} while the tripod was carried)") in text
     png = out / "report_stations.png"
     assert png.is_file() and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     s = json.loads((out / "result.json").read_text())

@@ -201,6 +201,16 @@ def calibration_section(cal: dict) -> list[str]:
                  f"{f'{rs:.3f}° (tilts)' if rs is not None and np.isfinite(rs) else '—'} | "
                  f"{src.get('q_imu_lidar', '')} | {seen('mount_rotation')}; the turn about "
                  "the pan axis is unobservable (turns a whole station) |")
+    turns = est.get("imu_time_offset_turns") if est else None
+    if turns:
+        # how the offset was seen: sweeps registered across the head's rate changes, at the
+        # stations and while the tripod was carried between them
+        lines += ["", f"IMU time offset from {est.get('imu_time_offset_method', 'the turns')}: "
+                      f"{turns['pairs']} pairs of sweeps registered against each other "
+                      f"({turns.get('carry_pairs', 0)} while the tripod was carried), their "
+                      f"rotation rates {turns['rate_change_deg_s']:.1f}°/s apart (RMS); the "
+                      f"turns alone {turns['imu_time_offset_ms']:.2f} ± "
+                      f"{turns['sigma_ms']:.2f} ms."]
     if est:
         lines += ["", f"Pan axis in the IMU frame {np.round(est['pan_axis_imu'], 4).tolist()}; "
                       f"{est['pairs']} point-to-plane residuals on stations {est['stations']}, "
