@@ -3,8 +3,9 @@
 
 A slow or constant-rate pan changes its rate by a few °/s at most, which shows a 1 ms time
 offset as a few thousandths of a degree; while the tripod is carried to the next station its
-head turns about every axis with rate changes of tens of °/s. ``calibration.time_offset_from_turns``
-registers sweeps of the carries (``calibration.carry_spans``) as well as the stations'.
+head turns about every axis with rate changes of tens of °/s.
+``calibration.time_offset_from_turns`` registers sweeps of the carries
+(``calibration.carry_spans``) as well as the stations'.
 """
 
 import json

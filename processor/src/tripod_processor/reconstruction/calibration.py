@@ -885,9 +885,10 @@ class TurnTimeOffset:
     """IMU time offset from sweep-to-sweep registrations (``time_offset_from_turns``).
 
     offset_ns : int, added to the IMU's lidar-clock stamps; sigma_ms : 1-sigma [ms] (inf when
-    nothing was measured); pairs : registrations used (stations' and carries'); rate_change_deg_s :
-    RMS change of the rotation rate between the two sweeps of a pair (what makes the offset
-    visible); carry_pairs : how many of the pairs were taken while the tripod was carried."""
+    nothing was measured); pairs : registrations used (stations' and carries');
+    rate_change_deg_s : RMS change of the rotation rate between the two sweeps of a pair (what
+    makes the offset visible); carry_pairs : how many of the pairs were taken while the tripod
+    was carried."""
 
     offset_ns: int
     sigma_ms: float
@@ -1035,10 +1036,14 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
         T = pose_world_lidar(o, ext, np.array([tk, tj], dtype=np.int64))
         return np.linalg.inv(T[0]) @ T[1]
 
+    #: one measurement: (t_k, t_j [ns], A measured (4x4), rate change [°/s], the rotation
+    #: error's whitener W (3x3) for a carry's pair, None for a station's)
+    Meas = tuple[int, int, np.ndarray, float, "np.ndarray | None"]
+
     def register_chosen(times: np.ndarray, mids: np.ndarray, chosen, num_threads: int,
-                        min_range: float, moving: bool = False) -> list[tuple[int, int, np.ndarray, float]]:
-        """(t_k, t_j, A measured, rate change [°/s]) of the chosen pairs that registered well."""
-        meas: list[tuple[int, int, np.ndarray, float]] = []
+                        min_range: float, moving: bool = False) -> list[Meas]:
+        """The measurements of the chosen pairs that registered well (``moving``: a carry's)."""
+        meas: list[Meas] = []
         clouds: dict[int, np.ndarray] = {}
 
         def cloud(k: int) -> np.ndarray:
@@ -1065,9 +1070,9 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
             meas.append((int(mids[k]), int(mids[j]), A, float(np.degrees(dr)), W))
         return meas
 
-    def station_turns(st: Station, num_threads: int) -> list[tuple[int, int, np.ndarray, float]]:
-        """One station's measurements (t_k, t_j, A measured, rate change); stations run side
-        by side on threads (each registration on ``num_threads``, bit-identical on any)."""
+    def station_turns(st: Station, num_threads: int) -> list[Meas]:
+        """One station's measurements; stations and carries run side by side on threads (each
+        registration on ``num_threads``, bit-identical on any)."""
         times = np.arange(st.start_ns, st.end_ns - win, int(step_s * 1e9), dtype=np.int64)
         if len(times) < 3:
             return []
@@ -1092,8 +1097,7 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
                              np.concatenate(cand_j), len(times), pairs_per_station)
         return register_chosen(times, mids, chosen, num_threads, 0.5)
 
-    def carry_turns(span: tuple[int, int], num_threads: int
-                    ) -> list[tuple[int, int, np.ndarray, float]]:
+    def carry_turns(span: tuple[int, int], num_threads: int) -> list[Meas]:
         """One carry's measurements, as :func:`station_turns`: sweeps ``carry_pair_s`` apart
         where the carried head's rotation rate (a vector) changes most."""
         times = np.arange(span[0], span[1] - win, int(step_s * 1e9), dtype=np.int64)
