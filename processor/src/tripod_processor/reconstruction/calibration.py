@@ -1192,6 +1192,8 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
             V = Hi @ (U.T @ U) @ Hi * len(groups) / (len(groups) - 1)
             sig = max(sig, float(np.sqrt(max(V[0, 0], 0.0))) * 1e3)
         off = int(round(off + np.clip(d, -0.05, 0.05) * 1e9))
+        # each kind's robust scale (a station's rows in radians, a carry's whitened); the
+        # 0.005° floor matters for the stations' only
         scales = {}
         for kind in (False, True):
             sel = rk & (row_carry == kind)

@@ -352,9 +352,7 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
     what the data cannot see well is warned about (and a time offset not seen at all is kept
     at the prior). ``tilt_sigma_deg``: hand-eye's mount tilt sigma (the starting ``ext``'s),
     against which a mount tilt the surfaces see poorly is weighed (:func:`_weigh_tilt`)."""
-    from .calibration import self_calibrate
-
-    from .calibration import carry_spans, time_offset_from_turns
+    from .calibration import carry_spans, self_calibrate, time_offset_from_turns
 
     cc = cfg.calibration
     turn = None
