@@ -108,7 +108,9 @@ def test_rate_10_and_max(dual, capture):
     st = Replayer(ReplaySource.open(capture), rate=10.0, lidar_addr=("127.0.0.1", 9),
                   position_addr=("127.0.0.1", 9), limit_s=3.0, realtime_priority=10).run()
     assert st.achieved_rate == pytest.approx(10.0, rel=0.06 if "FIFO" in st.scheduling else 0.15)  # loaded CI machines
-    # as fast as possible: at least 20x the dual-return packet rate (1507/s)
+    # as fast as possible: at least 10x the dual-return packet rate (1507/s). An idle 2-core
+    # machine does ~30x; 20x failed once with two benchmarks beside the suite (load 6-7:
+    # 25 000 packets/s), so the floor says "far faster than the sensor", not how fast
     blackhole = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     blackhole.bind(("127.0.0.1", 0))
     try:
@@ -119,7 +121,7 @@ def test_rate_10_and_max(dual, capture):
         blackhole.close()
     n = len(_pcap_payloads(dual / "capture.pcap", v.DATA_PORT))
     assert st.sent["lidar"] == n and st.send_errors == 0
-    assert st.packets_per_s >= 20 * 1507
+    assert st.packets_per_s >= 10 * 1507
 
 
 def test_imu_over_pty_is_byte_exact(capture):

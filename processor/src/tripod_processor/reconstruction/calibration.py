@@ -13,11 +13,16 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..decode.timed import decode_timed_points
+from ..decode.timed import decode_timed_points, denoise_ranges
 from .inputs import LidarPackets
 from .placement import Extrinsic, ImuOrientation, place_points
 from .scaleout import _threaded_map, thread_workers
 from .stations import Station
+
+#: the calibration's sweeps and station points have their ranges smoothed along the scan line
+#: over this many firings either side (``decode.timed.denoise_ranges``; config
+#: ``calibration.range_denoise_firings``)
+DENOISE_FIRINGS = 5
 
 
 def plane_spread(points: np.ndarray, n_query: int = 4000, k: int = 12, seed: int = 0) -> float:
@@ -138,23 +143,26 @@ def _register_sweeps(src: np.ndarray, tgt: np.ndarray, init: np.ndarray, num_thr
 
 
 def _sweep(lidar: LidarPackets, orient: ImuOrientation, ext: Extrinsic, start_ns: int,
-           win_ns: int, num_threads: int, min_range: float = 0.5) -> np.ndarray:
+           win_ns: int, num_threads: int, min_range: float = 0.5,
+           denoise_firings: int = DENOISE_FIRINGS) -> np.ndarray:
     """The packets of [start_ns, start_ns + win_ns) (lidar time) de-skewed by the IMU to the
     window's middle with ``ext``: (N, 3) float64 [m]; returns nearer than ``min_range`` [m]
-    left out."""
+    left out; ranges smoothed along the scan line over ``denoise_firings`` firings either side
+    (:func:`~tripod_processor.decode.timed.denoise_ranges`; 0: as measured)."""
     a, b = np.searchsorted(lidar.lidar_ns, [start_ns, start_ns + win_ns])
     pts = decode_timed_points(lidar.payload, lidar.lidar_ns, int(a), int(b),
                               min_range=min_range, max_range=40.0)
-    xyz = np.stack([pts["x"], pts["y"], pts["z"]], 1)
-    if not len(xyz):
-        return xyz
+    if not len(pts):
+        return np.zeros((0, 3))
+    xyz = denoise_ranges(pts, denoise_firings).astype(np.float32)
     return place_points(xyz, pts["time_ns"], orient, ext, int(start_ns) + win_ns // 2,
                         num_threads).astype(np.float64)
 
 
 def _turn_pairs(lidar: LidarPackets, st: Station, orient: ImuOrientation, R_guess: np.ndarray,
                 num_threads: int, step_s: float, window_s: float, max_pairs: int,
-                pair_turn_deg: float) -> tuple[list[np.ndarray], list[np.ndarray]]:
+                pair_turn_deg: float, denoise_firings: int = DENOISE_FIRINGS
+                ) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """One station's sweep pairs for hand-eye: (A_list, B_list), A the lidar's motion between
     two short windows (registration, lidar frame, 4x4), B the IMU's relative rotation (IMU
     frame, 3x3); sweeps de-skewed by the IMU with the mount ``R_guess`` and no lever arm.
@@ -176,7 +184,8 @@ def _turn_pairs(lidar: LidarPackets, st: Station, orient: ImuOrientation, R_gues
     def cloud(k: int) -> np.ndarray:
         # a sweep de-skewed to its middle by the IMU (with the guess of the mount)
         if k not in clouds:
-            clouds[k] = _sweep(lidar, orient, ext_g, int(times[k]), win, num_threads)
+            clouds[k] = _sweep(lidar, orient, ext_g, int(times[k]), win, num_threads,
+                               denoise_firings=denoise_firings)
         return clouds[k]
 
     def pairs_turned(min_deg: float) -> list[tuple[int, int]]:
@@ -228,7 +237,8 @@ def _turn_pairs(lidar: LidarPackets, st: Station, orient: ImuOrientation, R_gues
 def calibrate_mount(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
                     num_threads: int = 0, step_s: float = 0.3, window_s: float = 0.1,
                     max_pairs: int = 16, pair_turn_deg: float = 45.0,
-                    guess: Extrinsic | None = None) -> tuple[Extrinsic, dict]:
+                    guess: Extrinsic | None = None, denoise_firings: int = DENOISE_FIRINGS
+                    ) -> tuple[Extrinsic, dict]:
     """The lidar's mount on the IMU (R_imu_lidar, lever arm) from the data (hand-eye).
 
     While the head turns at a station, the lidar's motion between two short windows, measured by
@@ -246,7 +256,7 @@ def calibrate_mount(lidar: LidarPackets, stations: list[Station], orient: ImuOri
     st = most_turning_station(stations, orient)
     R_guess = np.eye(3) if guess is None else guess.R_imu_lidar
     A_list, B_list = _turn_pairs(lidar, st, orient, R_guess, num_threads, step_s, window_s,
-                                 max_pairs, pair_turn_deg)
+                                 max_pairs, pair_turn_deg, denoise_firings)
     if len(A_list) < 3:
         raise ValueError("too few usable turns to calibrate the lidar mount from the data")
     a = np.array([_rotvec(A[:3, :3]) for A in A_list])
@@ -312,7 +322,8 @@ class TurnLeverArm:
 def lever_arm_from_turns(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
                          ext: Extrinsic, num_threads: int = 0, *, max_stations: int = 8,
                          step_s: float = 0.3, window_s: float = 0.1, max_pairs: int = 16,
-                         pair_turn_deg: float = 45.0) -> TurnLeverArm | None:
+                         pair_turn_deg: float = 45.0, denoise_firings: int = DENOISE_FIRINGS
+                         ) -> TurnLeverArm | None:
     """Hand-eye's lever arm (:func:`calibrate_mount`: (B − I)·ℓ = R_il·t_A per sweep pair) with
     the mount ``ext.R_imu_lidar`` held and the pairs of up to ``max_stations`` stations (those
     the head turns most in) pooled; only the two components across the pan axis are solved.
@@ -332,7 +343,7 @@ def lever_arm_from_turns(lidar: LidarPackets, stations: list[Station], orient: I
     Ms, ys, gid = [], [], []
     for q, st in enumerate(use):
         A_list, B_list = _turn_pairs(lidar, st, orient, R_il, num_threads, step_s, window_s,
-                                     max_pairs, pair_turn_deg)
+                                     max_pairs, pair_turn_deg, denoise_firings)
         for A, B in zip(A_list, B_list):
             Mk = (B - np.eye(3))
             Ms.append(Mk @ U)
@@ -543,8 +554,10 @@ def _pick_stations(stations: list[Station], orient: ImuOrientation, n: int) -> l
 
 
 def _station_points(lidar: LidarPackets, st: Station, n: int, seed: int, max_range: float,
-                    orient: ImuOrientation | None = None):
-    """About n points of a station (every few packets decoded, then a random subset). With
+                    orient: ImuOrientation | None = None,
+                    denoise_firings: int = DENOISE_FIRINGS):
+    """About n points of a station (every few packets decoded, their ranges smoothed along the
+    scan line over ``denoise_firings`` firings either side, then a random subset). With
     ``orient``, points fired while the head turns slowly (rests, ramps, a hand's pauses) are
     taken 4x as densely: the time offset shows only between those and the fast ones."""
     n_pk = st.packet_stop - st.packet_start
@@ -552,6 +565,7 @@ def _station_points(lidar: LidarPackets, st: Station, n: int, seed: int, max_ran
     idx = np.arange(st.packet_start, st.packet_stop, stride)
     pts = decode_timed_points(lidar.payload[idx], lidar.lidar_ns[idx], 0, len(idx),
                               min_range=1.0, max_range=max_range)
+    xyz = denoise_ranges(pts, denoise_firings)
     if len(pts) > n:
         rng = np.random.default_rng(seed)
         w = np.ones(len(pts))
@@ -560,8 +574,8 @@ def _station_points(lidar: LidarPackets, st: Station, n: int, seed: int, max_ran
             rate = np.linalg.norm(_world_rate(orient, grid), axis=1)
             slow = np.interp(pts["time_ns"], grid, rate) < 0.7 * np.percentile(rate, 95)
             w[slow] = 4.0
-        pts = pts[np.sort(rng.choice(len(pts), n, replace=False, p=w / w.sum()))]
-    xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=1).astype(np.float64)
+        keep = np.sort(rng.choice(len(pts), n, replace=False, p=w / w.sum()))
+        pts, xyz = pts[keep], xyz[keep]
     return xyz, pts["time_ns"].astype(np.int64)
 
 
@@ -695,7 +709,8 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
                    max_range: float = 60.0, sigma_inflation: float = 3.0,
                    num_threads: int = 0, time_prior_ns: int | None = None,
                    time_prior_sigma_ms: float = float("inf"),
-                   split_iterations: int = 0) -> SelfCalibration:
+                   split_iterations: int = 0,
+                   denoise_firings: int = DENOISE_FIRINGS) -> SelfCalibration:
     """Lever arm, IMU time offset and mount rotation that make every station self-consistent.
 
     At a standing station the head turns about a fixed pivot, so a surface seen at two moments
@@ -734,8 +749,8 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
     ell = ext.lever_arm_m.astype(np.float64).copy()
     off = orient.time_offset_ns
     data = _threaded_map(_station_points, [
-        (lidar, st, points_per_station, 11 + k, max_range, orient if fit_time else None)
-        for k, st in enumerate(use)], workers)
+        (lidar, st, points_per_station, 11 + k, max_range, orient if fit_time else None,
+         denoise_firings) for k, st in enumerate(use)], workers)
     sep_ns = int(min_separation_s * 1e9)
     cols = (["l1", "l2"] if fit_lever else []) + (["dt"] if fit_time else []) + (
         ["r1", "r2"] if fit_rotation else [])
@@ -984,7 +999,8 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
                       min_rate_change_deg_s: float = 4.0, sigma_inflation: float = 2.0,
                       carries: list[tuple[int, int]] | None = None, max_carries: int = 8,
                       pairs_per_carry: int = 6, carry_pair_s: tuple[float, float] = (0.2, 0.5),
-                      carry_min_range_m: float = 1.5) -> TurnTimeOffset:
+                      carry_min_range_m: float = 1.5,
+                      denoise_firings: int = DENOISE_FIRINGS) -> TurnTimeOffset:
     """One pass of the IMU time offset from the head's turns.
 
     Two short sweeps of a station (``window_s``, de-skewed by the IMU) are registered against
@@ -1049,7 +1065,7 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
         def cloud(k: int) -> np.ndarray:
             if k not in clouds:
                 clouds[k] = _sweep(lidar, orient, ext, int(times[k]), win, num_threads,
-                                   min_range)
+                                   min_range, denoise_firings)
             return clouds[k]
 
         for k, j, dr in chosen:

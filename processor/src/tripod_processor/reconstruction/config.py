@@ -61,6 +61,11 @@ class CalibrationConfig(StrictModel):
     mount_rotation: bool = True
     #: stations used (those the head turns most in)
     max_stations: int = Field(default=4, ge=1)
+    #: the calibration's sweeps and station points have their ranges smoothed along the scan
+    #: line over this many firings either side (±1° at 600 rpm for 5; a depth edge is not
+    #: smoothed across): two sweeps' 3-cm range noise otherwise biases their registration's
+    #: rotation, hence hand-eye's mount tilt, by tenths of a degree in a small room. 0: off
+    range_denoise_firings: int = Field(default=5, ge=0, le=50)
     #: a time offset less certain than this [ms, 1 sigma] is not applied (kept at the prior):
     #: the surfaces' sigma is optimistic (a yaw error hides in walls seen head-on)
     max_time_offset_sigma_ms: float = Field(default=0.5, gt=0)

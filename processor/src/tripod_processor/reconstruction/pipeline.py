@@ -174,7 +174,7 @@ def _reconstruct(recording_path, outdir, cfg: ReconstructConfig, bg: ThreadPoolE
     ext_seg = Extrinsic(ext.R_imu_lidar.copy(), ext.lever_arm_m.copy(), ext.source)
     tilt_sigma_deg = float("inf")  # hand-eye's mount tilt [deg, 1 sigma]
     if pc.extrinsic.q_imu_lidar is None:
-        ext, orient, tilt_sigma_deg = _calibrate_mount(rec, seg, orient, ext, pc, threads, times,
+        ext, orient, tilt_sigma_deg = _calibrate_mount(rec, seg, orient, ext, cfg, threads, times,
                                                        quiet, notes)
     fit_lever = pc.extrinsic.lever_arm_m is None and cfg.calibration.lever_arm
     fit_time = pc.imu_time_offset_s is None and cfg.calibration.time_offset
@@ -312,7 +312,7 @@ def trajectory(res: ReconstructResult, orient: ImuOrientation, hz: float
     return t, out
 
 
-def _calibrate_mount(rec, seg, orient, ext, pc, threads, times, quiet, notes):
+def _calibrate_mount(rec, seg, orient, ext, cfg, threads, times, quiet, notes):
     """(extrinsic, orientation, tilt sigma [deg]) with the mount rotation calibrated from the
     data (hand-eye; the sigma of its tilt from the pairs' axis scatter, inf when it failed);
     identity, and a note, when that fails. When the lever arm is not given either, hand-eye's
@@ -322,9 +322,12 @@ def _calibrate_mount(rec, seg, orient, ext, pc, threads, times, quiet, notes):
     tilt_sigma_deg = float("inf")
     with _Stage(times, "mount calib", None, quiet):
         try:
-            cal, calib_info = calibrate_mount(rec.lidar, seg.stations, orient, threads)
+            cal, calib_info = calibrate_mount(
+                rec.lidar, seg.stations, orient, threads,
+                denoise_firings=cfg.calibration.range_denoise_firings)
             ell = ext.lever_arm_m
-            if pc.extrinsic.lever_arm_m is None and np.linalg.norm(cal.lever_arm_m) < 0.3:
+            if (cfg.placement.extrinsic.lever_arm_m is None
+                    and np.linalg.norm(cal.lever_arm_m) < 0.3):
                 ell = cal.lever_arm_m
             ext = Extrinsic(cal.R_imu_lidar, ell, "calibrated rotation")
             notes.append("lidar-IMU mount rotation calibrated from the data (hand-eye, "
@@ -362,7 +365,8 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
         # to the lever arm): the surfaces' fit below starts from it
         carries = carry_spans(seg.stations) if cc.time_offset_from_carries else None
         turn = time_offset_from_turns(rec.lidar, seg.stations, orient, ext, cfg.num_threads,
-                                      max_stations=cc.max_turn_stations, carries=carries)
+                                      max_stations=cc.max_turn_stations, carries=carries,
+                                      denoise_firings=cc.range_denoise_firings)
         if turn.sigma_ms <= cc.max_turns_time_offset_sigma_ms:
             orient = orient.with_offset(turn.offset_ns)
         else:
@@ -378,6 +382,7 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
         cal = self_calibrate(rec.lidar, seg.stations, orient, ext, fit_lever=fit_lever,
                              fit_time=fit_time_surf, fit_rotation=fit_rot,
                              max_stations=cc.max_stations, num_threads=cfg.num_threads,
+                             denoise_firings=cc.range_denoise_firings,
                              split_iterations=split, iterations=8 + split, **prior)
         if fit_rot and not cal.rotation_observable:
             # the stations' surfaces hardly see the mount's tilt (a spin axis near the pan axis
@@ -391,6 +396,7 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
                 cal = self_calibrate(rec.lidar, seg.stations, orient, ext, fit_lever=fit_lever,
                                      fit_time=fit_time_surf, fit_rotation=False,
                                      max_stations=cc.max_stations, num_threads=cfg.num_threads,
+                                     denoise_firings=cc.range_denoise_firings,
                                      split_iterations=split, iterations=8 + split,
                                      **prior)
             fit_rot = False
@@ -486,7 +492,8 @@ def _lever_start_from_turns(rec, seg, orient, ext, cfg, notes):
         return ext, None
     lt = lever_arm_from_turns(rec.lidar, seg.stations, orient, ext, cfg.num_threads,
                               max_stations=cc.lever_turn_stations,
-                              max_pairs=cc.lever_turn_pairs)
+                              max_pairs=cc.lever_turn_pairs,
+                              denoise_firings=cc.range_denoise_firings)
     if lt is None:
         return ext, None
     sig_mm = 1000 * float(np.sqrt(np.max(np.linalg.eigvalsh(lt.cov_m2))))
@@ -540,6 +547,7 @@ def _refit_far_lever(rec, seg, orient, ext, cfg, cal, fit_time, fit_rot, prior, 
         more = self_calibrate(rec.lidar, seg.stations, o, start, fit_lever=True,
                               fit_time=fit_time, fit_rotation=fit_rot,
                               max_stations=cc.max_stations, num_threads=cfg.num_threads,
+                              denoise_firings=cc.range_denoise_firings,
                               split_iterations=k, iterations=k + cc.lever_refit_usual_iterations,
                               **prior)
     except ValueError:
@@ -609,6 +617,7 @@ def _weigh_tilt(rec, seg, orient, ext, cfg, cal, fit_lever, fit_time, prior,
         more = self_calibrate(rec.lidar, seg.stations, orient, ext, fit_lever=fit_lever,
                               fit_time=fit_time, fit_rotation=True,
                               max_stations=cc.max_tilt_stations, num_threads=cfg.num_threads,
+                              denoise_firings=cc.range_denoise_firings,
                               **prior)
         if more.rotation_sigma_deg < cal.rotation_sigma_deg:
             cal = more
