@@ -177,6 +177,19 @@ class StationConfig(StrictModel):
 class FragmentConfig(StrictModel):
     #: voxel [m] of a fragment as kept for registration and output
     voxel_m: float = Field(default=0.02, gt=0)
+    #: ranges smoothed along each laser's scan line over this many firings either side before
+    #: placement (``decode.scanline``; ±1° at 600 rpm for 5; a neighbour far away in range
+    #: is left out: depth edges kept): the VLP-16's ~3 cm range noise otherwise
+    #: leaves every surface of the map a layer as thick as the noise. 0: off
+    range_denoise_firings: int = Field(default=0, ge=0, le=50)
+    #: the scan line's local fit: ``mean`` (least noise; biased outward where the range curves
+    #: along the line, by the slope where the window is cut short), ``linear`` (no slope bias)
+    #: or ``quadratic`` (no curvature bias either; ~2x the mean's noise variance)
+    range_denoise_fit: Literal["mean", "linear", "quadratic"] = "mean"
+    #: a neighbour farther than this [m] in range from the point is left out of its fit (a
+    #: depth edge); 0.15 is 5 sigma of the noise: a tighter test cuts the window short at
+    #: random where the range climbs along the line (a wall seen at 30°+ incidence)
+    range_denoise_max_step_m: float = Field(default=0.15, gt=0)
 
 
 class OdometryConfig(StrictModel):
