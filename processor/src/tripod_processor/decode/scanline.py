@@ -76,41 +76,54 @@ def smooth_scanline_ranges(points: np.ndarray, firings: int, max_step_m: float =
 
 def _fit_ranges(rs: np.ndarray, ks: np.ndarray, ts: np.ndarray, firings: int,
                 max_step_m: float, fit: str) -> np.ndarray:
-    """The fitted range at each point of scan-line-ordered ranges ``rs`` [m] (keys ``ks``,
-    times ``ts`` [ns])."""
+    """The fitted range [m] (float64) at each point of scan-line-ordered ranges ``rs`` [m]
+    (keys ``ks``, times ``ts`` [ns])."""
     n = len(rs)
     order = {"mean": 0, "linear": 1, "quadratic": 2}[fit]
-    max_dt = int((firings + 0.5) * FIRING_PERIOD_NS)
-    # moments of the neighbours (the point itself included): S_k = Σ u^k, T_k = Σ u^k r, with
-    # u = firings from the point, r - r_i (centred: the moments stay well conditioned)
-    S = [np.ones(n)] + [np.zeros(n) for _ in range(2 * order)]
-    T = [np.zeros(n) for _ in range(order + 1)]
-    for o in range(1, firings + 1):
-        if o >= n:
-            break
-        dr = rs[o:] - rs[:-o]
-        dt = ts[o:] - ts[:-o]
-        ok = (ks[o:] == ks[:-o]) & (dt <= max_dt) & (np.abs(dr) < max_step_m)
-        okf = ok.astype(np.float64)
-        S[0][:-o] += okf
-        S[0][o:] += okf
-        T[0][:-o] += okf * dr
-        T[0][o:] -= okf * dr
+    # moments of the neighbours (the point itself included): S_k = Σ u^k, T_k = Σ u^k (r - r_i),
+    # u = firings from the point (by time): centred on the point, so float32 holds them
+    # (ranges to µm, u to 1e-3 firing, at most 2·firings + 1 terms)
+    r32 = rs.astype(np.float32)
+    u_all = ((ts - ts[0]) / FIRING_PERIOD_NS).astype(np.float32) if order else None
+    max_u = np.float32(firings + 0.5)
+    S = [np.ones(n, np.float32)] + [np.zeros(n, np.float32) for _ in range(2 * order)]
+    T = [np.zeros(n, np.float32) for _ in range(order + 1)]
+    for o in range(1, min(firings, n - 1) + 1):
+        dr = r32[o:] - r32[:-o]
+        ok = ks[o:] == ks[:-o]
+        ok &= np.abs(dr) < max_step_m
+        if order == 0:
+            ok &= (ts[o:] - ts[:-o]) <= int(max_u * FIRING_PERIOD_NS)
+        else:
+            u = u_all[o:] - u_all[:-o]  # the later point seen from the earlier one (> 0)
+            ok &= u <= max_u
+            u *= ok
+        dr *= ok
+        S[0][:-o] += ok
+        S[0][o:] += ok
+        T[0][:-o] += dr
+        T[0][o:] -= dr
         if order == 0:
             continue
-        u = okf * (dt / FIRING_PERIOD_NS)  # the later point seen from the earlier one (> 0)
+        # the earlier point sees the later at +u, the later sees the earlier at -u
         uk = u
         for k in range(1, 2 * order + 1):
-            # the earlier point sees the later at +u, the later sees the earlier at -u
+            if k > 1:
+                uk = uk * u
             S[k][:-o] += uk
-            S[k][o:] += uk if k % 2 == 0 else -uk
-            uk = uk * u if k < 2 * order else uk
-        T[1][:-o] += u * dr  # (+u)(r_later - r_earlier)
-        T[1][o:] += u * dr  # (-u)(r_earlier - r_later)
+            if k % 2:
+                S[k][o:] -= uk
+            else:
+                S[k][o:] += uk
+        udr = u * dr  # (+u)(r_later - r_earlier) = (-u)(r_earlier - r_later)
+        T[1][:-o] += udr
+        T[1][o:] += udr
         if order == 2:
-            u2dr = u * u * dr
-            T[2][:-o] += u2dr
-            T[2][o:] -= u2dr
+            udr *= u
+            T[2][:-o] += udr
+            T[2][o:] -= udr
+    S = [x.astype(np.float64) for x in S]
+    T = [x.astype(np.float64) for x in T]
     mean = T[0] / S[0]
     if order == 0:
         return rs + mean
