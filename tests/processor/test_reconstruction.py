@@ -150,9 +150,13 @@ def test_fragment_bounded_memory_path_keeps_the_cloud(run):
     orient = ImuOrientation(rec.imu, fit_clock_map(rec.lidar), res.time_offset_ns,
                             smooth_s=ReconstructConfig().placement.imu_smooth_s)  # the run's
     st = res.fragments[0].station
-    whole = build_fragment(rec.lidar, st, orient, res.extrinsic, 0.02, 0.4, 100.0, 2)
+    fc = ReconstructConfig().fragments  # the run's scan-line smoothing
+    smoothing = dict(denoise_firings=fc.range_denoise_firings, denoise_fit=fc.range_denoise_fit,
+                     denoise_max_step_m=fc.range_denoise_max_step_m)
+    whole = build_fragment(rec.lidar, st, orient, res.extrinsic, 0.02, 0.4, 100.0, 2,
+                           **smoothing)
     bounded = build_fragment(rec.lidar, st, orient, res.extrinsic, 0.02, 0.4, 100.0, 2,
-                             chunk=100, max_points=whole.raw_points // 5)
+                             chunk=100, max_points=whole.raw_points // 5, **smoothing)
     assert bounded.raw_points == whole.raw_points
     np.testing.assert_allclose(whole.points, res.fragments[0].points)
     assert abs(len(bounded.points) - len(whole.points)) < 0.05 * len(whole.points)

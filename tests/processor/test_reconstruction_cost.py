@@ -94,6 +94,24 @@ def test_plain_array_decode_equals_the_timed_points(rig):
         assert (i is None) if not inten else np.array_equal(i, pts["intensity"])
 
 
+def test_plain_array_decode_with_the_scan_line_smoothing(rig):
+    # the same points and times; each point moved along its own beam only, by about the range
+    # noise's share the fit removes
+    _, rec, _ = rig
+    lid = rec.lidar
+    xyz, t, _ = decode_xyz_time(lid.payload, lid.lidar_ns, 100, 2600, min_range=0.5)
+    for fit in ("mean", "linear", "quadratic"):
+        xyz_s, t_s, _ = decode_xyz_time(lid.payload, lid.lidar_ns, 100, 2600, min_range=0.5,
+                                        denoise_firings=5, denoise_fit=fit)
+        assert xyz_s.dtype == np.float32 and xyz_s.shape == xyz.shape
+        assert np.array_equal(t_s, t)
+        a, b = xyz.astype(np.float64), xyz_s.astype(np.float64)
+        r, r_s = np.linalg.norm(a, axis=1), np.linalg.norm(b, axis=1)
+        sin = np.linalg.norm(np.cross(a, b), axis=1) / (r * r_s)
+        assert np.max(sin) < 1e-6  # [rad]: float32's rounding
+        assert 0.001 < np.median(np.abs(r_s - r)) < 0.05
+
+
 def test_station_splitter_is_the_same_on_threads_and_reusing_its_windows(rig):
     _, rec, orient = rig
     cfg = ReconstructConfig().stations

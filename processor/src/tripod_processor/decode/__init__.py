@@ -5,7 +5,8 @@
 frame per revolution, gaps, position packets); :mod:`.batch` is the interface of the batch
 decoder it calls for the points, :mod:`.native` the C++ core's batch VLP-16 decoder (the
 default); :mod:`.timed` decodes packet ranges into points with their own lidar time
-(the reconstruction's decoding).
+(the reconstruction's decoding); :mod:`.scanline` smooths their ranges along each laser's scan
+line (the fragments' points).
 """
 
 from .batch import BatchDecoder, BatchDecoderFactory

@@ -55,10 +55,17 @@ def decode_timed_points(payload: np.ndarray, lidar_ns: np.ndarray, start: int, s
 
 def decode_xyz_time(payload: np.ndarray, lidar_ns: np.ndarray, start: int, stop: int, *,
                     min_range: float = 0.0, max_range: float = 200.0, chunk: int = 1000,
-                    num_threads: int = 0, with_intensity: bool = False
+                    num_threads: int = 0, with_intensity: bool = False,
+                    denoise_firings: int = 0, denoise_fit: str = "mean",
+                    denoise_max_step_m: float = 0.15
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """The points of :func:`decode_timed_points` (the same points in the same order) as plain
     arrays, without the per-point record: the hot path of fragments and station windows.
+
+    ``denoise_firings`` > 0: each range smoothed along its laser's scan line over that many
+    firings either side (:func:`.scanline.smooth_scanline_ranges` with ``denoise_fit`` and
+    ``denoise_max_step_m``, per call of ``chunk`` packets: its points' ring and return type
+    never leave the call); 0: the decoder's x, y, z as they are.
 
     Returns
     -------
@@ -69,6 +76,7 @@ def decode_xyz_time(payload: np.ndarray, lidar_ns: np.ndarray, start: int, stop:
     from numpy.lib import recfunctions as rfn
 
     from .native import NativeVlp16Decoder
+    from .scanline import smooth_scanline_ranges
 
     dec = NativeVlp16Decoder(min_range_m=float(max(min_range, 0.0)), max_range_m=float(max_range),
                              num_threads=num_threads)
@@ -78,7 +86,11 @@ def decode_xyz_time(payload: np.ndarray, lidar_ns: np.ndarray, start: int, stop:
         pts = dec.decode(payload[s:e], lidar_ns[s:e]).points
         if len(pts) == 0:
             continue
-        xyz.append(rfn.structured_to_unstructured(pts[["x", "y", "z"]]))
+        if denoise_firings > 0:
+            xyz.append(smooth_scanline_ranges(pts, denoise_firings, denoise_max_step_m,
+                                              denoise_fit))
+        else:
+            xyz.append(rfn.structured_to_unstructured(pts[["x", "y", "z"]]))
         t.append(lidar_ns[s] + pts["time_offset_ns"].astype(np.int64))
         if with_intensity:
             inten.append(pts["intensity"].astype(np.float32))

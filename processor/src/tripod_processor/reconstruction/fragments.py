@@ -57,7 +57,8 @@ def build_fragment(lidar: LidarPackets, station: Station, orient: ImuOrientation
                    voxel_m: float, min_range: float, max_range: float,
                    num_threads: int = 0, chunk: int = 1000, max_points: int = 6_000_000,
                    with_intensity: bool = False, anchor_fit: bool = True,
-                   anchor_max_deviation_deg: float = 0.3) -> Fragment:
+                   anchor_max_deviation_deg: float = 0.3, denoise_firings: int = 0,
+                   denoise_fit: str = "mean", denoise_max_step_m: float = 0.15) -> Fragment:
     """Decode, place and voxel-filter one station's packets.
 
     Decodes and places the station in chunks of ``chunk`` packets, then voxel-filters all its
@@ -69,7 +70,10 @@ def build_fragment(lidar: LidarPackets, station: Station, orient: ImuOrientation
     (:func:`~.placement.station_anchor_rotation`) rather than slerped at its middle time, whose
     white noise would turn the whole station; the points are placed at the slerped attitude and
     moved rigidly onto the fitted one. A fit more than ``anchor_max_deviation_deg`` from the
-    slerped attitude is not used (``Fragment.anchor`` says why).
+    slerped attitude is not used (``Fragment.anchor`` says why). ``denoise_firings`` > 0: the
+    ranges smoothed along each laser's scan line over that many firings either side with
+    ``denoise_fit``, leaving out neighbours farther than ``denoise_max_step_m`` [m] in range,
+    before placement (:mod:`..decode.scanline`).
     """
     parts, raw = [], 0
     key_parts = []
@@ -78,7 +82,10 @@ def build_fragment(lidar: LidarPackets, station: Station, orient: ImuOrientation
         b = min(station.packet_stop, a + chunk)
         xyz, t_ns, inten = decode_xyz_time(lidar.payload, lidar.lidar_ns, a, b,
                                            min_range=min_range, max_range=max_range,
-                                           num_threads=num_threads, with_intensity=with_intensity)
+                                           num_threads=num_threads, with_intensity=with_intensity,
+                                           denoise_firings=denoise_firings,
+                                           denoise_fit=denoise_fit,
+                                           denoise_max_step_m=denoise_max_step_m)
         if len(xyz) == 0:
             continue
         raw += len(xyz)

@@ -205,7 +205,10 @@ def _reconstruct(recording_path, outdir, cfg: ReconstructConfig, bg: ThreadPoolE
         frags = build_fragments(eng, rec.lidar, seg.stations, orient, ext, cfg.fragments.voxel_m,
                                 pc.min_range_m, pc.max_range_m, threads, survey, bar,
                                 anchor_fit=pc.anchor_fit,
-                                anchor_max_deviation_deg=pc.anchor_max_deviation_deg)
+                                anchor_max_deviation_deg=pc.anchor_max_deviation_deg,
+                                denoise_firings=cfg.fragments.range_denoise_firings,
+                                denoise_fit=cfg.fragments.range_denoise_fit,
+                                denoise_max_step_m=cfg.fragments.range_denoise_max_step_m)
     notes += _anchor_notes(frags, pc.anchor_max_deviation_deg)
     early = None
     if cfg.output.report:

@@ -70,7 +70,8 @@ def _fragment_task(payload: np.ndarray, lidar_ns: np.ndarray, return_mode: str,
                    station: Station, orient: ImuOrientation, ext: Extrinsic, voxel_m: float,
                    min_range: float, max_range: float, num_threads: int,
                    with_intensity: bool, anchor_fit: bool = True,
-                   anchor_max_deviation_deg: float = 0.3) -> Fragment:
+                   anchor_max_deviation_deg: float = 0.3, denoise_firings: int = 0,
+                   denoise_fit: str = "mean", denoise_max_step_m: float = 0.15) -> Fragment:
     """One station's fragment from its own packets (``payload``, ``lidar_ns``: the station's
     slice; ``station`` with its original packet indices)."""
     n = len(lidar_ns)
@@ -78,7 +79,9 @@ def _fragment_task(payload: np.ndarray, lidar_ns: np.ndarray, return_mode: str,
     local = Station(station.index, station.start_ns, station.end_ns, 0, n, station.label)
     frag = build_fragment(lidar, local, orient, ext, voxel_m, min_range, max_range, num_threads,
                           with_intensity=with_intensity, anchor_fit=anchor_fit,
-                          anchor_max_deviation_deg=anchor_max_deviation_deg)
+                          anchor_max_deviation_deg=anchor_max_deviation_deg,
+                          denoise_firings=denoise_firings, denoise_fit=denoise_fit,
+                          denoise_max_step_m=denoise_max_step_m)
     frag.station = station
     return frag
 
@@ -86,8 +89,9 @@ def _fragment_task(payload: np.ndarray, lidar_ns: np.ndarray, return_mode: str,
 def build_fragments(engine, lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
                     ext: Extrinsic, voxel_m: float, min_range: float, max_range: float,
                     num_threads: int = 0, with_intensity: bool = False, progress=None,
-                    anchor_fit: bool = True,
-                    anchor_max_deviation_deg: float = 0.3) -> list[Fragment]:
+                    anchor_fit: bool = True, anchor_max_deviation_deg: float = 0.3,
+                    denoise_firings: int = 0, denoise_fit: str = "mean",
+                    denoise_max_step_m: float = 0.15) -> list[Fragment]:
     """:func:`~.fragments.build_fragment` for every station, in station order. ``progress``: a
     bar (``update(1)`` per station)."""
     step = (lambda _k: progress.update(1)) if progress is not None else None
@@ -101,7 +105,9 @@ def build_fragments(engine, lidar: LidarPackets, stations: list[Station], orient
         def one(st: Station) -> Fragment:
             return build_fragment(lidar, st, orient, ext, voxel_m, min_range, max_range,
                                   inner, with_intensity=with_intensity, anchor_fit=anchor_fit,
-                                  anchor_max_deviation_deg=anchor_max_deviation_deg)
+                                  anchor_max_deviation_deg=anchor_max_deviation_deg,
+                                  denoise_firings=denoise_firings, denoise_fit=denoise_fit,
+                                  denoise_max_step_m=denoise_max_step_m)
 
         calls = [(st,) for st in stations]
         if workers == 1:
@@ -111,7 +117,7 @@ def build_fragments(engine, lidar: LidarPackets, stations: list[Station], orient
     calls = [(lidar.payload[st.packet_start:st.packet_stop],
               lidar.lidar_ns[st.packet_start:st.packet_stop], lidar.return_mode, st, h_orient,
               h_ext, voxel_m, min_range, max_range, num_threads, with_intensity, anchor_fit,
-              anchor_max_deviation_deg)
+              anchor_max_deviation_deg, denoise_firings, denoise_fit, denoise_max_step_m)
              for st in stations]
     return engine.map(_fragment_task, calls, step)
 
