@@ -2,7 +2,8 @@
 
 import numpy as np
 
-from tripod_processor.decode.timed import FIRING_PERIOD_NS, TIMED_POINT_DTYPE, denoise_ranges
+from tripod_processor.decode.scanline import FIRING_PERIOD_NS
+from tripod_processor.decode.timed import TIMED_POINT_DTYPE, denoise_ranges
 
 
 def _scan(ranges_true: np.ndarray, az_deg: np.ndarray, elev_deg: float, ring: int,

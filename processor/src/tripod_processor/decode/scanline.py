@@ -68,16 +68,18 @@ def smooth_scanline_ranges(points: np.ndarray, firings: int, max_step_m: float =
         ks, ts = key[order], t[order].astype(np.int64)
     r = np.sqrt(np.einsum("ij,ij->i", xyz, xyz, dtype=np.float64))
     rs = r[order]
-    smooth = _fit_ranges(rs, ks, ts, firings, max_step_m, fit)
+    smooth = fit_ranges(rs, ks, ts, firings, max_step_m, fit)
     scale = np.empty(len(rs))
     scale[order] = smooth / np.maximum(rs, 1e-9)
     return (xyz * scale[:, None]).astype(np.float32)
 
 
-def _fit_ranges(rs: np.ndarray, ks: np.ndarray, ts: np.ndarray, firings: int,
+def fit_ranges(rs: np.ndarray, ks: np.ndarray, ts: np.ndarray, firings: int,
                 max_step_m: float, fit: str) -> np.ndarray:
     """The fitted range [m] (float64) at each point of scan-line-ordered ranges ``rs`` [m]
-    (keys ``ks``, times ``ts`` [ns])."""
+    (keys ``ks``: one per laser and return; times ``ts`` [ns], any zero, increasing within a
+    key); the one fit behind :func:`smooth_scanline_ranges` and
+    :func:`.timed.denoise_ranges`."""
     n = len(rs)
     order = {"mean": 0, "linear": 1, "quadratic": 2}[fit]
     # moments of the neighbours (the point itself included): S_k = Σ u^k, T_k = Σ u^k (r - r_i),

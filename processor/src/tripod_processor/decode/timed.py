@@ -102,39 +102,33 @@ def decode_xyz_time(payload: np.ndarray, lidar_ns: np.ndarray, start: int, stop:
             (inten[0] if one else np.concatenate(inten)) if with_intensity else None)
 
 
-#: a VLP-16 firing sequence (16 lasers) every 55.296 µs [ns]
-FIRING_PERIOD_NS = 55_296
 
-
-def denoise_ranges(pts: np.ndarray, firings: int = 5, max_step_m: float = 0.1) -> np.ndarray:
-    """The points' xyz (N, 3) float64 [m, lidar frame] with each range replaced by the mean range
-    of its laser's neighbours along the scan line: the same laser and return, within
-    ``firings`` firings either side (±1° at 600 rpm for 5), and within ``max_step_m`` of its
-    own range (a depth edge is not smoothed across). The beam's direction is kept: only the
-    range is noisy (a VLP-16's ~3 cm), and along a surface it varies smoothly at this spacing.
+def denoise_ranges(pts: np.ndarray, firings: int = 5, max_step_m: float = 0.1,
+                   fit: str = "mean") -> np.ndarray:
+    """The points' xyz (N, 3) float64 [m, lidar frame] with each range smoothed along its
+    laser's scan line: ``fit`` ("mean", "linear", "quadratic") over the same laser's and
+    return's ranges within ``firings`` firings either side (±1° at 600 rpm for 5), leaving out
+    a neighbour more than ``max_step_m`` from the point's own range (a depth edge is not
+    smoothed across); the beam's direction is kept. The fit is :mod:`.scanline`'s (the
+    fragments' smoothing); this is its form for :data:`TIMED_POINT_DTYPE` records (absolute
+    times, any order), the calibration's.
 
     Why: two sweeps' noisy points bias a registration's rotation by tenths of a degree in a
     small room (dev seed 2, 4 × 4 m, 12° mount: 0.41° about the tilt axis at 45° turns; 0.02°
     with ``firings=5``, as without noise), and that bias is hand-eye's mount-tilt error.
-    ``pts``: :data:`TIMED_POINT_DTYPE`; ``firings`` 0 returns the points as they are."""
+    ``firings`` 0 returns the points as they are."""
+    from .scanline import FITS, fit_ranges
+
+    if fit not in FITS:
+        raise ValueError(f"scan-line fit {fit!r}: one of {', '.join(FITS)}")
     xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=1).astype(np.float64)
     if firings <= 0 or len(pts) < 2:
         return xyz
     r = np.linalg.norm(xyz, axis=1)
     key = pts["ring"].astype(np.int64) * 256 + pts["return_type"].astype(np.int64)
     order = np.lexsort((pts["time_ns"], key))
-    rs, ks, ts = r[order], key[order], pts["time_ns"][order]
-    acc = rs.copy()
-    cnt = np.ones(len(rs))
-    max_dt = int((firings + 0.5) * FIRING_PERIOD_NS)
-    for o in range(1, firings + 1):
-        a, b = rs[:-o], rs[o:]
-        ok = ((ks[:-o] == ks[o:]) & (ts[o:] - ts[:-o] <= max_dt)
-              & (np.abs(b - a) < max_step_m))
-        acc[:-o] += np.where(ok, b, 0.0)
-        acc[o:] += np.where(ok, a, 0.0)
-        cnt[:-o] += ok
-        cnt[o:] += ok
+    rs = r[order]
+    smooth = fit_ranges(rs, key[order], pts["time_ns"][order], firings, max_step_m, fit)
     scale = np.empty(len(rs))
-    scale[order] = (acc / cnt) / np.maximum(rs, 1e-9)
+    scale[order] = smooth / np.maximum(rs, 1e-9)
     return xyz * scale[:, None]
