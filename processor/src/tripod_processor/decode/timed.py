@@ -102,7 +102,6 @@ def decode_xyz_time(payload: np.ndarray, lidar_ns: np.ndarray, start: int, stop:
             (inten[0] if one else np.concatenate(inten)) if with_intensity else None)
 
 
-
 def denoise_ranges(pts: np.ndarray, firings: int = 5, max_step_m: float = 0.1,
                    fit: str = "mean") -> np.ndarray:
     """The points' xyz (N, 3) float64 [m, lidar frame] with each range smoothed along its
