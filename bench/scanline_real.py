@@ -8,7 +8,8 @@ public captures in ``../shared/data/velodyne`` (read in place): each 50-ms windo
 into 25-cm voxels, and each planar voxel (30+ points; smallest eigenvalue < 0.2 of the middle
 one, not a line) gives the RMS distance of its points to their plane. Printed: the median and
 25th percentile of that RMS over all windows, for the ranges as measured and smoothed with the
-calibration's setting (mean, ±5 firings, 0.1-m step) and the fragments' (linear, ±5, 0.15 m).
+calibration's setting (mean, ±5 firings, 0.1-m step), the fragments' (mean, ±5, 0.15 m) and
+the linear fit's (±5, 0.15 m).
 
     python bench/scanline_real.py [PCAP ...]
 """
@@ -24,7 +25,8 @@ DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "velodyn
 DEFAULT = ["scanparser-vlp16-gaps.pcap", "veloview-vlp16-20hz.pcap"]
 #: (label, firings either side, fit, max step [m])
 SETTINGS = [("as measured", 0, "mean", 0.1), ("calibration: mean ±5, 0.10 m", 5, "mean", 0.1),
-            ("fragments: linear ±5, 0.15 m", 5, "linear", 0.15)]
+            ("fragments: mean ±5, 0.15 m", 5, "mean", 0.15),
+            ("option: linear ±5, 0.15 m", 5, "linear", 0.15)]
 
 
 def plane_rms_m(xyz: np.ndarray, voxel_m: float = 0.25, min_points: int = 30) -> list[float]:

@@ -189,9 +189,12 @@ class FragmentConfig(StrictModel):
     #: the scan line's local fit: ``mean`` (least noise; biased outward where the range curves
     #: along the line, and by the slope where the window is cut short: a far or oblique wall),
     #: ``linear`` (no slope bias; the mean on a full window) or ``quadratic`` (no curvature
-    #: bias either, ~2x the mean's noise variance). Linear: the mean's map-to-mesh in a hall
-    #: and a corridor (dev rigs 8, 82) was 3.2 / 1.9 mm against 2.2 / 1.5
-    range_denoise_fit: Literal["mean", "linear", "quadratic"] = "linear"
+    #: bias either, ~2x the mean's noise variance). The mean, as the calibration's: on the 11
+    #: dev rigs map-to-mesh median 1.5 mm (linear 1.6; a hall and a corridor, dev 8 and 82, 3.2 /
+    #: 1.9 mm against linear's 2.2 / 1.5), and global registration of the side-mounted test
+    #: capture's fragments (tests/processor/test_gravity_up.py's rig, 12 pairs over three mounts)
+    #: took the 180° twin on 1 pair with the mean, 3 with the line, 2 unsmoothed
+    range_denoise_fit: Literal["mean", "linear", "quadratic"] = "mean"
     #: a neighbour farther than this [m] in range from the point is left out of its fit (a
     #: depth edge); 0.15 is 5 sigma of the noise: a tighter test cuts the window short at
     #: random where the range climbs along the line (a wall seen at 30°+ incidence)
