@@ -86,7 +86,6 @@ def fit_ranges(rs: np.ndarray, ks: np.ndarray, ts: np.ndarray, firings: int,
     # u = firings from the point (by time): centred on the point, so float32 holds them
     # (ranges to µm, u to 1e-3 firing, at most 2·firings + 1 terms)
     r32 = rs.astype(np.float32)
-    u_all = ((ts - ts[0]) / FIRING_PERIOD_NS).astype(np.float32) if order else None
     max_u = np.float32(firings + 0.5)
     S = [np.ones(n, np.float32)] + [np.zeros(n, np.float32) for _ in range(2 * order)]
     T = [np.zeros(n, np.float32) for _ in range(order + 1)]
@@ -97,7 +96,10 @@ def fit_ranges(rs: np.ndarray, ks: np.ndarray, ts: np.ndarray, firings: int,
         if order == 0:
             ok &= (ts[o:] - ts[:-o]) <= int(max_u * FIRING_PERIOD_NS)
         else:
-            u = u_all[o:] - u_all[:-o]  # the later point seen from the earlier one (> 0)
+            # the later point seen from the earlier one (> 0), from the int64 time difference:
+            # the timed records' absolute times over a station would leave float32 offsets
+            # from the first point a tenth of a firing coarse
+            u = ((ts[o:] - ts[:-o]) / FIRING_PERIOD_NS).astype(np.float32)
             ok &= u <= max_u
             u *= ok
         dr *= ok
