@@ -68,3 +68,41 @@ def test_carries_join_the_stations_pairs(rig):
     assert est.carry_pairs >= 6 and est.pairs > est.carry_pairs
     assert abs(est.offset_ns - t_true) < 1e6, (est, t_true)
     assert est.to_dict()["carry_pairs"] == est.carry_pairs
+
+
+
+def test_turns_offset_with_more_pairs_and_passes(rig):
+    """``calibration.turn_pairs_per_station`` / ``_per_carry`` / ``turn_passes`` reach the turns'
+    offset: 12 pairs a station and a carry register twice the pairs of the defaults' 6 and the
+    passes go on until the offset stops moving; within 0.5 ms from a start 8 ms off."""
+    from tripod_processor.reconstruction.config import CalibrationConfig
+
+    rec, truth, ext, t_true = rig
+    cc = CalibrationConfig(turn_pairs_per_station=12, turn_pairs_per_carry=12, turn_passes=4)
+    orient = ImuOrientation(rec.imu, fit_clock_map(rec.lidar), 0)
+    stations = true_stations(rec, truth)
+    est = time_offset_from_turns(rec.lidar, stations, orient, ext, 2,
+                                 carries=carry_spans(stations), passes=cc.turn_passes,
+                                 pairs_per_station=cc.turn_pairs_per_station,
+                                 pairs_per_carry=cc.turn_pairs_per_carry)
+    assert est.pairs >= 50 and est.carry_pairs >= 20, est
+    assert abs(est.offset_ns - t_true) < 0.5e6, (est, t_true)
+    with pytest.raises(ValueError):
+        CalibrationConfig(turn_passes=0)
+
+
+def test_axis_information_marginalises_the_other_turns_and_the_shift():
+    """A registration's information about its turn about one axis: the diagonal entry when
+    nothing correlates with it, less when another turn or the shift shares its effect."""
+    from tripod_processor.reconstruction.calibration import _axis_information_sqrt
+
+    a = np.array([0.0, 0.0, 1.0])
+    info = np.diag([4.0, 9.0, 16.0, 1.0, 1.0, 1.0])
+    assert _axis_information_sqrt(info, a) == pytest.approx(4.0)
+    # the turn about z correlated with the turn about x: what is left of it is its Schur
+    # complement, 16 - 3² / 4 = 13.75
+    info[0, 2] = info[2, 0] = 3.0
+    assert _axis_information_sqrt(info, a) == pytest.approx(np.sqrt(13.75))
+    # ... and with the shift along x (a fan's turn mistaken for its shift): less again
+    info[2, 3] = info[3, 2] = 0.5
+    assert _axis_information_sqrt(info, a) < np.sqrt(13.75)

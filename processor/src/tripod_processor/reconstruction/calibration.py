@@ -971,6 +971,18 @@ def _rotation_whitener(information: np.ndarray) -> np.ndarray:
     return (EV * np.sqrt(ew)) @ EV.T
 
 
+def _axis_information_sqrt(information: np.ndarray, a: np.ndarray) -> float:
+    """The square root of a registration's information [1/rad²] about its rotation's component
+    along the unit axis ``a`` (its 6x6 information, rotation first; the translation and the two
+    other turns marginalised out: Schur complements)."""
+    I6 = np.asarray(information, dtype=np.float64)
+    I_rr = I6[:3, :3] - I6[:3, 3:] @ np.linalg.pinv(I6[3:, 3:]) @ I6[3:, :3]
+    B = np.column_stack([a, _perp_basis(a)])
+    Ib = B.T @ (0.5 * (I_rr + I_rr.T)) @ B
+    i_a = Ib[0, 0] - Ib[0, 1:] @ np.linalg.pinv(Ib[1:, 1:]) @ Ib[1:, 0]
+    return float(np.sqrt(max(i_a, 1e-12 * max(float(np.trace(I_rr)), 1e-12))))
+
+
 def _pick_pairs(dr: np.ndarray, k: np.ndarray, j: np.ndarray, n_times: int, n_pairs: int
                 ) -> list[tuple[int, int, float]]:
     """The candidate sweep pairs (k, j) with the largest rate change ``dr`` first (ties in
@@ -1000,7 +1012,8 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
                       carries: list[tuple[int, int]] | None = None, max_carries: int = 8,
                       pairs_per_carry: int = 6, carry_pair_s: tuple[float, float] = (0.2, 0.5),
                       carry_min_range_m: float = 1.5,
-                      denoise_firings: int = DENOISE_FIRINGS) -> TurnTimeOffset:
+                      denoise_firings: int = DENOISE_FIRINGS,
+                      station_information: bool = False) -> TurnTimeOffset:
     """One pass of the IMU time offset from the head's turns.
 
     Two short sweeps of a station (``window_s``, de-skewed by the IMU) are registered against
@@ -1082,7 +1095,15 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
                 continue
             # a carry's rotation error is used about every axis, each as well as the
             # registration saw it (a lidar on its side sees a fan: some turns hardly show)
-            W = _rotation_whitener(r.information) if moving else None
+            if moving:
+                W = _rotation_whitener(r.information)
+            elif station_information:
+                # a station's pair gives its angle about the pan axis only: weighed by what the
+                # registration saw of it (the other two turns marginalised out; a lidar on its
+                # side registers fans, some of whose turns about the pan axis hardly show)
+                W = np.array([[_axis_information_sqrt(r.information, a_l)]])
+            else:
+                W = None
             meas.append((int(mids[k]), int(mids[j]), A, float(np.degrees(dr)), W))
         return meas
 
@@ -1159,8 +1180,9 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
     if is_carry.any():
         t_j = np.array([m[1] for m in meas], dtype=np.int64)
         z_j = pose_world_lidar(orient, ext, t_j)[:, 2, :3]
-    drift = np.concatenate([(meas[m][4] @ z_j[m] if c else np.ones(1)) * dt_s[m]
-                            for m, c in enumerate(is_carry)])
+    drift = np.concatenate([(meas[m][4] @ z_j[m] if c else
+                             np.ones(1) * (1.0 if meas[m][4] is None else meas[m][4][0, 0]))
+                            * dt_s[m] for m, c in enumerate(is_carry)])
     keep = np.ones(len(meas), dtype=bool)
     w_row = np.ones(len(row_pair))  # a carry row's weight: the stations' scale over its own
     off = off0
@@ -1177,8 +1199,9 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
                 r_parts.append(W @ rv)
                 g_parts.append(W @ gv)
             else:
-                r_parts.append([a_l @ rv])
-                g_parts.append([a_l @ gv])
+                w_st = 1.0 if W is None else float(W[0, 0])
+                r_parts.append([w_st * (a_l @ rv)])
+                g_parts.append([w_st * (a_l @ gv)])
         r_ = np.concatenate(r_parts)
         g_ = np.concatenate(g_parts)
         # r = g·δ + drift·c: δ the offset's correction [s], c the IMU's yaw drift [rad/s]

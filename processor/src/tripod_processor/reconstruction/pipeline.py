@@ -369,7 +369,11 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
         carries = carry_spans(seg.stations) if cc.time_offset_from_carries else None
         turn = time_offset_from_turns(rec.lidar, seg.stations, orient, ext, cfg.num_threads,
                                       max_stations=cc.max_turn_stations, carries=carries,
-                                      denoise_firings=cc.range_denoise_firings)
+                                      denoise_firings=cc.range_denoise_firings,
+                                      passes=cc.turn_passes,
+                                      pairs_per_station=cc.turn_pairs_per_station,
+                                      pairs_per_carry=cc.turn_pairs_per_carry,
+                                      station_information=cc.turn_station_information)
         if turn.sigma_ms <= cc.max_turns_time_offset_sigma_ms:
             orient = orient.with_offset(turn.offset_ns)
         else:
