@@ -123,8 +123,12 @@ class CalibrationConfig(StrictModel):
     lever_turn_stations: int = Field(default=8, ge=1)
     lever_turn_pairs: int = Field(default=32, ge=3)
     #: ... used when its larger 1-sigma across the pan axis is below this [mm] (else one
-    #: station's, as before)
-    lever_turn_max_sigma_mm: float = Field(default=15.0, gt=0)
+    #: station's). The one station's is the same equations on a subset of the same kind of
+    #: pairs (unweighted): with the calibration's smoothed sweeps it was 100-350 mm off on the
+    #: dev halls whose turns' sigma was 32-48 mm (455, 8399, 383: the turns 23-33 mm off, the
+    #: fit from them 7-8 mm). 100: half the range of lever arms (0-20 cm), beyond which neither
+    #: start says much (15 until stop 34)
+    lever_turn_max_sigma_mm: float = Field(default=100.0, gt=0)
     #: ... and then its component along the spin axis joins the surfaces' by inverse variance,
     #: the surfaces' sigma there times this (they see it only at vertical edges: 1-8 sigma off
     #: on seven dev rigs, the turns' 0.2-1.6 sigma)
