@@ -70,7 +70,6 @@ def test_carries_join_the_stations_pairs(rig):
     assert est.to_dict()["carry_pairs"] == est.carry_pairs
 
 
-
 def test_turns_offset_with_more_pairs_and_passes(rig):
     """``calibration.turn_pairs_per_station`` / ``_per_carry`` / ``turn_passes`` reach the turns'
     offset: 12 pairs a station and a carry register twice the pairs of the defaults' 6 and the

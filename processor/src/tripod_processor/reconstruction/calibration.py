@@ -1066,8 +1066,8 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
         return np.linalg.inv(T[0]) @ T[1]
 
     #: one measurement: (t_k, t_j [ns], A measured (4x4), rate change [°/s], the rotation
-    #: error's whitener W (3x3) for a carry's pair, None for a station's)
-    Meas = tuple[int, int, np.ndarray, float, "np.ndarray | None"]
+    #: error's whitener W (3x3) for a carry's pair, a weight (float) for a station's)
+    Meas = tuple[int, int, np.ndarray, float, "np.ndarray | float"]
 
     def register_chosen(times: np.ndarray, mids: np.ndarray, chosen, num_threads: int,
                         min_range: float, moving: bool = False) -> list[Meas]:
@@ -1093,17 +1093,17 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
             slip = np.degrees(Rotation.from_matrix(init[:3, :3].T @ A[:3, :3]).magnitude())
             if r.fitness < 0.5 or slip > 1.0:
                 continue
-            # a carry's rotation error is used about every axis, each as well as the
-            # registration saw it (a lidar on its side sees a fan: some turns hardly show)
+            # W, the pair's weight: a carry's rotation error is used about every axis, each as
+            # well as the registration saw it (a 3x3 whitener: a lidar on its side sees a fan,
+            # some turns hardly show); a station's pair gives its angle about the pan axis only,
+            # weighed alike (1.0) or, with ``station_information``, by what the registration saw
+            # of that turn (the other two and the shift marginalised out)
             if moving:
                 W = _rotation_whitener(r.information)
             elif station_information:
-                # a station's pair gives its angle about the pan axis only: weighed by what the
-                # registration saw of it (the other two turns marginalised out; a lidar on its
-                # side registers fans, some of whose turns about the pan axis hardly show)
-                W = np.array([[_axis_information_sqrt(r.information, a_l)]])
+                W = _axis_information_sqrt(r.information, a_l)
             else:
-                W = None
+                W = 1.0
             meas.append((int(mids[k]), int(mids[j]), A, float(np.degrees(dr)), W))
         return meas
 
@@ -1180,9 +1180,8 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
     if is_carry.any():
         t_j = np.array([m[1] for m in meas], dtype=np.int64)
         z_j = pose_world_lidar(orient, ext, t_j)[:, 2, :3]
-    drift = np.concatenate([(meas[m][4] @ z_j[m] if c else
-                             np.ones(1) * (1.0 if meas[m][4] is None else meas[m][4][0, 0]))
-                            * dt_s[m] for m, c in enumerate(is_carry)])
+    drift = np.concatenate([(meas[m][4] @ z_j[m] if c else np.full(1, meas[m][4])) * dt_s[m]
+                            for m, c in enumerate(is_carry)])
     keep = np.ones(len(meas), dtype=bool)
     w_row = np.ones(len(row_pair))  # a carry row's weight: the stations' scale over its own
     off = off0
@@ -1199,9 +1198,8 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
                 r_parts.append(W @ rv)
                 g_parts.append(W @ gv)
             else:
-                w_st = 1.0 if W is None else float(W[0, 0])
-                r_parts.append([w_st * (a_l @ rv)])
-                g_parts.append([w_st * (a_l @ gv)])
+                r_parts.append([W * (a_l @ rv)])
+                g_parts.append([W * (a_l @ gv)])
         r_ = np.concatenate(r_parts)
         g_ = np.concatenate(g_parts)
         # r = g·δ + drift·c: δ the offset's correction [s], c the IMU's yaw drift [rad/s]
