@@ -265,6 +265,48 @@ def test_structure_up_is_fused_with_the_prior_by_uncertainty():
     assert angle(structure_up([*walls, floor]), true_up) < 0.1
 
 
+def test_structure_up_trusts_no_structure_whose_walls_and_floors_disagree():
+    """A vertical lidar sees the floor only far from the station (a ring at 6-13 m), and such
+    a floor's plane can lean by ~1 deg (dev fragment: 0.9 deg at an IMU up 0.01 deg off; the
+    level then 0.6 deg off put the floor height 6 cm off at 12 m). When the walls and the
+    floors / ceilings, each solved alone, disagree by D, the structure is uncertain by at least
+    D / 2 and a right prior barely moves, whichever part is off; parts that agree still
+    correct a prior that is 0.8 deg off."""
+    from types import SimpleNamespace
+
+    from tripod_processor.scene.heightmap_registration.levelling import structure_up
+    from tripod_processor.scene.planes import CEILING, FLOOR, WALL
+
+    def wall(azimuth_deg, up):
+        a = np.radians(azimuth_deg)
+        h = np.array([np.cos(a), np.sin(a), 0.0])
+        n = h - (h @ up) * up
+        return SimpleNamespace(label=WALL, normal=n / np.linalg.norm(n),
+                               indices=np.arange(10_000))
+
+    def level(label, up):
+        return SimpleNamespace(label=label, normal=up if label == FLOOR else -up,
+                               indices=np.arange(20_000))
+
+    def angle(u, v):
+        return float(np.degrees(np.arccos(np.clip(u @ v / np.linalg.norm(v), -1, 1))))
+
+    z = np.array([0.0, 0.0, 1.0])  # the prior (IMU up) is right
+    off = _tipped(60.0, 0.9) @ z
+    azimuths = range(0, 360, 30)
+    floors_off = [*(wall(az, z) for az in azimuths),
+                  level(FLOOR, off), level(FLOOR, off), level(CEILING, off)]
+    walls_off = [*(wall(az, off) for az in azimuths),
+                 level(FLOOR, z), level(FLOOR, z), level(CEILING, z)]
+    for planes in (floors_off, walls_off):
+        assert angle(structure_up(planes, parts=False), z) > 0.3  # the joint fit's pull
+        assert angle(structure_up(planes), z) < 0.15
+    true_up = _tipped(30.0, 0.8) @ z  # the prior 0.8 deg off, walls and floors agree
+    agree = [*(wall(az, true_up) for az in azimuths), level(FLOOR, true_up),
+             level(CEILING, true_up)]
+    assert angle(structure_up(agree), true_up) < 0.1
+
+
 def test_level_height_from_shared_floors_then_ceilings():
     """The height between two gravity-levelled scans: fixed by their floors when both are
     trusted, else by their ceilings (a vertical lidar may see the ceiling of a low room but not

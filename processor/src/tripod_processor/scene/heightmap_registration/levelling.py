@@ -44,7 +44,8 @@ class LevelledScan:
 
 
 def structure_up(planes, *, prior_sigma_deg: float = 0.25, min_sigma_deg: float = 0.1,
-                 max_tilt_deg: float = 1.5, outlier_deg: float = 1.0) -> np.ndarray:
+                 max_tilt_deg: float = 1.5, outlier_deg: float = 1.0,
+                 parts: bool = True) -> np.ndarray:
     """The up direction (unit (3,), in the planes' frame) that makes the walls vertical and the
     floors and ceilings horizontal, near +z: the frame's +z is the prior (an IMU's gravity).
 
@@ -60,22 +61,29 @@ def structure_up(planes, *, prior_sigma_deg: float = 0.25, min_sigma_deg: float 
     a degree correct an up that is off by ~1 deg; a thin noisy band of walls and mislabelled
     planes that scatter by a degree barely move a good prior (the equal-weight version moved
     dev fragments with a 0.05 deg IMU up by up to 1.1 deg), and a direction no wall constrains
-    (a corridor's) stays at the prior. When the structure alone says a tilt over
-    ``max_tilt_deg`` it is not trusted (+z is returned): on the dev fragments such fits came
+    (a corridor's) stays at the prior. The structure is uncertain by at least half the
+    disagreement of its two independent parts (``parts``, :func:`_parts_disagreement`): the
+    walls' tilt and the floors' and ceilings', each solved alone. A vertical lidar sees the
+    floor only as a ring 6-13 m away, whose plane can lean by ~1 deg; on the dev vertical
+    fragments (seed 302) the joint fit then moved an IMU up 0.01 deg off by up to 0.60 deg (the
+    floor height 6 cm off at 12 m), by at most 0.14 deg with this bound (off: the fit as
+    before). When the structure alone says a tilt over ``max_tilt_deg`` it is not trusted (+z is returned): on the dev fragments such fits came
     from a few mislabelled or one-sided planes (1.9 and 7.5 deg off at a 0.05 deg IMU up)."""
-    rows, rhs, w = [], [], []
+    rows, rhs, w, is_wall = [], [], [], []
     for p in planes:
         n = np.asarray(p.normal, np.float64)
         k = float(min(len(p.indices), 20_000)) / 20_000
         if p.label == WALL and abs(n[2]) < np.sin(np.radians(10.0)):
-            rows.append([n[0], n[1]]), rhs.append(-n[2]), w.append(k)
+            rows.append([n[0], n[1]]), rhs.append(-n[2]), w.append(k), is_wall.append(True)
         elif p.label in (FLOOR, CEILING) and abs(n[2]) > np.cos(np.radians(10.0)):
             rows += [[1.0, 0.0], [0.0, 1.0]]
             rhs += [n[0] / n[2], n[1] / n[2]]
             w += [k, k]
+            is_wall += [False, False]
     if not rows:
         return np.array([0.0, 0.0, 1.0])
     A, y, wt = np.asarray(rows), np.asarray(rhs), np.asarray(w)
+    is_wall = np.asarray(is_wall)
     # the prior is right to ~1 deg (a static IMU's gravity): a plane that says more is no level
     # wall, floor or ceiling (furniture sides, sloped or mislabelled surfaces)
     keep = np.abs(y) < np.radians(outlier_deg)
@@ -94,6 +102,8 @@ def structure_up(planes, *, prior_sigma_deg: float = 0.25, min_sigma_deg: float 
             s2 = max(r2, np.radians(min_sigma_deg) ** 2)
         else:  # too few planes to tell how far they agree: the prior wins
             s2 = np.radians(1.0) ** 2
+        if parts:
+            s2 = max(s2, _parts_disagreement(Ak, yk, wk, is_wall[keep], ab_s, N))
         ab = np.linalg.solve(N / s2 + prior_info * np.eye(2), Ak.T @ (wk * yk) / s2)
         keep = np.abs(A @ ab_s - y) < np.radians(outlier_deg)
         if not keep.any():
@@ -102,6 +112,24 @@ def structure_up(planes, *, prior_sigma_deg: float = 0.25, min_sigma_deg: float 
         return np.array([0.0, 0.0, 1.0])  # the structure alone says a tilt the prior rules out
     u = np.array([ab[0], ab[1], 1.0])
     return u / np.linalg.norm(u)
+
+
+def _parts_disagreement(A, y, w, is_wall, ab_s, N) -> float:
+    """Smallest per-plane variance [rad^2] of :func:`structure_up`'s fit that the disagreement
+    of its two independent parts allows: the walls' tilt and the floors' and ceilings' tilt,
+    each solved alone (a direction a part does not constrain held at the joint fit ``ab_s``),
+    differ by D; the joint fit is then uncertain by at least D / 2, i.e. a plane by D / 2 x
+    sqrt(planes). 0 when either part is missing."""
+    if is_wall.all() or not is_wall.any():
+        return 0.0
+    sols = []
+    for part in (is_wall, ~is_wall):
+        Ap, yp, wp = A[part], y[part], w[part]
+        Np = Ap.T @ (Ap * wp[:, None])
+        eps = 1e-3 * max(float(np.trace(N)), 1e-9)  # a weak pull to the joint fit
+        sols.append(np.linalg.solve(Np + eps * np.eye(2), Ap.T @ (wp * yp) + eps * ab_s))
+    d = float(np.linalg.norm(sols[0] - sols[1]))
+    return (d / 2.0) ** 2 * float(np.trace(N)) / 2.0
 
 
 #: [m^2] smallest ceiling plane whose height two scans may share when a floor is missing: a
