@@ -67,8 +67,9 @@ def structure_up(planes, *, prior_sigma_deg: float = 0.25, min_sigma_deg: float 
     floor only as a ring 6-13 m away, whose plane can lean by ~1 deg; on the dev vertical
     fragments (seed 302) the joint fit then moved an IMU up 0.01 deg off by up to 0.60 deg (the
     floor height 6 cm off at 12 m), by at most 0.14 deg with this bound (off: the fit as
-    before). When the structure alone says a tilt over ``max_tilt_deg`` it is not trusted (+z is returned): on the dev fragments such fits came
-    from a few mislabelled or one-sided planes (1.9 and 7.5 deg off at a 0.05 deg IMU up)."""
+    before). When the structure alone says a tilt over ``max_tilt_deg`` it is not trusted (+z
+    is returned): on the dev fragments such fits came from a few mislabelled or one-sided planes
+    (1.9 and 7.5 deg off at a 0.05 deg IMU up)."""
     rows, rhs, w, is_wall = [], [], [], []
     for p in planes:
         n = np.asarray(p.normal, np.float64)
