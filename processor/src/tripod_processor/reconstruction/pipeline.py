@@ -390,6 +390,8 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
                              fit_time=fit_time_surf, fit_rotation=fit_rot,
                              max_stations=cc.max_stations, num_threads=cfg.num_threads,
                              denoise_firings=cc.range_denoise_firings,
+                             fit_yaw_drift=cc.fit_yaw_drift,
+                             yaw_drift_prior_deg_per_min=cc.yaw_drift_prior_deg_per_min,
                              split_iterations=split, iterations=8 + split, **prior)
         if fit_rot and not cal.rotation_observable:
             # the stations' surfaces hardly see the mount's tilt (a spin axis near the pan axis
@@ -404,6 +406,8 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
                                      fit_time=fit_time_surf, fit_rotation=False,
                                      max_stations=cc.max_stations, num_threads=cfg.num_threads,
                                      denoise_firings=cc.range_denoise_firings,
+                                     fit_yaw_drift=cc.fit_yaw_drift,
+                                     yaw_drift_prior_deg_per_min=cc.yaw_drift_prior_deg_per_min,
                                      split_iterations=split, iterations=8 + split,
                                      **prior)
             fit_rot = False
@@ -555,6 +559,8 @@ def _refit_far_lever(rec, seg, orient, ext, cfg, cal, fit_time, fit_rot, prior, 
                               fit_time=fit_time, fit_rotation=fit_rot,
                               max_stations=cc.max_stations, num_threads=cfg.num_threads,
                               denoise_firings=cc.range_denoise_firings,
+                              fit_yaw_drift=cc.fit_yaw_drift,
+                              yaw_drift_prior_deg_per_min=cc.yaw_drift_prior_deg_per_min,
                               split_iterations=k, iterations=k + cc.lever_refit_usual_iterations,
                               **prior)
     except ValueError:
@@ -625,6 +631,8 @@ def _weigh_tilt(rec, seg, orient, ext, cfg, cal, fit_lever, fit_time, prior,
                               fit_time=fit_time, fit_rotation=True,
                               max_stations=cc.max_tilt_stations, num_threads=cfg.num_threads,
                               denoise_firings=cc.range_denoise_firings,
+                              fit_yaw_drift=cc.fit_yaw_drift,
+                              yaw_drift_prior_deg_per_min=cc.yaw_drift_prior_deg_per_min,
                               **prior)
         if more.rotation_sigma_deg < cal.rotation_sigma_deg:
             cal = more
