@@ -256,6 +256,15 @@ class OdometryConfig(StrictModel):
     lock_z: bool = False
     #: grid cell [m] of the top-down correlation that seeds the translation
     seed_cell_m: float = Field(default=0.1, gt=0)
+    #: half-width [m] of the top-down images that seed the translation (about each fragment's
+    #: origin): a carry much longer than this puts the true shift outside what they can find
+    seed_extent_m: float = Field(default=16.0, gt=0)
+    #: when the best start from those seeds does not respect free space (``free_space_check``), the seeds
+    #: again from images this wide [m] (0: never): dev seed 8399 (37 x 14 m hall of repeating
+    #: bays, 16.2-m carry) had no seed near the truth in the 16-m images and took an alias 5.2 m
+    #: off (overlap 79 %, 4.9 % of its points in the other station's free space); from 32-m
+    #: images the truth is the first seed (99.6 %, 0.01 %)
+    seed_wide_extent_m: float = Field(default=32.0, ge=0)
     #: floor of the edge standard deviations [m], [deg] (registration information is capped)
     sigma_floor_m: float = Field(default=0.003, gt=0)
     sigma_floor_deg: float = Field(default=0.03, gt=0)
