@@ -487,6 +487,9 @@ class SelfCalibration:
     #: basis ``lever_basis_imu`` ((3, 2), IMU frame); None when not fitted
     lever_arm_cov_m2: np.ndarray | None = None
     lever_basis_imu: np.ndarray | None = None
+    #: the IMU's heading drift about the world's vertical [deg/min] fitted with the rest
+    #: (``fit_yaw_drift``); NaN when not fitted
+    yaw_drift_deg_per_min: float = float("nan")
 
     def lever_arm_by_mount(self) -> dict | None:
         """The lever arm's sigma along the lidar's spin axis (projected across the pan axis)
@@ -540,6 +543,8 @@ class SelfCalibration:
                            "mount_rotation": self.rotation_observable},
             **({"lever_arm_by_mount": by_mount} if by_mount else {}),
             "stations": self.stations, "residual_m": self.residual_m, "pairs": self.pairs,
+            **({"imu_yaw_drift_deg_per_min": self.yaw_drift_deg_per_min}
+               if np.isfinite(self.yaw_drift_deg_per_min) else {}),
         }
 
 
@@ -710,7 +715,9 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
                    num_threads: int = 0, time_prior_ns: int | None = None,
                    time_prior_sigma_ms: float = float("inf"),
                    split_iterations: int = 0,
-                   denoise_firings: int = DENOISE_FIRINGS) -> SelfCalibration:
+                   denoise_firings: int = DENOISE_FIRINGS,
+                   fit_yaw_drift: bool = False,
+                   yaw_drift_prior_deg_per_min: float = float("inf")) -> SelfCalibration:
     """Lever arm, IMU time offset and mount rotation that make every station self-consistent.
 
     At a standing station the head turns about a fixed pivot, so a surface seen at two moments
@@ -727,6 +734,16 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
     Gauss–Newton on the point-to-plane distances (Huber weights, voxels renewed each iteration)
     gives the calibration and, from the normal matrix, its covariance (times
     ``sigma_inflation``: a voxel's residuals share its fitted plane).
+
+    ``fit_yaw_drift`` (opt-in): the IMU's heading drift c [rad/s] (a fused attitude without
+    magnetometer turns slowly about the world's vertical z; the simulator's
+    ``imu.yaw_drift_deg_per_min`` has the same sign) joins the fit as a nuisance parameter: a
+    point lands at Rz(−c·(t − t_st))·p, t_st the station's middle (∂p/∂c = −(t − t_st)·(z × p)),
+    with a prior c = 0 ± ``yaw_drift_prior_deg_per_min``. Left out, it turns the later part of
+    a pan against the earlier by c·Δt, a shift growing with range, which the lever arm takes up
+    in part where it shifts surfaces the same way: along the spin axis of a lidar on its side
+    (opposite pan angles: the scan plane shifted along its normal;
+    ``tests/processor/test_calibration_yaw_drift.py``).
 
     What a pan about one axis b cannot see is held at the prior: ℓ along b (moves the fragment
     rigidly) and the mount's turn about b (turns it). The time offset is seen where the turn
@@ -753,7 +770,8 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
          denoise_firings) for k, st in enumerate(use)], workers)
     sep_ns = int(min_separation_s * 1e9)
     cols = (["l1", "l2"] if fit_lever else []) + (["dt"] if fit_time else []) + (
-        ["r1", "r2"] if fit_rotation else [])
+        ["r1", "r2"] if fit_rotation else []) + (["yd"] if fit_yaw_drift else [])
+    drift = 0.0  # [rad/s] the IMU's heading drift about the world's vertical (fit_yaw_drift)
     n_p = len(cols)
     history: list[dict] = []
     H = np.zeros((n_p, n_p))
@@ -774,6 +792,11 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
             if len(xyz) < 500:
                 return np.zeros(0), None
             R_wi = o.rotation_at(t)
+            if fit_yaw_drift:
+                # the heading drift taken out: Rz(−c·(t − t_st)) about the world's vertical
+                dts = (t - (int(t.min()) + int(t.max())) // 2) * 1e-9  # [s] from the middle
+                R_wi = np.matmul(Rotation.from_rotvec(
+                    np.outer(-drift * dts, [0.0, 0.0, 1.0])).as_matrix(), R_wi)
             v = xyz @ R_il.T + ell
             p = np.einsum("nij,nj->ni", R_wi, v)
             J = np.zeros((len(p), 3, n_p))
@@ -791,6 +814,11 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
                 R_wl = stacked_matmul(R_wi, R_il)
                 for m in range(2):
                     J[:, :, c + m] = -np.einsum("nij,nj->ni", R_wl, np.cross(xyz, U_r[:, m]))
+                c += 2
+            if fit_yaw_drift:
+                # ∂p/∂c = −(t − t_st)·(z × p)
+                J[:, 0, c] = dts * p[:, 1]
+                J[:, 1, c] = -dts * p[:, 0]
             return _voxel_plane_residuals(p, J, t, vox, sep_ns, split)
 
         for r, Jr in _threaded_map(station_residuals, data, workers):
@@ -810,6 +838,11 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
             w_p = (s_rob * sigma_inflation / (time_prior_sigma_ms * 1e-3)) ** 2
             H[it_c, it_c] += w_p
             g[it_c] += w_p * (off - time_prior_ns) * 1e-9
+        if fit_yaw_drift and np.isfinite(yaw_drift_prior_deg_per_min):
+            # the drift's prior 0 ± σ, one more residual as the offset's
+            w_d = (s_rob * sigma_inflation / np.radians(yaw_drift_prior_deg_per_min / 60.0)) ** 2
+            H[-1, -1] += w_d
+            g[-1] += w_d * drift
         # scale columns for conditioning; tiny eigenvalues (no information) are left out
         sc = np.sqrt(np.maximum(np.diag(H), 1e-30))
         Hs = H / np.outer(sc, sc)
@@ -836,8 +869,13 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
         if fit_rotation:
             phi = U_r @ step[c:c + 2]
             R_il = R_il @ Rotation.from_rotvec(phi).as_matrix()
+            c += 2
+        if fit_yaw_drift:
+            drift += float(step[c])
         history.append({"residual_m": s_rob, "pairs": n_pairs, "step": step.tolist(),
-                        "lever_arm_m": ell.tolist(), "time_offset_ms": off * 1e-6})
+                        "lever_arm_m": ell.tolist(), "time_offset_ms": off * 1e-6,
+                        **({"yaw_drift_deg_per_min": np.degrees(drift) * 60.0}
+                           if fit_yaw_drift else {})})
         small = (not fit_lever or np.all(np.abs(step[:2]) < 1e-4)) and (
             not fit_time or abs(step[2 if fit_lever else 0]) < 5e-5)
         if small and vox <= voxel_m and not split:
@@ -856,6 +894,9 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
             s_sp, H_sp, _ = _huber_normal_equations(r, Jr)
             if fit_time and time_prior_ns is not None and np.isfinite(time_prior_sigma_ms):
                 H_sp[2, 2] += (s_sp * sigma_inflation / (time_prior_sigma_ms * 1e-3)) ** 2
+            if fit_yaw_drift and np.isfinite(yaw_drift_prior_deg_per_min):
+                H_sp[-1, -1] += (s_sp * sigma_inflation
+                                 / np.radians(yaw_drift_prior_deg_per_min / 60.0)) ** 2
             # the larger of the two per parameter (each is a lower bound of the truth's spread)
             try:
                 c_sp = np.linalg.inv(H_sp) * s_sp**2
@@ -891,7 +932,8 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
         lever_arm_observable=bool(fit_lever and np.all(l_sig < 0.003)),
         rotation_observable=bool(fit_rotation and r_sig < 0.05),
         stations=[st.index for st in use], residual_m=s_rob, pairs=n_pairs, iterations=history,
-        lever_arm_cov_m2=l_cov, lever_basis_imu=U_l if fit_lever else None)
+        lever_arm_cov_m2=l_cov, lever_basis_imu=U_l if fit_lever else None,
+        yaw_drift_deg_per_min=float(np.degrees(drift) * 60.0) if fit_yaw_drift else float("nan"))
 
 
 # ---- IMU time offset from the head's turns (lidar sweeps registered against each other) ---------

@@ -133,6 +133,26 @@ class CalibrationConfig(StrictModel):
     #: the surfaces' sigma there times this (they see it only at vertical edges: 1-8 sigma off
     #: on seven dev rigs, the turns' 0.2-1.6 sigma)
     lever_spin_sigma_inflation: float = Field(default=3.0, gt=0)
+    #: sample points a station in the surfaces' fit (``self_calibrate``) on a lidar at least
+    #: ``side_mount_warn_deg`` from the pan axis (80,000 below that, always). Such a mount sees
+    #: the lever arm along its spin axis only at vertical edges, and a hall's walls spread
+    #: 80,000 points thinly over the fit's 0.25-m voxels (at least 10 points each): there the
+    #: component was mostly sampling noise (dev 8399, 37 x 14 m hall, 86°, 4 sample seeds:
+    #: 0.2-17.2 mm off with 80,000, 7.7-9.7 mm with 160,000). 160,000 brought dev 455, 383, 87,
+    #: 631 from 6.8, 7.4, 15.3, 5.1 to 3.8, 2.6, 6.1, 0.6 mm (+1-4 CPU s a rig) but put one of
+    #: 8399's stations metres off (ATE 0.8 -> 247 cm; stop 35, README), so 80,000 stays the
+    #: default: 160,000 is opt-in
+    side_points_per_station: int = Field(default=80_000, ge=1000)
+    #: fit the IMU's heading drift [rad/s about the world's vertical] with the lever arm, time
+    #: offset and mount in the surfaces' fit (a nuisance parameter, not applied elsewhere).
+    #: Held at zero, a drift turns a pan's end against its start, which a lidar on its side's
+    #: lever arm along the spin axis takes up in part (a 12 x 10 m hall, 85°, 4°/min over 6-s
+    #: pans: 1.8 mm; fitted: 0.1 mm, the drift within 3 %). Off: on the dev halls the drift is
+    #: not what leaves them 7 mm off (the fit's sampling noise is; stop 35, README), and fitted
+    #: it came out with the wrong sign on 2 of 6 dev rigs and left 383 4 mm further off
+    fit_yaw_drift: bool = False
+    #: ... with a prior 0 ± this [deg/min] (a guard against a drift the data hardly see)
+    yaw_drift_prior_deg_per_min: float = Field(default=10.0, gt=0)
     #: on a lidar at least ``side_mount_warn_deg`` from the pan axis, a lever-arm fit (without
     #: split residuals) whose result is more than this [mm] across the pan axis from its start is
     #: continued from that result with ``lever_refit_split_iterations`` split-residual
@@ -236,6 +256,15 @@ class OdometryConfig(StrictModel):
     lock_z: bool = False
     #: grid cell [m] of the top-down correlation that seeds the translation
     seed_cell_m: float = Field(default=0.1, gt=0)
+    #: half-width [m] of the top-down images that seed the translation (about each fragment's
+    #: origin): a carry much longer than this puts the true shift outside what they can find
+    seed_extent_m: float = Field(default=16.0, gt=0)
+    #: when the best start from those seeds does not respect free space (``free_space_check``), the seeds
+    #: again from images this wide [m] (0: never): dev seed 8399 (37 x 14 m hall of repeating
+    #: bays, 16.2-m carry) had no seed near the truth in the 16-m images and took an alias 5.2 m
+    #: off (overlap 79 %, 4.9 % of its points in the other station's free space); from 32-m
+    #: images the truth is the first seed (99.6 %, 0.01 %)
+    seed_wide_extent_m: float = Field(default=32.0, ge=0)
     #: floor of the edge standard deviations [m], [deg] (registration information is capped)
     sigma_floor_m: float = Field(default=0.003, gt=0)
     sigma_floor_deg: float = Field(default=0.03, gt=0)

@@ -380,11 +380,16 @@ def register_fragments(source: np.ndarray, target: np.ndarray, R_world_source: n
     coarse = cfg.voxels_m[0] * 0.5
     tw = cache.coarse(keys[1], target, coarse) @ R_world_target.T
     sw = cache.coarse(keys[0], source, coarse) @ R_world_source.T
-    for k, d in enumerate(translation_seeds(tw, sw, cfg.seed_cell_m)):
-        T = np.eye(4)
-        T[:3, :3] = R_ts
-        T[:3, 3] = R_world_target.T @ d
-        candidates.append((f"topdown{k}", T))
+    def seeds(extent_m: float, prefix: str) -> list[tuple[str, np.ndarray]]:
+        out = []
+        for k, d in enumerate(translation_seeds(tw, sw, cfg.seed_cell_m, extent_m)):
+            T = np.eye(4)
+            T[:3, :3] = R_ts
+            T[:3, 3] = R_world_target.T @ d
+            out.append((f"{prefix}{k}", T))
+        return out
+
+    candidates += seeds(cfg.seed_extent_m, "topdown")
     # every start through the coarse stages; only the best one through the fine stages. A
     # guess from the map (loop closures) wins when it converges close to itself with a good
     # overlap: in rooms that look alike, a far seed can fit better and be wrong; with a weak
@@ -402,24 +407,35 @@ def register_fragments(source: np.ndarray, target: np.ndarray, R_world_source: n
 
     best: PairResult | None = None
     best_key: tuple = ()
-    for name, T0 in candidates:
-        r = icp_refine(source, target, T0, cfg, num_threads, coarse_v, cache, keys, R_ts)
-        r.seed = name
-        consistent = free(r)
-        key = candidate_rank(r, consistent, cfg)
-        if name == "guess" and r.ok and consistent:
-            D = np.linalg.inv(T0) @ r.T_target_source
-            ang = np.degrees(np.arccos(np.clip((np.trace(D[:3, :3]) - 1) / 2, -1, 1)))
-            if np.linalg.norm(D[:3, 3]) < cfg.guess_radius_m and ang < 5.0:
-                if r.fitness >= cfg.guess_min_fitness:
-                    best = r
-                    break
-                # a weak fit near the guess: the seeds too, which must beat it by a margin (a
-                # map already wrong by an odometry pair gives a guess that converges near
-                # itself at 35-41 % overlap where the right pose overlaps 100 %)
-                key = (key[0], key[1] + cfg.guess_margin, key[2])
-        if best is None or key > best_key:
-            best, best_key = r, key
+    best_free = False
+    # the wide seeds join the starts only when the best of the first ones does not respect free space
+    # (``seed_wide_extent_m``): a shift longer than the first images' reach is then not among
+    # their seeds, and an alias of a repeating hall fits best
+    wide = check and cfg.seed_wide_extent_m > cfg.seed_extent_m
+    k_start = 0
+    while k_start < len(candidates):
+        for name, T0 in candidates[k_start:]:
+            r = icp_refine(source, target, T0, cfg, num_threads, coarse_v, cache, keys, R_ts)
+            r.seed = name
+            consistent = free(r)
+            key = candidate_rank(r, consistent, cfg)
+            if name == "guess" and r.ok and consistent:
+                D = np.linalg.inv(T0) @ r.T_target_source
+                ang = np.degrees(np.arccos(np.clip((np.trace(D[:3, :3]) - 1) / 2, -1, 1)))
+                if np.linalg.norm(D[:3, 3]) < cfg.guess_radius_m and ang < 5.0:
+                    if r.fitness >= cfg.guess_min_fitness:
+                        best, best_free = r, True
+                        break
+                    # a weak fit near the guess: the seeds too, which must beat it by a margin
+                    # (a map already wrong by an odometry pair gives a guess that converges
+                    # near itself at 35-41 % overlap where the right pose overlaps 100 %)
+                    key = (key[0], key[1] + cfg.guess_margin, key[2])
+            if best is None or key > best_key:
+                best, best_key, best_free = r, key, consistent
+        k_start = len(candidates)
+        if wide and not best_free:
+            wide = False
+            candidates += seeds(cfg.seed_wide_extent_m, "wide")
     assert best is not None
     if fine_v:
         seed = best.seed

@@ -385,11 +385,15 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
     prior = {} if turn is None or not cc.joint_time_prior else {
         "time_prior_ns": turn.offset_ns, "time_prior_sigma_ms": turn.sigma_ms}
     split = cc.split_iterations if fit_lever else 0  # the lever-arm fit's split-residual steps
+    pps = _points_per_station(seg.stations, orient, ext.R_imu_lidar, cfg)
     try:
         cal = self_calibrate(rec.lidar, seg.stations, orient, ext, fit_lever=fit_lever,
                              fit_time=fit_time_surf, fit_rotation=fit_rot,
                              max_stations=cc.max_stations, num_threads=cfg.num_threads,
                              denoise_firings=cc.range_denoise_firings,
+                             fit_yaw_drift=cc.fit_yaw_drift,
+                             points_per_station=pps,
+                             yaw_drift_prior_deg_per_min=cc.yaw_drift_prior_deg_per_min,
                              split_iterations=split, iterations=8 + split, **prior)
         if fit_rot and not cal.rotation_observable:
             # the stations' surfaces hardly see the mount's tilt (a spin axis near the pan axis
@@ -404,6 +408,9 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
                                      fit_time=fit_time_surf, fit_rotation=False,
                                      max_stations=cc.max_stations, num_threads=cfg.num_threads,
                                      denoise_firings=cc.range_denoise_firings,
+                                     fit_yaw_drift=cc.fit_yaw_drift,
+                                     points_per_station=pps,
+                                     yaw_drift_prior_deg_per_min=cc.yaw_drift_prior_deg_per_min,
                                      split_iterations=split, iterations=8 + split,
                                      **prior)
             fit_rot = False
@@ -482,6 +489,18 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
     return Extrinsic(R, ell, src), orient.with_offset(off), cal
 
 
+def _points_per_station(rec_stations, orient, R_imu_lidar, cfg) -> int:
+    """Sample points a station for the surfaces' fit: ``calibration.side_points_per_station``
+    on a lidar at least ``side_mount_warn_deg`` from the pan axis (its lever arm along the spin
+    axis is seen only at vertical edges, and was mostly the sampling's noise in a hall with
+    80,000; opt-in, see the config), else 80,000 (``self_calibrate``'s own)."""
+    from .calibration import pan_axis_in_imu, spin_axis_from_pan_axis_deg
+
+    cc = cfg.calibration
+    tilt = spin_axis_from_pan_axis_deg(pan_axis_in_imu(orient, rec_stations), R_imu_lidar)
+    return cc.side_points_per_station if tilt >= cc.side_mount_warn_deg else 80_000
+
+
 def _lever_start_from_turns(rec, seg, orient, ext, cfg, notes):
     """``ext`` with the lever arm the surfaces' fit starts from: on a lidar at least
     ``calibration.side_mount_warn_deg`` from the pan axis, hand-eye's over several stations'
@@ -549,12 +568,16 @@ def _refit_far_lever(rec, seg, orient, ext, cfg, cal, fit_time, fit_rot, prior, 
         return cal
     k = cc.lever_refit_split_iterations
     start = Extrinsic(R, cal.lever_arm_m.copy(), ext.source)
+    pps = _points_per_station(seg.stations, orient, R, cfg)
     o = orient.with_offset(cal.time_offset_ns) if fit_time else orient
     try:
         more = self_calibrate(rec.lidar, seg.stations, o, start, fit_lever=True,
                               fit_time=fit_time, fit_rotation=fit_rot,
                               max_stations=cc.max_stations, num_threads=cfg.num_threads,
                               denoise_firings=cc.range_denoise_firings,
+                              fit_yaw_drift=cc.fit_yaw_drift,
+                              points_per_station=pps,
+                              yaw_drift_prior_deg_per_min=cc.yaw_drift_prior_deg_per_min,
                               split_iterations=k, iterations=k + cc.lever_refit_usual_iterations,
                               **prior)
     except ValueError:
@@ -621,10 +644,14 @@ def _weigh_tilt(rec, seg, orient, ext, cfg, cal, fit_lever, fit_time, prior,
         return R_he, ("WARNING: mount tilt poorly observable from the stations' surfaces; "
                       "hand-eye's kept")
     if cc.max_tilt_stations > cc.max_stations and len(seg.stations) > cc.max_stations:
+        pps = _points_per_station(seg.stations, orient, ext.R_imu_lidar, cfg)
         more = self_calibrate(rec.lidar, seg.stations, orient, ext, fit_lever=fit_lever,
                               fit_time=fit_time, fit_rotation=True,
                               max_stations=cc.max_tilt_stations, num_threads=cfg.num_threads,
                               denoise_firings=cc.range_denoise_firings,
+                              fit_yaw_drift=cc.fit_yaw_drift,
+                              points_per_station=pps,
+                              yaw_drift_prior_deg_per_min=cc.yaw_drift_prior_deg_per_min,
                               **prior)
         if more.rotation_sigma_deg < cal.rotation_sigma_deg:
             cal = more
