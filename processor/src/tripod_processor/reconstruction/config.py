@@ -96,6 +96,10 @@ class CalibrationConfig(StrictModel):
     #: errors of 5-413 mdeg), but on six dev rigs' turns it was better on 4, worse on 2 at 6
     #: pairs and mixed at 12 (harness, not the pipeline)
     turn_station_information: bool = False
+    #: pairs a station's sweep may join in the turns' offset (1: each sweep in one pair). A
+    #: registration costs less than de-skewing a sweep, so 2 with ``turn_pairs_per_station`` 12
+    #: doubles the pairs for ~1 CPU-s a rig (issue 12; README, calibration step 3)
+    turn_sweep_uses: int = Field(default=1, ge=1)
     #: the turns' offset is applied up to this sigma [ms] (their sigma comes from the pairs'
     #: scatter, inflated to be honest; an estimate that sure still beats the prior 0 against IMU
     #: latencies of up to 10 ms, and the station splitter's refit tolerates ±12 ms); above
