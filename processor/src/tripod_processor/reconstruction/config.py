@@ -91,8 +91,8 @@ class CalibrationConfig(StrictModel):
     turn_passes: int = Field(default=2, ge=1)
     #: a station's pair weighed by its registration's information about the turn about the pan
     #: axis (a carry's pair is, about all three axes); off: every station pair alike. With
-    #: ``turn_sweep_uses`` 2 and 12 pairs a station (defaults) the pipeline's offset error on 12
-    #: dev rigs went from median 1.45 ms to 1.08 (README, calibration step 3)
+    #: ``turn_sweep_uses`` 2 and 12 pairs a station (defaults) the pipeline's offset error on 14
+    #: dev rigs went from median 1.41 ms to 0.99 (README, calibration step 3)
     turn_station_information: bool = True
     #: pairs a station's sweep may join in the turns' offset (1: each sweep in one pair, the
     #: old behaviour). A registration costs less than de-skewing a sweep and its error is the
