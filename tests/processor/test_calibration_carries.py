@@ -105,3 +105,42 @@ def test_axis_information_marginalises_the_other_turns_and_the_shift():
     # ... and with the shift along x (a fan's turn mistaken for its shift): less again
     info[2, 3] = info[3, 2] = 0.5
     assert _axis_information_sqrt(info, a) < np.sqrt(13.75)
+
+
+def test_pick_pairs_lets_a_sweep_join_several_pairs():
+    """``uses_per_sweep``: the pairs whose rate changes most, a sweep in at most that many; 1
+    is each sweep in one pair (the greedy order is kept: largest rate change first)."""
+    from tripod_processor.reconstruction.calibration import _pick_pairs
+
+    # candidates (k, j, rate change): sweep 0 has the largest changes with 1, 2 and 3
+    k = np.array([0, 0, 0, 1, 2])
+    j = np.array([1, 2, 3, 2, 3])
+    dr = np.array([5.0, 4.0, 3.0, 2.0, 1.0])
+    assert _pick_pairs(dr, k, j, 4, 10) == [(0, 1, 5.0), (2, 3, 1.0)]
+    # sweep 0 joins two pairs, then (0, 3) is left out (0 used twice), (1, 2) joins, and
+    # (2, 3) is left out (2 used twice)
+    two = _pick_pairs(dr, k, j, 4, 10, uses_per_sweep=2)
+    assert two == [(0, 1, 5.0), (0, 2, 4.0), (1, 2, 2.0)]
+    assert _pick_pairs(dr, k, j, 4, 2, uses_per_sweep=2) == two[:2]
+
+
+def test_default_turns_pair_each_station_sweep_twice(rig):
+    """By default (``calibration.turn_sweep_uses`` 2, ``turn_pairs_per_station`` 12, pairs
+    weighed by their registration's information about the pan-axis turn) a station registers
+    more pairs than its sweeps could form one pair each (6 a station before), from the same
+    sweeps; within 0.5 ms from a start 8 ms off."""
+    from tripod_processor.reconstruction.config import CalibrationConfig
+
+    rec, truth, ext, t_true = rig
+    cc = CalibrationConfig()
+    assert cc.turn_sweep_uses == 2 and cc.turn_pairs_per_station == 12
+    orient = ImuOrientation(rec.imu, fit_clock_map(rec.lidar), 0)
+    stations = true_stations(rec, truth)
+    est = time_offset_from_turns(rec.lidar, stations, orient, ext, 2, passes=cc.turn_passes,
+                                 pairs_per_station=cc.turn_pairs_per_station,
+                                 uses_per_sweep=cc.turn_sweep_uses,
+                                 station_information=cc.turn_station_information)
+    assert est.carry_pairs == 0 and est.pairs > 6 * len(stations), est
+    assert abs(est.offset_ns - t_true) < 0.5e6, (est, t_true)
+    with pytest.raises(ValueError):
+        CalibrationConfig(turn_sweep_uses=0)

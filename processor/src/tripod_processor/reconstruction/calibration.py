@@ -1025,21 +1025,23 @@ def _axis_information_sqrt(information: np.ndarray, a: np.ndarray) -> float:
     return float(np.sqrt(max(i_a, 1e-12 * max(float(np.trace(I_rr)), 1e-12))))
 
 
-def _pick_pairs(dr: np.ndarray, k: np.ndarray, j: np.ndarray, n_times: int, n_pairs: int
-                ) -> list[tuple[int, int, float]]:
+def _pick_pairs(dr: np.ndarray, k: np.ndarray, j: np.ndarray, n_times: int, n_pairs: int,
+                uses_per_sweep: int = 1) -> list[tuple[int, int, float]]:
     """The candidate sweep pairs (k, j) with the largest rate change ``dr`` first (ties in
-    (k, j) order), each sweep in one pair, at most ``n_pairs`` (none for 0)."""
+    (k, j) order), each sweep in at most ``uses_per_sweep`` pairs, at most ``n_pairs`` (none
+    for 0)."""
     if n_pairs <= 0:
         return []
     order = np.lexsort((j, k, -dr))
-    used = np.zeros(n_times, dtype=bool)
+    used = np.zeros(n_times, dtype=np.int64)
     chosen = []
     for m in order:
         a, b = int(k[m]), int(j[m])
-        if used[a] or used[b]:
+        if used[a] >= uses_per_sweep or used[b] >= uses_per_sweep:
             continue
         chosen.append((a, b, float(dr[m])))
-        used[a] = used[b] = True
+        used[a] += 1
+        used[b] += 1
         if len(chosen) >= n_pairs:
             break
     return chosen
@@ -1055,7 +1057,8 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
                       pairs_per_carry: int = 6, carry_pair_s: tuple[float, float] = (0.2, 0.5),
                       carry_min_range_m: float = 1.5,
                       denoise_firings: int = DENOISE_FIRINGS,
-                      station_information: bool = False) -> TurnTimeOffset:
+                      station_information: bool = False,
+                      uses_per_sweep: int = 1) -> TurnTimeOffset:
     """One pass of the IMU time offset from the head's turns.
 
     Two short sweeps of a station (``window_s``, de-skewed by the IMU) are registered against
@@ -1066,7 +1069,9 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
     speed, a pause, a reversal), turned ``min_turn_deg`` up to what the mount's sweeps share
     everywhere (:func:`max_pair_turn_deg`, unless ``max_turn_deg``: a spin axis near the pan
     axis pairs sweeps far apart in a hand pan, whose rate differs more the longer apart), at
-    most ``max_pair_s`` apart; each sweep in one pair. The stations (up to ``max_stations``,
+    most ``max_pair_s`` apart; each sweep in at most ``uses_per_sweep`` pairs (a registration
+    costs less than de-skewing a sweep, and each pair's registration error is its own). The
+    stations (up to ``max_stations``,
     those the head turns most in) are pooled: one offset for the recording, each pair weighted
     by its own information (δ's effect grows with the rate change). δ and the IMU's yaw drift
     (a slow turn about the vertical that a fused attitude without magnetometer accumulates:
@@ -1173,7 +1178,8 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
         if not cand_dr:
             return []
         chosen = _pick_pairs(np.concatenate(cand_dr), np.concatenate(cand_k),
-                             np.concatenate(cand_j), len(times), pairs_per_station)
+                             np.concatenate(cand_j), len(times), pairs_per_station,
+                             uses_per_sweep)
         return register_chosen(times, mids, chosen, num_threads, 0.5)
 
     def carry_turns(span: tuple[int, int], num_threads: int) -> list[Meas]:

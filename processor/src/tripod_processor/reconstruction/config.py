@@ -79,23 +79,25 @@ class CalibrationConfig(StrictModel):
     #: stations (its head turns about every axis, with rate changes of tens of °/s: the
     #: offset shows there even when the pans are slow or at a constant rate)
     time_offset_from_carries: bool = True
-    #: sweep pairs the turns' offset registers in each station and each carry (each sweep in
-    #: one pair, those whose rate differs most first). Each pair's angle is milliseconds of
-    #: offset noisy (its registration, the IMU's attitude noise), so more pairs average it down;
-    #: 12 and 12 with ``turn_passes`` 4 took the offset error of six hard dev rigs from 1.57 ms
-    #: median to 0.90 but cost 5-13 s more CPU a rig and sent dev seed 8399's ATE from 1.6 cm to
-    #: 585 cm (a station in the hall's repeated bay), so the defaults stay at 6 and 2
-    turn_pairs_per_station: int = Field(default=6, ge=0)
+    #: sweep pairs the turns' offset registers in each station and each carry (those whose
+    #: rate differs most first). Each pair's angle is milliseconds of offset noisy (its
+    #: registration, the IMU's attitude noise), so more pairs average it down. A station's 12
+    #: pairs (default) reuse its sweeps (``turn_sweep_uses``): 12 and 12 with 12 sweeps each and
+    #: ``turn_passes`` 4 cost 5-13 s more CPU a rig and sent dev seed 8399's ATE to 585 cm
+    turn_pairs_per_station: int = Field(default=12, ge=0)
     turn_pairs_per_carry: int = Field(default=6, ge=0)
     #: passes of the turns' offset: each de-skews the sweeps and picks the pairs at the offset
     #: the last found, until it moves less than 0.5 ms
     turn_passes: int = Field(default=2, ge=1)
     #: a station's pair weighed by its registration's information about the turn about the pan
-    #: axis (a carry's pair is, about all three axes); off: every station pair alike. Its sigma
-    #: follows the pairs' errors on a lidar on its side (dev seed 171: 64-400 mdeg against
-    #: errors of 5-413 mdeg), but on six dev rigs' turns it was better on 4, worse on 2 at 6
-    #: pairs and mixed at 12 (harness, not the pipeline)
-    turn_station_information: bool = False
+    #: axis (a carry's pair is, about all three axes); off: every station pair alike. With
+    #: ``turn_sweep_uses`` 2 and 12 pairs a station (defaults) the pipeline's offset error on 14
+    #: dev rigs went from median 1.41 ms to 0.99 (README, calibration step 3)
+    turn_station_information: bool = True
+    #: pairs a station's sweep may join in the turns' offset (1: each sweep in one pair, the
+    #: old behaviour). A registration costs less than de-skewing a sweep and its error is the
+    #: pair's own, so 2 doubles a station's pairs from the same sweeps for ~1-3 CPU-s a rig
+    turn_sweep_uses: int = Field(default=2, ge=1)
     #: the turns' offset is applied up to this sigma [ms] (their sigma comes from the pairs'
     #: scatter, inflated to be honest; an estimate that sure still beats the prior 0 against IMU
     #: latencies of up to 10 ms, and the station splitter's refit tolerates ±12 ms); above
