@@ -262,8 +262,8 @@ class OdometryConfig(StrictModel):
     #: half-width [m] of the top-down images that seed the translation (about each fragment's
     #: origin): a carry much longer than this puts the true shift outside what they can find
     seed_extent_m: float = Field(default=16.0, gt=0)
-    #: when the best start from those seeds does not respect free space (``free_space_check``), the seeds
-    #: again from images this wide [m] (0: never): dev seed 8399 (37 x 14 m hall of repeating
+    #: when the best start from those seeds does not respect free space (``free_space_check``),
+    #: the seeds again from images this wide [m] (0: never): dev seed 8399 (37 x 14 m hall of repeating
     #: bays, 16.2-m carry) had no seed near the truth in the 16-m images and took an alias 5.2 m
     #: off (overlap 79 %, 4.9 % of its points in the other station's free space); from 32-m
     #: images the truth is the first seed (99.6 %, 0.01 %)

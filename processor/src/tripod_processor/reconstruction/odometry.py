@@ -408,9 +408,9 @@ def register_fragments(source: np.ndarray, target: np.ndarray, R_world_source: n
     best: PairResult | None = None
     best_key: tuple = ()
     best_free = False
-    # the wide seeds join the starts only when the best of the first ones does not respect free space
-    # (``seed_wide_extent_m``): a shift longer than the first images' reach is then not among
-    # their seeds, and an alias of a repeating hall fits best
+    # the wide seeds join the starts only when the best of the first ones does not respect free
+    # space (``seed_wide_extent_m``): a shift longer than the first images' reach is then not
+    # among their seeds, and an alias of a repeating hall fits best
     wide = check and cfg.seed_wide_extent_m > cfg.seed_extent_m
     k_start = 0
     while k_start < len(candidates):
