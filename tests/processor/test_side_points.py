@@ -5,7 +5,7 @@
 On a lidar at least ``side_mount_warn_deg`` from the pan axis the lever arm along the spin axis
 shows only at vertical edges; in a hall 80,000 points a station left it mostly to the sampling
 (dev seed 8399, 37 x 14 m, 86°: 0.2-17.2 mm off over 4 sample seeds; 7.7-9.7 mm with 160,000).
-Such mounts get ``side_points_per_station`` (default 160,000; 80,000 the old fit); the others keep
+Such mounts get ``side_points_per_station`` (opt-in 160,000; the default 80,000); the others keep
 80,000 whatever it is. The surfaces' fit is stubbed: this
 checks the rule and that the fit gets the count.
 """
@@ -47,8 +47,8 @@ def _points_asked(monkeypatch, tilt_deg: float, **calib) -> int:
 
 @pytest.mark.parametrize("tilt_deg", [50.0, 86.0])
 def test_a_lidar_on_its_side_gets_the_side_count(monkeypatch, tilt_deg):
-    assert _points_asked(monkeypatch, tilt_deg) == 160_000  # the default
-    assert _points_asked(monkeypatch, tilt_deg, side_points_per_station=80_000) == 80_000
+    assert _points_asked(monkeypatch, tilt_deg) == 80_000  # the default: as before
+    assert _points_asked(monkeypatch, tilt_deg, side_points_per_station=160_000) == 160_000
 
 
 @pytest.mark.parametrize("tilt_deg", [0.0, 20.0, 49.0])

@@ -141,11 +141,11 @@ class CalibrationConfig(StrictModel):
     #: 80,000 points thinly over the fit's 0.25-m voxels (at least 10 points each): there the
     #: component was mostly sampling noise (dev 8399, 37 x 14 m hall, 86°, 4 sample seeds:
     #: 0.2-17.2 mm off with 80,000, 7.7-9.7 mm with 160,000). 160,000 brought dev 455, 383, 87,
-    #: 631 from 6.8, 7.4, 15.3, 5.1 to 3.8, 2.6, 6.1, 0.6 mm (+1-4 CPU s a rig). It first put
-    #: one of 8399's stations metres off (ATE 0.8 -> 247 cm: a bay alias in the odometry, which
-    #: ``odometry.seed_wide_extent_m`` now resolves: 0.91 cm), so 160,000 is the default since
-    #: then (stop 35, README); 80,000 gives the old fit
-    side_points_per_station: int = Field(default=160_000, ge=1000)
+    #: 631 from 6.8, 7.4, 15.3, 5.1 to 3.8, 2.6, 6.1, 0.6 mm (+1-4 CPU s a rig); 8399's bay
+    #: alias it exposed is resolved (``odometry.seed_wide_extent_m``). Opt-in, default 80,000:
+    #: with 160,000 the side-room tests' lever arm came out 3.1 mm off at sigma 1.1 mm (an
+    #: overconfident sigma) and a box room's fragments registered 180 deg off (stop 35, README)
+    side_points_per_station: int = Field(default=80_000, ge=1000)
     #: fit the IMU's heading drift [rad/s about the world's vertical] with the lever arm, time
     #: offset and mount in the surfaces' fit (a nuisance parameter, not applied elsewhere).
     #: Held at zero, a drift turns a pan's end against its start, which a lidar on its side's
