@@ -131,6 +131,7 @@ def run_one(work: str, seed: int, threads: int, sets: dict | None = None,
                    stage_wall_s={k: v for k, v in res.stage_s.items() if k != "_cpu"},
                    stage_cpu_s=dict(res.stage_s.get("_cpu", {})),
                    **calibration_errors(result, truth, _true_offset_ms(cap, res)))
+        row.update(_lever_by_mount(result, truth))
         # the lever-arm fit's own account (where a start or refit rule fired)
         row["lever_notes"] = [n for n in res.notes if "lever-arm fit" in n or "lever arm from" in n]
     except Exception as exc:  # a crash is a result of the benchmark too: one line, counted
@@ -142,6 +143,30 @@ def run_one(work: str, seed: int, threads: int, sets: dict | None = None,
         if not keep:
             shutil.rmtree(Path(work) / "out" / f"seed{seed}", ignore_errors=True)
     return row
+
+
+def _lever_by_mount(result: dict, truth: dict) -> dict:
+    """The lever arm's error [mm] along the lidar's spin axis and in its scan plane (across the
+    pan axis, the true mount's axes) with the run's own sigmas there (``lever_arm_by_mount``):
+    how honest the sigma is. Empty where the run did not estimate the lever arm."""
+    from scipy.spatial.transform import Rotation
+
+    cal = result.get("calibration") or {}
+    bm = cal.get("lever_arm_by_mount") or {}
+    if cal.get("lever_arm_m") is None or "sigma_along_spin_axis_m" not in bm:
+        return {}
+    q = truth["q_imu_lidar_wxyz"]
+    z = Rotation.from_quat([q[1], q[2], q[3], q[0]]).as_matrix()[:, 2]
+    b = np.asarray(truth["pan_axis_imu"], float)
+    w = z - b * (b @ z)
+    if np.linalg.norm(w) < 1e-6:
+        return {}
+    w /= np.linalg.norm(w)
+    d = np.asarray(cal["lever_arm_m"], float) - np.asarray(truth["lever_arm_imu_m"], float)
+    return {"lever_spin_mm": 1000 * abs(float(w @ d)),
+            "lever_spin_sigma_mm": 1000 * bm["sigma_along_spin_axis_m"],
+            "lever_plane_mm": 1000 * abs(float(np.cross(b, w) @ d)),
+            "lever_plane_sigma_mm": 1000 * bm["sigma_in_scan_plane_m"]}
 
 
 # ------------------------------------------------------------------------- report
