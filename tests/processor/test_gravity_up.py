@@ -172,14 +172,31 @@ def test_heightmaps_levels_by_the_up(side_run, tmp_path, capsys):
 
 
 def test_register_global_gravity_uses_the_files_up(side_run, capsys):
+    """``register --global --gravity`` takes each file's up: the pose comes out level (the
+    source's up onto the target's) and, on a pair the features tell apart, right.
+
+    Station 2 onto 0: the truth on every RANSAC seed tried (8 of 8, fragments of 80,000- and
+    160,000-point calibrations). Station 1 onto 0 (this test's pair until stop 36) is a near
+    tie in this box room between the truth and its 180° twin about the up (cloud fitness
+    0.593-0.598 either way): the twin won on 2 of 10 RANSAC seeds with the fragments of an
+    80,000-point calibration and 3 of 10 with 160,000 (seed 0 among them), fragments that
+    differ by a 0.03 ms time offset. Gravity cannot tell a twin about the up
+    (``register_global``'s rotation prior can); that pair is held to the level part only."""
     res, T_true, out = side_run
     f = out / "fragments"
+    rc = main(["register", str(f / "station_002.ply"), str(f / "station_000.ply"), "--global",
+               "--gravity", "--voxel", "0.1", "--method", "plane", "--threads", "2"])
+    r = json.loads(capsys.readouterr().out)
+    assert rc == 0 and r["global"]["success"]
+    E = np.linalg.inv(_truth_T(T_true, 0, 2)) @ np.array(r["T_target_source"])
+    assert _rot_err_deg(E[:3, :3]) < 1.0 and np.linalg.norm(E[:3, 3]) < 0.05
     rc = main(["register", str(f / "station_001.ply"), str(f / "station_000.ply"), "--global",
                "--gravity", "--voxel", "0.1", "--method", "plane", "--threads", "2"])
     r = json.loads(capsys.readouterr().out)
     assert rc == 0 and r["global"]["success"]
-    E = np.linalg.inv(_truth_T(T_true, 0, 1)) @ np.array(r["T_target_source"])
-    assert _rot_err_deg(E[:3, :3]) < 1.0 and np.linalg.norm(E[:3, 3]) < 0.05
+    R = np.array(r["T_target_source"])[:3, :3]
+    up_true = [T[:3, :3].T @ E_Z for T in T_true]  # each fragment's true up (its own frame)
+    assert _angle_deg(R @ up_true[1], up_true[0]) < 1.0
     # --up belongs to the heightmaps method and --gravity only
     assert main(["register", str(f / "station_001.ply"), str(f / "station_000.ply"),
                  "--up", "0,0,1"]) == 2
