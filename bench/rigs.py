@@ -152,8 +152,9 @@ def _lever_by_mount(result: dict, truth: dict) -> dict:
     from scipy.spatial.transform import Rotation
 
     cal = result.get("calibration") or {}
-    bm = cal.get("lever_arm_by_mount") or {}
-    if cal.get("lever_arm_m") is None or "sigma_along_spin_axis_m" not in bm:
+    bm = (cal.get("estimate") or {}).get("lever_arm_by_mount") or {}
+    if (cal.get("lever_arm_m") is None or (cal.get("source") or {}).get("lever_arm_m") != "data"
+            or "sigma_along_spin_axis_m" not in bm):
         return {}
     q = truth["q_imu_lidar_wxyz"]
     z = Rotation.from_quat([q[1], q[2], q[3], q[0]]).as_matrix()[:, 2]
