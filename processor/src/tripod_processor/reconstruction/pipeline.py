@@ -495,7 +495,7 @@ def _points_per_station(rec_stations, orient, R_imu_lidar, cfg) -> int:
     """Sample points a station for the surfaces' fit: ``calibration.side_points_per_station``
     on a lidar at least ``side_mount_warn_deg`` from the pan axis (its lever arm along the spin
     axis is seen only at vertical edges, and was mostly the sampling's noise in a hall with
-    80,000; opt-in, see the config), else 80,000 (``self_calibrate``'s own)."""
+    80,000; 160,000 by default, see the config), else 80,000 (``self_calibrate``'s own)."""
     from .calibration import pan_axis_in_imu, spin_axis_from_pan_axis_deg
 
     cc = cfg.calibration
