@@ -161,8 +161,8 @@ def _sweep(lidar: LidarPackets, orient: ImuOrientation, ext: Extrinsic, start_ns
 
 def _turn_pairs(lidar: LidarPackets, st: Station, orient: ImuOrientation, R_guess: np.ndarray,
                 num_threads: int, step_s: float, window_s: float, max_pairs: int,
-                pair_turn_deg: float, denoise_firings: int = DENOISE_FIRINGS
-                ) -> tuple[list[np.ndarray], list[np.ndarray]]:
+                pair_turn_deg: float, denoise_firings: int = DENOISE_FIRINGS,
+                turn_ladder: int = 0) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """One station's sweep pairs for hand-eye: (A_list, B_list), A the lidar's motion between
     two short windows (registration, lidar frame, 4x4), B the IMU's relative rotation (IMU
     frame, 3x3); sweeps de-skewed by the IMU with the mount ``R_guess`` and no lever arm.
@@ -171,7 +171,16 @@ def _turn_pairs(lidar: LidarPackets, st: Station, orient: ImuOrientation, R_gues
     the turn; a near-vertical spin axis sees little of floor and ceiling, and only the axis
     tells its tilt), spread over the station, the IMU's turn as the registration's start;
     where big turns share too little view (a mount on its side), smaller ones, then
-    consecutive windows."""
+    consecutive windows.
+
+    ``turn_ladder`` k > 0: between ``pair_turn_deg`` and consecutive windows, k more levels
+    halving the turn each (45°: 22.5, 11.25, ...), and the pairs that registered at a level
+    given up are kept. A lidar 24° off the pan axis in a 34 x 24 m hall (dev seed 5621)
+    registers its 45° pairs to 0.1° but shares only 38-49 % of the view between them (the
+    tilted scan band moves up and down the walls as the head turns), under the 0.5 fitness
+    gate, and half its 22.5° pairs: its pairs were consecutive windows of ~2°, whose axis
+    the registration's noise sets (the mount tilt 5-11° off per station). 0: the old ladder
+    (``pair_turn_deg``, its half, consecutive windows; a level's pairs dropped when it fails)."""
     from scipy.spatial.transform import Rotation
 
     t0 = st.start_ns
@@ -223,7 +232,11 @@ def _turn_pairs(lidar: LidarPackets, st: Station, orient: ImuOrientation, R_gues
         return A_list, B_list
 
     A_list, B_list = [], []
-    for min_deg in (pair_turn_deg, pair_turn_deg / 2, 0.0):
+    kept_A: list[np.ndarray] = []  # pairs registered at levels given up (turn_ladder)
+    kept_B: list[np.ndarray] = []
+    levels = ([pair_turn_deg / 2**k for k in range(turn_ladder + 2)] if turn_ladder > 0
+              else [pair_turn_deg, pair_turn_deg / 2]) + [0.0]
+    for min_deg in levels:
         pairs = pairs_turned(min_deg)
         probe = pairs[:: max(1, len(pairs) // 4)][:4]  # a few first: do such turns register?
         A_list, B_list = measure(probe)
@@ -231,14 +244,17 @@ def _turn_pairs(lidar: LidarPackets, st: Station, orient: ImuOrientation, R_gues
             more = measure([p for p in pairs if p not in probe])
             A_list, B_list = A_list + more[0], B_list + more[1]
             break
-    return A_list, B_list
+        if turn_ladder > 0:
+            kept_A += A_list
+            kept_B += B_list
+    return kept_A + A_list, kept_B + B_list
 
 
 def calibrate_mount(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
                     num_threads: int = 0, step_s: float = 0.3, window_s: float = 0.1,
                     max_pairs: int = 16, pair_turn_deg: float = 45.0,
-                    guess: Extrinsic | None = None, denoise_firings: int = DENOISE_FIRINGS
-                    ) -> tuple[Extrinsic, dict]:
+                    guess: Extrinsic | None = None, denoise_firings: int = DENOISE_FIRINGS,
+                    turn_ladder: int = 0) -> tuple[Extrinsic, dict]:
     """The lidar's mount on the IMU (R_imu_lidar, lever arm) from the data (hand-eye).
 
     While the head turns at a station, the lidar's motion between two short windows, measured by
@@ -256,7 +272,7 @@ def calibrate_mount(lidar: LidarPackets, stations: list[Station], orient: ImuOri
     st = most_turning_station(stations, orient)
     R_guess = np.eye(3) if guess is None else guess.R_imu_lidar
     A_list, B_list = _turn_pairs(lidar, st, orient, R_guess, num_threads, step_s, window_s,
-                                 max_pairs, pair_turn_deg, denoise_firings)
+                                 max_pairs, pair_turn_deg, denoise_firings, turn_ladder)
     if len(A_list) < 3:
         raise ValueError("too few usable turns to calibrate the lidar mount from the data")
     a = np.array([_rotvec(A[:3, :3]) for A in A_list])
@@ -295,6 +311,7 @@ def calibrate_mount(lidar: LidarPackets, stations: list[Station], orient: ImuOri
     return Extrinsic(R_il, ell, "calibrated"), {
         "station": st.index, "pairs": len(A_list), "axis_singular_values": S.tolist(),
         "rotation_residual_deg_median": float(np.median(resid)),
+        "turn_deg_median": float(np.degrees(np.median(np.linalg.norm(b, axis=1)))),
         "tilt_sigma_deg": _axis_tilt_sigma_deg(a, b, R_li)}
 
 

@@ -61,6 +61,15 @@ class CalibrationConfig(StrictModel):
     mount_rotation: bool = True
     #: stations used (those the head turns most in)
     max_stations: int = Field(default=4, ge=1)
+    #: hand-eye's mount (``calibration.calibrate_mount``): where its 45° sweep pairs do not
+    #: register (too little shared view), this many more levels of turn, halving each, before
+    #: consecutive windows, and the pairs registered at a level given up are kept. A lidar 24°
+    #: off the pan axis in a big hall shares under half the view after 45° and its mount came
+    #: from ~2° consecutive pairs, 3-11° off per station (dev seed 5621; 0.02-0.2° with 3).
+    #: 0: the old ladder (45°, 22.5°, consecutive windows)
+    mount_turn_ladder: int = Field(default=3, ge=0, le=6)
+    #: hand-eye's mount tilt sigma [deg] (its pairs' axis scatter) from which the run warns
+    mount_tilt_warn_deg: float = Field(default=2.0, gt=0)
     #: the calibration's sweeps and station points have their ranges smoothed along the scan
     #: line over this many firings either side (±1° at 600 rpm for 5; a depth edge is not
     #: smoothed across): two sweeps' 3-cm range noise otherwise biases their registration's

@@ -327,15 +327,26 @@ def _calibrate_mount(rec, seg, orient, ext, cfg, threads, times, quiet, notes):
         try:
             cal, calib_info = calibrate_mount(
                 rec.lidar, seg.stations, orient, threads,
-                denoise_firings=cfg.calibration.range_denoise_firings)
+                denoise_firings=cfg.calibration.range_denoise_firings,
+                turn_ladder=cfg.calibration.mount_turn_ladder)
             ell = ext.lever_arm_m
             if (cfg.placement.extrinsic.lever_arm_m is None
                     and np.linalg.norm(cal.lever_arm_m) < 0.3):
                 ell = cal.lever_arm_m
             ext = Extrinsic(cal.R_imu_lidar, ell, "calibrated rotation")
-            notes.append("lidar-IMU mount rotation calibrated from the data (hand-eye, "
-                         f"median residual {calib_info['rotation_residual_deg_median']:.2f}°)")
             tilt_sigma_deg = float(calib_info.get("tilt_sigma_deg", float("inf")))
+            notes.append("lidar-IMU mount rotation calibrated from the data (hand-eye, "
+                         f"{calib_info['pairs']} sweep pairs of median turn "
+                         f"{calib_info['turn_deg_median']:.1f}°, median residual "
+                         f"{calib_info['rotation_residual_deg_median']:.2f}°, tilt σ "
+                         f"{tilt_sigma_deg:.2f}°)")
+            if not tilt_sigma_deg < cfg.calibration.mount_tilt_warn_deg:
+                # the turn axis of small turns is the registrations' noise: the tilt is
+                # degrees uncertain, the surfaces' fit below has to find it
+                notes.append(f"WARNING: hand-eye's mount tilt poorly observable (σ "
+                             f"{tilt_sigma_deg:.2f}° from its {calib_info['pairs']} sweep pairs' "
+                             f"axis scatter; median turn {calib_info['turn_deg_median']:.1f}°): "
+                             "the head's turns share too little view to register big ones")
         except ValueError as exc:
             ext.source = "default"
             notes.append(f"mount calibration failed ({exc}): identity assumed")
