@@ -185,3 +185,6 @@ def test_split_combination_inflates_kinds_that_disagree():
     assert off == pytest.approx(mean)
     chi = np.sqrt(np.sum(w * (np.array([0.0, 2.5]) - mean) ** 2))
     assert chi > 1 and sig == pytest.approx(chi / np.sqrt(w.sum()))
+    # one kind alone keeps its own offset and sigma (no floor)
+    assert _join_kinds(None, (2.5, 0.1), carry_floor_ms=1.0) == (2.5, 0.1)
+    assert _join_kinds((0.3, 0.4), None, carry_floor_ms=1.0) == (0.3, 0.4)

@@ -1314,12 +1314,13 @@ def _join_kinds(stations: tuple[float, float] | None, carries: tuple[float, floa
     None): the carries' sigma floored at ``carry_floor_ms`` (added in quadrature: their pairs
     share the mount's error and the carry's, which their scatter does not show), then the
     inverse-variance mean, its sigma grown by the Birge ratio when the two are further apart
-    than their sigmas allow."""
-    parts = []
-    if stations is not None:
-        parts.append(stations)
-    if carries is not None:
-        parts.append((carries[0], float(np.hypot(carries[1], carry_floor_ms))))
+    than their sigmas allow. The floor weighs the carries against the stations: the carries
+    alone keep their own sigma (as the joint fit gave them: a floored one would often miss
+    ``max_turns_time_offset_sigma_ms``, and the surfaces' fit weighs it as a prior anyway)."""
+    if stations is None or carries is None:
+        only = stations if carries is None else carries
+        return float(only[0]), float(only[1])
+    parts = [stations, (carries[0], float(np.hypot(carries[1], carry_floor_ms)))]
     o = np.array([p[0] for p in parts])
     w = 1.0 / np.array([p[1] for p in parts]) ** 2
     mean = float(np.sum(w * o) / np.sum(w))
