@@ -144,3 +144,47 @@ def test_default_turns_pair_each_station_sweep_twice(rig):
     assert abs(est.offset_ns - t_true) < 0.5e6, (est, t_true)
     with pytest.raises(ValueError):
         CalibrationConfig(turn_sweep_uses=0)
+
+
+def test_carries_fit_the_mount_error_that_leaks_into_the_offset(rig):
+    """A mount rotation 1.5° off (hand-eye's is 1-2° off on hard dev rigs) turns a carried
+    pair's predicted rotation by (I − Pᵀ)ε, which the carries' rows took for offset (1.8 ms
+    here, with the carries alone); ``carry_mount`` fits that small correction in their rows
+    (``calibration.turn_carry_mount``) and the offset comes back within 0.5 ms."""
+    from scipy.spatial.transform import Rotation
+
+    from tripod_processor.reconstruction.placement import Extrinsic
+
+    rec, truth, ext, t_true = rig
+    R_off = ext.R_imu_lidar @ Rotation.from_rotvec(np.radians([0.0, 0.0, 1.5])).as_matrix()
+    ext_off = Extrinsic(R_off, ext.lever_arm_m, "test")
+    orient = ImuOrientation(rec.imu, fit_clock_map(rec.lidar), t_true)
+    stations = true_stations(rec, truth)
+    kw = dict(pairs_per_station=0, carries=carry_spans(stations), passes=1)
+    old = time_offset_from_turns(rec.lidar, stations, orient, ext_off, 2, **kw)
+    new = time_offset_from_turns(rec.lidar, stations, orient, ext_off, 2, carry_mount=True,
+                                 **kw)
+    assert abs(old.offset_ns - t_true) > 1.2e6, (old, t_true)
+    assert abs(new.offset_ns - t_true) < 0.5e6, (new, t_true)
+    assert new.carry_pairs >= 10
+
+
+def test_split_combination_inflates_kinds_that_disagree():
+    """``combine="split"``: each kind's offset fitted alone, joined by inverse variance with
+    the carries' sigma floored; two kinds further apart than their sigmas allow get a sigma
+    grown by the Birge ratio (honest), two that agree keep the plain inverse-variance one."""
+    from tripod_processor.reconstruction.calibration import _join_kinds
+
+    off, sig = _join_kinds((0.0, 0.5), (0.0, 0.5), carry_floor_ms=0.0)
+    assert off == pytest.approx(0.0) and sig == pytest.approx(0.5 / np.sqrt(2))
+    # the carries (second) floored at 1 ms: the stations weigh four times as much
+    off, sig = _join_kinds((0.0, 0.5), (2.5, 0.1), carry_floor_ms=1.0)
+    s_c = np.hypot(0.1, 1.0)
+    w = np.array([1 / 0.25, 1 / s_c**2])
+    mean = w[1] * 2.5 / w.sum()
+    assert off == pytest.approx(mean)
+    chi = np.sqrt(np.sum(w * (np.array([0.0, 2.5]) - mean) ** 2))
+    assert chi > 1 and sig == pytest.approx(chi / np.sqrt(w.sum()))
+    # one kind alone keeps its own offset and sigma (no floor)
+    assert _join_kinds(None, (2.5, 0.1), carry_floor_ms=1.0) == (2.5, 0.1)
+    assert _join_kinds((0.3, 0.4), None, carry_floor_ms=1.0) == (0.3, 0.4)

@@ -144,19 +144,21 @@ def _register_sweeps(src: np.ndarray, tgt: np.ndarray, init: np.ndarray, num_thr
 
 def _sweep(lidar: LidarPackets, orient: ImuOrientation, ext: Extrinsic, start_ns: int,
            win_ns: int, num_threads: int, min_range: float = 0.5,
-           denoise_firings: int = DENOISE_FIRINGS) -> np.ndarray:
+           denoise_firings: int = DENOISE_FIRINGS, with_times: bool = False):
     """The packets of [start_ns, start_ns + win_ns) (lidar time) de-skewed by the IMU to the
     window's middle with ``ext``: (N, 3) float64 [m]; returns nearer than ``min_range`` [m]
     left out; ranges smoothed along the scan line over ``denoise_firings`` firings either side
-    (:func:`~tripod_processor.decode.timed.denoise_ranges`; 0: as measured)."""
+    (:func:`~tripod_processor.decode.timed.denoise_ranges`; 0: as measured). ``with_times``:
+    (points, their firing times (N,) int64 [ns])."""
     a, b = np.searchsorted(lidar.lidar_ns, [start_ns, start_ns + win_ns])
     pts = decode_timed_points(lidar.payload, lidar.lidar_ns, int(a), int(b),
                               min_range=min_range, max_range=40.0)
     if not len(pts):
-        return np.zeros((0, 3))
+        return (np.zeros((0, 3)), np.zeros(0, np.int64)) if with_times else np.zeros((0, 3))
     xyz = denoise_ranges(pts, denoise_firings).astype(np.float32)
-    return place_points(xyz, pts["time_ns"], orient, ext, int(start_ns) + win_ns // 2,
-                        num_threads).astype(np.float64)
+    out = place_points(xyz, pts["time_ns"], orient, ext, int(start_ns) + win_ns // 2,
+                       num_threads).astype(np.float64)
+    return (out, np.asarray(pts["time_ns"], dtype=np.int64)) if with_times else out
 
 
 def _turn_pairs(lidar: LidarPackets, st: Station, orient: ImuOrientation, R_guess: np.ndarray,
@@ -1064,19 +1066,21 @@ def _pick_pairs(dr: np.ndarray, k: np.ndarray, j: np.ndarray, n_times: int, n_pa
     return chosen
 
 
-def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
+def turn_measurements(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
                       ext: Extrinsic, num_threads: int = 0, *, max_stations: int = 8,
                       pairs_per_station: int = 6, step_s: float = 0.1,
                       window_s: float = 0.1, min_turn_deg: float = 3.0,
                       max_turn_deg: float | None = None, max_pair_s: float = 10.0,
-                      min_rate_change_deg_s: float = 4.0, sigma_inflation: float = 2.0,
+                      min_rate_change_deg_s: float = 4.0,
                       carries: list[tuple[int, int]] | None = None, max_carries: int = 8,
                       pairs_per_carry: int = 6, carry_pair_s: tuple[float, float] = (0.2, 0.5),
                       carry_min_range_m: float = 1.5,
                       denoise_firings: int = DENOISE_FIRINGS,
                       station_information: bool = False,
-                      uses_per_sweep: int = 1) -> TurnTimeOffset:
-    """One pass of the IMU time offset from the head's turns.
+                      uses_per_sweep: int = 1,
+                      carry_velocity: bool = False) -> "TurnMeasurements":
+    """The sweep pairs of one pass of the IMU time offset from the head's turns
+    (:func:`_turn_offset_pass`, which fits them: :func:`fit_turn_offset`).
 
     Two short sweeps of a station (``window_s``, de-skewed by the IMU) are registered against
     each other: their relative rotation A is the head's true turn between the two moments. The
@@ -1121,8 +1125,6 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
     a_l = ext.R_imu_lidar.T @ b  # the pan axis in the lidar frame
     turn_max = max_pair_turn_deg(a_l) if max_turn_deg is None else float(max_turn_deg)
     win = int(window_s * 1e9)
-    off0 = orient.time_offset_ns
-    h_ns = 2_000_000
     max_lag = max(1, int(round(max_pair_s / step_s)))
 
     def rel(o: ImuOrientation, tk: int, tj: int) -> np.ndarray:
@@ -1137,16 +1139,16 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
                         min_range: float, moving: bool = False) -> list[Meas]:
         """The measurements of the chosen pairs that registered well (``moving``: a carry's)."""
         meas: list[Meas] = []
-        clouds: dict[int, np.ndarray] = {}
+        clouds: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
-        def cloud(k: int) -> np.ndarray:
+        def cloud(k: int) -> tuple[np.ndarray, np.ndarray]:
             if k not in clouds:
                 clouds[k] = _sweep(lidar, orient, ext, int(times[k]), win, num_threads,
-                                   min_range, denoise_firings)
+                                   min_range, denoise_firings, with_times=True)
             return clouds[k]
 
         for k, j, dr in chosen:
-            ck, cj = cloud(k), cloud(j)
+            (ck, tk_pts), (cj, tj_pts) = cloud(k), cloud(j)
             if len(ck) < 500 or len(cj) < 500:
                 continue
             init = rel(orient, int(mids[k]), int(mids[j]))
@@ -1154,6 +1156,19 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
             if r is None:
                 continue
             A = r.T_target_source
+            if moving and carry_velocity:
+                # the carried head also walks (~1 m/s: a 10-cm smear over a sweep, which
+                # the IMU's rotations do not take out and which turns with the head between
+                # the two sweeps, biasing their rotation): the pivot's velocity from the pair's
+                # shift (less the lever arm's swing), each sweep de-skewed by it, again
+                T = pose_world_lidar(orient, ext, np.array([mids[k], mids[j]], np.int64))
+                dt = (int(mids[j]) - int(mids[k])) * 1e-9
+                v_w = (T[0, :3, :3] @ A[:3, 3] - (T[1, :3, 3] - T[0, :3, 3])) / dt
+                ck2 = ck + np.outer((tk_pts - int(mids[k])) * 1e-9, T[0, :3, :3].T @ v_w)
+                cj2 = cj + np.outer((tj_pts - int(mids[j])) * 1e-9, T[1, :3, :3].T @ v_w)
+                r2 = _register_sweeps(cj2, ck2, A, num_threads)
+                if r2 is not None:
+                    r, A = r2, r2.T_target_source
             slip = np.degrees(Rotation.from_matrix(init[:3, :3].T @ A[:3, :3]).magnitude())
             if r.fitness < 0.5 or slip > 1.0:
                 continue
@@ -1230,16 +1245,153 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
     workers = thread_workers(num_threads, len(jobs))
     inner = num_threads if workers == 1 else 1
     per_job = _threaded_map(lambda f, x: f(x, inner), jobs, workers)
-    meas = [m for ms in per_job for m in ms]
+    tm = TurnMeasurements(
+        meas=[m for ms in per_job for m in ms],
+        cluster=np.concatenate([np.full(len(ms), q) for q, ms in enumerate(per_job)]
+                               + [np.zeros(0, dtype=np.int64)]).astype(np.int64),
+        is_carry=np.concatenate([np.full(len(ms), q >= len(use)) for q, ms in enumerate(per_job)]
+                                + [np.zeros(0, dtype=bool)]).astype(bool),
+        a_lidar=a_l)
+    return tm
+
+
+_FIT_KEYS = ("sigma_inflation", "combine", "carry_mount", "carry_floor_ms")
+
+
+def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
+                      ext: Extrinsic, num_threads: int = 0, **kw) -> TurnTimeOffset:
+    """One pass of the IMU time offset from the head's turns: the sweep pairs
+    (:func:`turn_measurements`, its keywords) fitted (:func:`fit_turn_offset`, its keywords)."""
+    fit_kw = {k: kw.pop(k) for k in _FIT_KEYS if k in kw}
+    tm = turn_measurements(lidar, stations, orient, ext, num_threads, **kw)
+    return fit_turn_offset(tm, orient, ext, **fit_kw)
+
+
+@dataclass
+class TurnMeasurements:
+    """The sweep pairs registered by :func:`_turn_offset_pass`: ``meas`` (t_k, t_j [ns],
+    A measured (4x4), rate change [°/s], W: a carry's 3x3 whitener or a station's weight),
+    each pair's ``cluster`` (its station or carry) and ``is_carry``, and the pan axis in the
+    lidar frame ``a_lidar``."""
+
+    meas: list
+    cluster: np.ndarray
+    is_carry: np.ndarray
+    a_lidar: np.ndarray
+
+    def subset(self, sel: np.ndarray) -> "TurnMeasurements":
+        idx = np.flatnonzero(sel)
+        return TurnMeasurements([self.meas[i] for i in idx], self.cluster[idx],
+                                self.is_carry[idx], self.a_lidar)
+
+
+def fit_turn_offset(tm: TurnMeasurements, orient: ImuOrientation, ext: Extrinsic, *,
+                    sigma_inflation: float = 2.0, combine: str = "joint",
+                    carry_mount: bool = False, carry_floor_ms: float = 0.0,
+                    ) -> TurnTimeOffset:
+    """The offset from the registered pairs (:func:`_turn_offset_pass`). ``combine``:
+    "joint": stations' and carries' rows in one least-squares fit (each kind weighed by its
+    robust scale); "split": each kind fitted alone (:func:`_fit_turn_rows`), then joined by
+    inverse variance with the carries' sigma floored at ``carry_floor_ms`` (their pairs share
+    the mount's and the carry's errors, which their scatter does not show) and both inflated
+    by the Birge ratio when the two disagree by more than their sigmas allow. ``carry_mount``:
+    the carries' rows also fit a small correction of the mount rotation (the hand-eye
+    equation's: a mount error turns a carried pair's rotation by (I − Pᵀ)ε, which otherwise
+    leaks into the offset)."""
+    off0 = orient.time_offset_ns
+    if len(tm.meas) < 4:
+        return TurnTimeOffset(off0, float("inf"), len(tm.meas), 0.0)
+    if combine == "joint":
+        res = _fit_turn_rows(tm, orient, ext, carry_mount)
+        return TurnTimeOffset(res.offset_ns, res.sigma_ms * sigma_inflation, res.pairs,
+                              res.rate_change_deg_s, res.carry_pairs)
+    if combine != "split":
+        raise ValueError(f"unknown combine {combine!r}")
+    fits = {}
+    for kind in (False, True):
+        sel = tm.is_carry == kind
+        if sel.sum() >= 4:
+            r = _fit_turn_rows(tm.subset(sel), orient, ext, carry_mount)
+            if np.isfinite(r.sigma_ms) and r.sigma_ms > 0:
+                fits[kind] = r
+    if not fits:
+        return TurnTimeOffset(off0, float("inf"), len(tm.meas), 0.0)
+    est = {k: (r.offset_ns * 1e-6, r.sigma_ms) for k, r in fits.items()}
+    off_ms, sig = _join_kinds(est.get(False), est.get(True), carry_floor_ms)
+    n = sum(r.pairs for r in fits.values())
+    rc = float(np.sqrt(sum(r.pairs * r.rate_change_deg_s**2 for r in fits.values())
+                       / max(n, 1)))
+    return TurnTimeOffset(int(round(off_ms * 1e6)), sig * sigma_inflation, n, rc,
+                          sum(r.carry_pairs for r in fits.values()))
+
+
+def _join_kinds(stations: tuple[float, float] | None, carries: tuple[float, float] | None,
+                carry_floor_ms: float = 0.0) -> tuple[float, float]:
+    """(offset, sigma) [ms] of the stations' and the carries' (offset, sigma) [ms] (either
+    None): the carries' sigma floored at ``carry_floor_ms`` (added in quadrature: their pairs
+    share the mount's error and the carry's, which their scatter does not show), then the
+    inverse-variance mean, its sigma grown by the Birge ratio when the two are further apart
+    than their sigmas allow. The floor weighs the carries against the stations: the carries
+    alone keep their own sigma (as the joint fit gave them: a floored one would often miss
+    ``max_turns_time_offset_sigma_ms``, and the surfaces' fit weighs it as a prior anyway)."""
+    if stations is None or carries is None:
+        only = stations if carries is None else carries
+        return float(only[0]), float(only[1])
+    parts = [stations, (carries[0], float(np.hypot(carries[1], carry_floor_ms)))]
+    o = np.array([p[0] for p in parts])
+    w = 1.0 / np.array([p[1] for p in parts]) ** 2
+    mean = float(np.sum(w * o) / np.sum(w))
+    chi2 = float(np.sum(w * (o - mean) ** 2))  # 1 degree of freedom with both kinds
+    return mean, float(max(1.0, np.sqrt(chi2)) / np.sqrt(np.sum(w)))
+
+
+def _mount_jacobian(orient: ImuOrientation, ext: Extrinsic, tk: int, tj: int,
+                    P: np.ndarray, h: float = 1e-4) -> np.ndarray:
+    """d(rotvec(Pᵀ A))/dε (3x3) for a small mount correction R_imu_lidar·exp(ε): numerically,
+    the predicted relative rotation P moved by each small turn of the mount."""
+    from scipy.spatial.transform import Rotation
+
+    from .placement import pose_world_lidar
+
+    J = np.zeros((3, 3))
+    for i in range(3):
+        e = np.zeros(3)
+        e[i] = h
+        ext_i = Extrinsic(ext.R_imu_lidar @ Rotation.from_rotvec(e).as_matrix(),
+                          ext.lever_arm_m, ext.source)
+        T = pose_world_lidar(orient, ext_i, np.array([tk, tj], dtype=np.int64))
+        P_i = (np.linalg.inv(T[0]) @ T[1])[:3, :3]
+        # the true A is P_i (the mount truly turned by ε): the residual rotvec(Pᵀ A) it makes
+        J[:, i] = Rotation.from_matrix(P.T @ P_i).as_rotvec() / h
+    return J
+
+
+def _fit_turn_rows(tm: TurnMeasurements, orient: ImuOrientation, ext: Extrinsic,
+                   carry_mount: bool = False) -> TurnTimeOffset:
+    """The least-squares fit of :func:`_turn_offset_pass` over ``tm``'s pairs (sigma not yet
+    inflated): δ, the IMU's yaw drift and, with ``carry_mount``, a small mount correction in
+    the carries' rows; outliers trimmed, each kind weighed by its robust scale."""
+    from scipy.spatial.transform import Rotation
+
+    from .placement import pose_world_lidar
+
+    meas, is_carry, a_l = tm.meas, tm.is_carry, tm.a_lidar
+    off0 = orient.time_offset_ns
+    h_ns = 2_000_000
     if len(meas) < 4:
         return TurnTimeOffset(off0, float("inf"), len(meas), 0.0)
-    n_st = len(use)
-    is_carry = np.concatenate([np.full(len(ms), q >= n_st) for q, ms in enumerate(per_job)])
+
+    def rel(o: ImuOrientation, tk: int, tj: int) -> np.ndarray:
+        T = pose_world_lidar(o, ext, np.array([tk, tj], dtype=np.int64))
+        return np.linalg.inv(T[0]) @ T[1]
+
     # rows: a station's pair gives its angle about the pan axis, a carry's all three; each row
     # knows its pair, cluster (station or carry) and kind
     row_pair = np.concatenate([np.full(3 if c else 1, m) for m, c in enumerate(is_carry)])
-    cl_of = np.concatenate([np.full(len(ms), q) for q, ms in enumerate(per_job)])[row_pair]
+    cl_of = tm.cluster[row_pair]
     row_carry = is_carry[row_pair]
+    # the mount's correction needs carried pairs enough to see it (it is three more unknowns)
+    fit_mount = bool(carry_mount and int(is_carry.sum()) >= 6)
     dt_s = np.array([(m[1] - m[0]) * 1e-9 for m in meas])  # [s] between the sweeps
     z_j = np.zeros((len(meas), 3))  # the world's vertical in the later sweep's lidar frame
     if is_carry.any():
@@ -1254,30 +1406,42 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
     for it in range(4):
         o = orient.with_offset(off)
         oh = orient.with_offset(off + h_ns)
-        r_parts, g_parts = [], []
+        r_parts, g_parts, m_parts = [], [], []
         for m, (tk, tj, A, _, W) in enumerate(meas):
             P = rel(o, tk, tj)[:3, :3]
             rv = Rotation.from_matrix(P.T @ A[:3, :3]).as_rotvec()
             gv = Rotation.from_matrix(P.T @ rel(oh, tk, tj)[:3, :3]).as_rotvec() / (h_ns * 1e-9)
+            Jm = _mount_jacobian(o, ext, tk, tj, P) if fit_mount and is_carry[m] else None
             if is_carry[m]:
                 r_parts.append(W @ rv)
                 g_parts.append(W @ gv)
+                if fit_mount:
+                    m_parts.append(W @ Jm)
             else:
                 r_parts.append([W * (a_l @ rv)])
                 g_parts.append([W * (a_l @ gv)])
+                if fit_mount:
+                    m_parts.append(np.zeros((1, 3)))  # a turn about the pan axis: blind to it
         r_ = np.concatenate(r_parts)
         g_ = np.concatenate(g_parts)
-        # r = g·δ + drift·c: δ the offset's correction [s], c the IMU's yaw drift [rad/s]
-        X = np.stack([g_, drift], axis=1)
+        # r = g·δ + drift·c (+ J·ε): δ the offset's correction [s], c the IMU's yaw drift
+        # [rad/s], ε the mount's correction [rad]
+        cols = [g_, drift]
+        X = np.column_stack(cols + ([np.concatenate(m_parts)] if fit_mount else []))
         rk = keep[row_pair]
         n = int(rk.sum())
         Xk, wk = X[rk], w_row[rk]
         H = Xk.T @ (Xk * wk[:, None])
         if not np.all(np.isfinite(H)) or H[0, 0] <= 0:
             break
-        if n < 6 or np.linalg.cond(H) > 1e12:
-            X, H = X[:, :1], H[:1, :1]  # too few pairs for the drift: δ alone
+        if fit_mount and (int((keep & is_carry).sum()) < 6 or np.linalg.cond(H) > 1e12):
+            X = X[:, :2]  # too few carried pairs for the mount: δ and the drift
             Xk = X[rk]
+            H = Xk.T @ (Xk * wk[:, None])
+        if n < 6 or np.linalg.cond(H) > 1e12:
+            X = X[:, :1]  # too few pairs for the drift: δ alone
+            Xk = X[rk]
+            H = Xk.T @ (Xk * wk[:, None])
         sol = np.linalg.solve(H, Xk.T @ (wk * r_[rk]))
         e = r_ - X @ sol
         d = float(sol[0])
@@ -1310,5 +1474,4 @@ def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuO
         if len(scales) == 2:
             w_row = np.where(row_carry, (scales[False] / scales[True]) ** 2, 1.0)
     rc = float(np.sqrt(np.mean([m[3] ** 2 for m, k in zip(meas, keep) if k])))
-    return TurnTimeOffset(off, sig * sigma_inflation, int(keep.sum()), rc,
-                          int((keep & is_carry).sum()))
+    return TurnTimeOffset(off, sig, int(keep.sum()), rc, int((keep & is_carry).sum()))

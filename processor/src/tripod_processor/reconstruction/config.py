@@ -107,6 +107,23 @@ class CalibrationConfig(StrictModel):
     #: old behaviour). A registration costs less than de-skewing a sweep and its error is the
     #: pair's own, so 2 doubles a station's pairs from the same sweeps for ~1-3 CPU-s a rig
     turn_sweep_uses: int = Field(default=2, ge=1)
+    #: how the turns' offset joins the stations' pairs and the carries': "split" (default: each
+    #: kind fitted alone, then joined by inverse variance with the carries' sigma floored at
+    #: ``turn_carry_floor_ms``, and grown by the Birge ratio when the two disagree) or "joint"
+    #: (the old way: one fit, each kind weighed by its residuals' scale). A carry's pairs share
+    #: its errors and the mount's, so their scatter understates their sigma (on 13 hard dev
+    #: rigs the carries alone were 1.8 ms RMS off, the stations 0.8) and they outvoted the
+    #: stations: there the turns' offset went from median 0.56 / RMS 1.01 ms (9/13 within
+    #: 1 ms) to 0.33 / 0.82 (10/13), README calibration step 3, stop 36
+    turn_combine: Literal["joint", "split"] = "split"
+    #: ... the floor [ms, 1 sigma before the turns' inflation, in quadrature] of the carries'
+    #: sigma when they join the stations' with "split" (the carries alone keep their own)
+    turn_carry_floor_ms: float = Field(default=2.0, ge=0)
+    #: the carries' rows also fit a small correction of the mount rotation (3 unknowns, the
+    #: hand-eye equation's (I − Pᵀ)ε): hand-eye's mount, 1-4° off on hard dev rigs, otherwise
+    #: leaks into their offset (83's carries −2.1 → −1.4 ms, 87's 3.8 → 3.4; 40's, 3.9° off,
+    #: 0.9 → 1.8). Off: the offset and the yaw drift only
+    turn_carry_mount: bool = True
     #: the turns' offset is applied up to this sigma [ms] (their sigma comes from the pairs'
     #: scatter, inflated to be honest; an estimate that sure still beats the prior 0 against IMU
     #: latencies of up to 10 ms, and the station splitter's refit tolerates ±12 ms); above

@@ -385,7 +385,10 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
                                       pairs_per_station=cc.turn_pairs_per_station,
                                       pairs_per_carry=cc.turn_pairs_per_carry,
                                       station_information=cc.turn_station_information,
-                                      uses_per_sweep=cc.turn_sweep_uses)
+                                      uses_per_sweep=cc.turn_sweep_uses,
+                                      combine=cc.turn_combine,
+                                      carry_floor_ms=cc.turn_carry_floor_ms,
+                                      carry_mount=cc.turn_carry_mount)
         if turn.sigma_ms <= cc.max_turns_time_offset_sigma_ms:
             orient = orient.with_offset(turn.offset_ns)
         else:
