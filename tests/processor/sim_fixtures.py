@@ -63,3 +63,26 @@ def truth_extrinsic(truth):
     q = truth["q_imu_lidar_wxyz"]
     return Extrinsic(Rotation.from_quat([q[1], q[2], q[3], q[0]]).as_matrix(),
                      np.asarray(truth["lever_arm_imu_m"], float), "truth")
+
+
+def segmented_rig(root: Path, name: str, stations: int, **over):
+    """A small uncalibrated rig's capture (``make_rig_capture``), read, its IMU placed on the
+    lidar's clock and its stations segmented as ``tripod reconstruct`` does with no calibration
+    (the count asserted). Returns ``(rec, seg, orient, truth, R_imu_lidar_true)``."""
+    import json
+
+    from tripod_processor.reconstruction.config import ReconstructConfig
+    from tripod_processor.reconstruction.inputs import read_recording
+    from tripod_processor.reconstruction.placement import (Extrinsic, ImuOrientation,
+                                                           fit_clock_map)
+    from tripod_processor.reconstruction.stations import segment_stations
+
+    cap = make_rig_capture(root, name, stations=stations, **over)
+    truth = json.loads((cap / "meta.json").read_text())["truth"]
+    rec = read_recording(cap)
+    orient = ImuOrientation(rec.imu, fit_clock_map(rec.lidar), 0)
+    rc = ReconstructConfig(num_threads=2)
+    seg = segment_stations(rec.lidar, orient, Extrinsic.from_config(None, None), rc.stations,
+                           [], num_threads=2, reuse={})
+    assert len(seg.stations) == stations
+    return rec, seg, orient, truth, truth_extrinsic(truth).R_imu_lidar

@@ -13,19 +13,14 @@ tilt within 0.25°, where hand-eye's alone (the old rule, ``tilt_from_surfaces=f
 within 0.1°: the unsmoothed case is kept as the weighing's test.
 """
 
-import json
-
 import numpy as np
 import pytest
+from sim_fixtures import segmented_rig
 
 from tripod_processor.reconstruction import pipeline as pl
 from tripod_processor.reconstruction.calibration import _axis_tilt_sigma_deg, pan_axis_in_imu
 from tripod_processor.reconstruction.config import ReconstructConfig
-from tripod_processor.reconstruction.inputs import read_recording
-from tripod_processor.reconstruction.placement import Extrinsic, ImuOrientation, fit_clock_map
-from tripod_processor.reconstruction.stations import segment_stations
-from tripod_processor.sim import simulate
-from tripod_processor.sim.rigs import small_rig
+from tripod_processor.reconstruction.placement import Extrinsic
 
 
 def _tilt_error_deg(R_imu_lidar, R_true, b_imu):
@@ -37,24 +32,13 @@ def _tilt_error_deg(R_imu_lidar, R_true, b_imu):
 
 @pytest.fixture(scope="module")
 def small_room(tmp_path_factory):
-    from scipy.spatial.transform import Rotation
-
-    cfg = small_rig(scene="room", seed=5, stations=4,
-                    scene_size={"width_m": 4.0, "depth_m": 4.0, "height_m": 2.5},
-                    motion={"tilt_deg": 9.0, "lever_arm_m": [0.08, -0.09, 0.03], "pan_s": 10.0,
-                            "pan_pause_s": 0.0, "pan_reversal_deg": 0.0, "transit_s": 3.0,
-                            "route_span": 1.0})
-    cap = tmp_path_factory.mktemp("small_room") / "cap"
-    simulate(cfg, cap, nthreads=2)
-    truth = json.loads((cap / "meta.json").read_text())["truth"]
-    q = truth["q_imu_lidar_wxyz"]
-    R_true = Rotation.from_quat([q[1], q[2], q[3], q[0]]).as_matrix()
-    rec = read_recording(cap)
-    orient = ImuOrientation(rec.imu, fit_clock_map(rec.lidar), 0)
+    rec, seg, orient, truth, R_true = segmented_rig(
+        tmp_path_factory.mktemp("small_room"), "cap", 4, scene="room", seed=5,
+        scene_size={"width_m": 4.0, "depth_m": 4.0, "height_m": 2.5},
+        motion={"tilt_deg": 9.0, "lever_arm_m": [0.08, -0.09, 0.03], "pan_s": 10.0,
+                "pan_pause_s": 0.0, "pan_reversal_deg": 0.0, "transit_s": 3.0,
+                "route_span": 1.0})
     rc = ReconstructConfig(num_threads=2)
-    seg = segment_stations(rec.lidar, orient, Extrinsic.from_config(None, None), rc.stations,
-                           [], num_threads=2, reuse={})
-    assert len(seg.stations) == 4
     ext, orient, s_he = pl._calibrate_mount(rec, seg, orient, Extrinsic.from_config(None, None),
                                             rc, 2, {}, True, [])
     # hand-eye as it was before the ranges were smoothed along the scan line

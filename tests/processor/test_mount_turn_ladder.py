@@ -12,41 +12,24 @@ then consecutive windows; the pairs registered at a level given up are kept) its
 ``mount_tilt_warn_deg``) is warned about.
 """
 
-import json
-
 import numpy as np
 import pytest
+from sim_fixtures import segmented_rig
 
 from tripod_processor.reconstruction import pipeline as pl
 from tripod_processor.reconstruction.calibration import pan_axis_in_imu
 from tripod_processor.reconstruction.config import ReconstructConfig
-from tripod_processor.reconstruction.inputs import read_recording
-from tripod_processor.reconstruction.placement import Extrinsic, ImuOrientation, fit_clock_map
-from tripod_processor.reconstruction.stations import segment_stations
-from tripod_processor.sim import simulate
-from tripod_processor.sim.rigs import small_rig
+from tripod_processor.reconstruction.placement import Extrinsic
 
 
 @pytest.fixture(scope="module")
 def hall(tmp_path_factory):
-    from scipy.spatial.transform import Rotation
-
     # one 20-s hand pan of half a turn (a pause, 20° back) in a 34 x 24 m hall, 24° mount
-    cfg = small_rig(seed=5, stations=1,
-                    scene_size={"width_m": 34.0, "depth_m": 24.0, "height_m": 6.0},
-                    motion={"tilt_deg": 24.0, "lever_arm_m": [0.1, -0.08, 0.05],
-                            "pan_s": 20.0, "pan_turns": 0.5})
-    cap = tmp_path_factory.mktemp("tilted_hall") / "cap"
-    simulate(cfg, cap, nthreads=2)
-    truth = json.loads((cap / "meta.json").read_text())["truth"]
-    q = truth["q_imu_lidar_wxyz"]
-    R_true = Rotation.from_quat([q[1], q[2], q[3], q[0]]).as_matrix()
-    rec = read_recording(cap)
-    orient = ImuOrientation(rec.imu, fit_clock_map(rec.lidar), 0)
-    rc = ReconstructConfig(num_threads=2)
-    seg = segment_stations(rec.lidar, orient, Extrinsic.from_config(None, None), rc.stations,
-                           [], num_threads=2, reuse={})
-    assert len(seg.stations) == 1
+    rec, seg, orient, _, R_true = segmented_rig(
+        tmp_path_factory.mktemp("tilted_hall"), "cap", 1, seed=5,
+        scene_size={"width_m": 34.0, "depth_m": 24.0, "height_m": 6.0},
+        motion={"tilt_deg": 24.0, "lever_arm_m": [0.1, -0.08, 0.05], "pan_s": 20.0,
+                "pan_turns": 0.5})
     return rec, seg, orient, R_true, pan_axis_in_imu(orient, seg.stations)
 
 

@@ -127,12 +127,9 @@ def plane_fit_errors(points: np.ndarray, up: np.ndarray, *, distance_m: float = 
     for _ in range(max_planes):
         if len(pc.points) < min_inliers:
             break
-        model, idx = pc.segment_plane(distance_m, 3, 100)
+        _, idx = pc.segment_plane(distance_m, 3, 100)
         if len(idx) < min_inliers:
             break
-        n = np.asarray(model[:3])
-        nn = np.linalg.norm(n)
-        n, d = n / nn, model[3] / nn
         inl = np.asarray(pc.select_by_index(idx).points)
         # least-squares refit on the inliers, then residuals
         c = inl.mean(0)
