@@ -589,18 +589,20 @@ def _station_points(lidar: LidarPackets, st: Station, n: int, seed: int, max_ran
     idx = np.arange(st.packet_start, st.packet_stop, stride)
     pts = decode_timed_points(lidar.payload[idx], lidar.lidar_ns[idx], 0, len(idx),
                               min_range=1.0, max_range=max_range)
-    xyz = denoise_ranges(pts, denoise_firings)
-    if len(pts) > n:
-        rng = np.random.default_rng(seed)
-        w = np.ones(len(pts))
-        if orient is not None:
-            grid = np.linspace(st.start_ns, st.end_ns, 200).astype(np.int64)
-            rate = np.linalg.norm(_world_rate(orient, grid), axis=1)
-            slow = np.interp(pts["time_ns"], grid, rate) < 0.7 * np.percentile(rate, 95)
-            w[slow] = 4.0
-        keep = np.sort(rng.choice(len(pts), n, replace=False, p=w / w.sum()))
-        pts, xyz = pts[keep], xyz[keep]
-    return xyz, pts["time_ns"].astype(np.int64)
+    if len(pts) <= n:
+        return denoise_ranges(pts, denoise_firings), pts["time_ns"].astype(np.int64)
+    rng = np.random.default_rng(seed)
+    w = np.ones(len(pts))
+    if orient is not None:
+        grid = np.linspace(st.start_ns, st.end_ns, 200).astype(np.int64)
+        rate = np.linalg.norm(_world_rate(orient, grid), axis=1)
+        slow = np.interp(pts["time_ns"], grid, rate) < 0.7 * np.percentile(rate, 95)
+        w[slow] = 4.0
+    keep = np.sort(rng.choice(len(pts), n, replace=False, p=w / w.sum()))
+    # the kept points' ranges smoothed over all the decoded ones (the same to the bit as
+    # smoothing all, then keeping: a tenth of the cost)
+    xyz = denoise_ranges(pts, denoise_firings, at=keep)
+    return xyz, pts["time_ns"][keep].astype(np.int64)
 
 
 def _world_rate(orient: ImuOrientation, t_ns: np.ndarray, h_ns: int = 100_000_000
