@@ -79,3 +79,41 @@ def test_zero_firings_gives_the_points_as_decoded():
     pts = _scan(np.full(len(az), 2.0), az, 3.0, ring=5, t0_ns=10**18, noise_m=0.03, rng=rng)
     xyz = denoise_ranges(pts, firings=0)
     np.testing.assert_array_equal(xyz, np.stack([pts["x"], pts["y"], pts["z"]], 1))
+
+
+def _lexsort_denoise(pts: np.ndarray, firings: int, max_step_m: float, fit: str) -> np.ndarray:
+    """denoise_ranges as it was (a lexicographic sort, every point fitted): the reference."""
+    from tripod_processor.decode.scanline import fit_ranges
+
+    xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=1).astype(np.float64)
+    r = np.linalg.norm(xyz, axis=1)
+    key = pts["ring"].astype(np.int64) * 256 + pts["return_type"].astype(np.int64)
+    order = np.lexsort((pts["time_ns"], key))
+    sm = fit_ranges(r[order], key[order], pts["time_ns"][order], firings, max_step_m, fit)
+    scale = np.empty(len(r))
+    scale[order] = sm / np.maximum(r[order], 1e-9)
+    return xyz * scale[:, None]
+
+
+def test_smoothing_some_points_gives_their_values_to_the_bit():
+    """``at``: the kept points' xyz smoothed over all points, equal to the bit to smoothing all
+    then keeping (the calibration's stations keep a tenth of the points they decode), in
+    firing order and shuffled (the sorting fallback), with depth edges, two returns and gaps."""
+    rng = np.random.default_rng(3)
+    scans = []
+    for ring in range(16):
+        for rt in (0, 1):
+            az = np.arange(-60, 60, 0.2)
+            truth = np.where(az < 10, _wall_ranges(az, 3.0), _wall_ranges(az, 3.5))  # an edge
+            s = _scan(truth, az, ring - 7.5, ring, 10**18 + 2300 * ring, 0.03, rng, rt)
+            scans.append(s[rng.random(len(s)) > 0.05])  # missing returns
+    fired = np.concatenate(scans)
+    fired = fired[np.argsort(fired["time_ns"], kind="stable")]  # the decoder's order
+    shuffled = fired[rng.permutation(len(fired))]
+    for pts in (fired, shuffled):
+        at = np.sort(rng.choice(len(pts), len(pts) // 10, replace=False))
+        for fit in ("mean", "linear"):
+            ref = _lexsort_denoise(pts, 5, 0.1, fit)
+            assert denoise_ranges(pts, 5, fit=fit).tobytes() == ref.tobytes()
+            assert denoise_ranges(pts, 5, fit=fit, at=at).tobytes() == ref[at].tobytes()
+        assert np.array_equal(denoise_ranges(pts, 0, at=at), _lexsort_denoise(pts, 0, 0.1, "mean")[at])

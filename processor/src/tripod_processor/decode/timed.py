@@ -103,7 +103,7 @@ def decode_xyz_time(payload: np.ndarray, lidar_ns: np.ndarray, start: int, stop:
 
 
 def denoise_ranges(pts: np.ndarray, firings: int = 5, max_step_m: float = 0.1,
-                   fit: str = "mean") -> np.ndarray:
+                   fit: str = "mean", at: np.ndarray | None = None) -> np.ndarray:
     """The points' xyz (N, 3) float64 [m, lidar frame] with each range smoothed along its
     laser's scan line: ``fit`` ("mean", "linear", "quadratic") over the same laser's and
     return's ranges within ``firings`` firings either side (±1° at 600 rpm for 5), leaving out
@@ -115,19 +115,84 @@ def denoise_ranges(pts: np.ndarray, firings: int = 5, max_step_m: float = 0.1,
     Why: two sweeps' noisy points bias a registration's rotation by tenths of a degree in a
     small room (dev seed 2, 4 × 4 m, 12° mount: 0.41° about the tilt axis at 45° turns; 0.02°
     with ``firings=5``, as without noise), and that bias is hand-eye's mount-tilt error.
-    ``firings`` 0 returns the points as they are."""
+    ``firings`` 0 returns the points as they are. ``at`` (indices into ``pts``): the xyz of
+    those points only (len(at), 3), smoothed over all of ``pts`` and equal to the bit to
+    ``denoise_ranges(pts, ...)[at]``, at the cost of ``len(at)`` points rather than ``len(pts)``
+    (the calibration's stations keep a tenth of the points they decode)."""
     from .scanline import FITS, fit_ranges
 
     if fit not in FITS:
         raise ValueError(f"scan-line fit {fit!r}: one of {', '.join(FITS)}")
+    if at is not None and fit == "mean" and firings > 0 and len(pts) >= 2:
+        return _denoise_mean_at(pts, firings, max_step_m, np.asarray(at, dtype=np.int64))
     xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=1).astype(np.float64)
     if firings <= 0 or len(pts) < 2:
-        return xyz
+        return xyz if at is None else xyz[np.asarray(at, dtype=np.int64)]
     r = np.linalg.norm(xyz, axis=1)
-    key = pts["ring"].astype(np.int64) * 256 + pts["return_type"].astype(np.int64)
-    order = np.lexsort((pts["time_ns"], key))
+    order, ks, ts = _scanline_order(pts)
     rs = r[order]
-    smooth = fit_ranges(rs, key[order], pts["time_ns"][order], firings, max_step_m, fit)
+    smooth = fit_ranges(rs, ks, ts, firings, max_step_m, fit)
     scale = np.empty(len(rs))
     scale[order] = smooth / np.maximum(rs, 1e-9)
-    return xyz * scale[:, None]
+    out = xyz * scale[:, None]
+    return out if at is None else out[np.asarray(at, dtype=np.int64)]
+
+
+def _scanline_order(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(order, keys, times) of ``pts`` (TIMED_POINT_DTYPE) in scan-line order: by laser and
+    return (key = ring·256 + return type), then time. Decoded packets come in time order: a
+    stable sort by the 16-bit key (a radix sort) is then that order, ties kept in input order
+    as ``np.lexsort((time, key))`` keeps them; else (never seen) the lexicographic sort."""
+    key = pts["ring"].astype(np.uint16) * np.uint16(256) + pts["return_type"].astype(np.uint16)
+    t = pts["time_ns"]
+    order = np.argsort(key, kind="stable")
+    ks, ts = key[order], t[order]
+    if np.any((ts[1:] < ts[:-1]) & (ks[1:] == ks[:-1])):
+        order = np.lexsort((t, key))
+        ks, ts = key[order], t[order]
+    return order, ks.astype(np.int64), ts
+
+
+def _denoise_mean_at(pts: np.ndarray, firings: int, max_step_m: float,
+                     at: np.ndarray) -> np.ndarray:
+    """:func:`denoise_ranges`'s "mean" fit at the points ``at`` only: each one's window of
+    ``firings`` scan-line neighbours either side gathered, and the ranges, sums and their
+    order as :func:`.scanline.fit_ranges` has them (float32 sums, the later neighbour o then
+    the earlier o, o = 1..firings), so the same xyz to the bit."""
+    from .scanline import FIRING_PERIOD_NS
+
+    n = len(pts)
+    order, ks, ts = _scanline_order(pts)
+    pos = np.empty(n, dtype=np.int64)
+    pos[order] = np.arange(n)
+    P = pos[at]
+    offs = np.arange(-firings, firings + 1)
+    Wp = P[:, None] + offs[None, :]  # (m, 2f+1) scan-line positions of each window
+    valid = (Wp >= 0) & (Wp < n)
+    Wp = np.clip(Wp, 0, n - 1)
+    G = order[Wp]  # the windows' points (input indices)
+    xyz_w = np.stack([pts["x"][G], pts["y"][G], pts["z"][G]], axis=2).astype(np.float64)
+    r_w = np.linalg.norm(xyz_w.reshape(-1, 3), axis=1).reshape(G.shape)
+    r32 = r_w.astype(np.float32)
+    k_w = ks[Wp]
+    t_w = ts[Wp]
+    lim = int(np.float32(firings + 0.5) * FIRING_PERIOD_NS)
+    c = firings  # the point's own column
+    S0 = np.ones(len(at), np.float32)
+    T0 = np.zeros(len(at), np.float32)
+    for o in range(1, min(firings, n - 1) + 1):
+        for col, sgn in ((c + o, 1), (c - o, -1)):
+            # later minus earlier, as fit_ranges takes each pair's difference
+            dr = r32[:, col] - r32[:, c] if sgn > 0 else r32[:, c] - r32[:, col]
+            ok = valid[:, col] & (k_w[:, col] == k_w[:, c])
+            ok &= np.abs(dr) < max_step_m
+            ok &= (t_w[:, col] - t_w[:, c] if sgn > 0 else t_w[:, c] - t_w[:, col]) <= lim
+            dr *= ok
+            S0 += ok
+            if sgn > 0:
+                T0 += dr
+            else:
+                T0 -= dr
+    rs = r_w[:, c]
+    smooth = rs + T0.astype(np.float64) / S0.astype(np.float64)
+    return xyz_w[:, c] * (smooth / np.maximum(rs, 1e-9))[:, None]
