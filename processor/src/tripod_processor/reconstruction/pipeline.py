@@ -378,24 +378,42 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
         # the time offset first, from the head's turns and the carries' (registrations, blind
         # to the lever arm): the surfaces' fit below starts from it
         carries = carry_spans(seg.stations) if cc.time_offset_from_carries else None
-        turn = time_offset_from_turns(rec.lidar, seg.stations, orient, ext, cfg.num_threads,
-                                      max_stations=cc.max_turn_stations, carries=carries,
-                                      denoise_firings=cc.range_denoise_firings,
-                                      passes=cc.turn_passes,
-                                      pairs_per_station=cc.turn_pairs_per_station,
-                                      pairs_per_carry=cc.turn_pairs_per_carry,
-                                      station_information=cc.turn_station_information,
-                                      uses_per_sweep=cc.turn_sweep_uses,
-                                      combine=cc.turn_combine,
-                                      carry_floor_ms=cc.turn_carry_floor_ms,
-                                      carry_mount=cc.turn_carry_mount)
+
+        def turns_offset(orient, ext):
+            return time_offset_from_turns(rec.lidar, seg.stations, orient, ext, cfg.num_threads,
+                                          max_stations=cc.max_turn_stations, carries=carries,
+                                          denoise_firings=cc.range_denoise_firings,
+                                          passes=cc.turn_passes,
+                                          pairs_per_station=cc.turn_pairs_per_station,
+                                          pairs_per_carry=cc.turn_pairs_per_carry,
+                                          station_information=cc.turn_station_information,
+                                          uses_per_sweep=cc.turn_sweep_uses,
+                                          combine=cc.turn_combine,
+                                          carry_floor_ms=cc.turn_carry_floor_ms,
+                                          carry_mount=cc.turn_carry_mount)
+
+        turn = turns_offset(orient, ext)
         if turn.sigma_ms <= cc.max_turns_time_offset_sigma_ms:
             orient = orient.with_offset(turn.offset_ns)
         else:
             turn = None
     turn_lever = None
     if fit_lever and cc.lever_from_turns:
+        ell_turns = ext.lever_arm_m.copy()
         ext, turn_lever = _lever_start_from_turns(rec, seg, orient, ext, cfg, notes)
+        moved_mm = 1000 * float(np.linalg.norm(ext.lever_arm_m - ell_turns))
+        if (turn is not None and turn_lever is not None and cc.turn_relever_mm > 0
+                and moved_mm > cc.turn_relever_mm):
+            # the turns' sweeps were de-skewed with hand-eye's lever arm: a lever error smears
+            # each sweep by the head's swing, which turns the pair's registration in proportion
+            # to the rate change, as an offset does. Again with the turns' lever arm
+            again = turns_offset(orient, ext)
+            if again.sigma_ms <= cc.max_turns_time_offset_sigma_ms:
+                notes.append(f"turns' time offset measured again with the turns' lever arm "
+                             f"({moved_mm:.0f} mm from hand-eye's): {turn.offset_ns * 1e-6:.2f}"
+                             f" -> {again.offset_ns * 1e-6:.2f} ms")
+                turn = again
+                orient = orient.with_offset(turn.offset_ns)
     # the turns' offset joins the surfaces' fit as a prior: offset and lever arm together
     prior = {} if turn is None or not cc.joint_time_prior else {
         "time_prior_ns": turn.offset_ns, "time_prior_sigma_ms": turn.sigma_ms}
