@@ -7,7 +7,8 @@ pair's registration turns with the rate change as an offset error does: a lidar 
 axis in a 5 x 4 m room, the lever arm 15 cm off, gives the turns' offset ~0.7 ms off, the true
 lever arm ~0.0. Once the lever arm's start comes from the turns
 (``pipeline._lever_start_from_turns``) the offset is measured again with it
-(``calibration.turn_relever_mm``; 0: not, as before).
+(``calibration.turn_relever_mm``; 0, the default: not, as before; mixed end to end, see the
+config).
 """
 
 import json
@@ -41,6 +42,7 @@ def test_turns_offset_measured_again_with_the_turns_lever_arm(room):
     rec, truth, t_true = room
     cfg = ReconstructConfig()
     cfg.num_threads = 2
+    cfg.calibration.turn_relever_mm = 20.0  # opt-in (default 0)
     seg = SimpleNamespace(stations=true_stations(rec, truth))
     et = truth_extrinsic(truth)
     # hand-eye's kind of lever arm: 15 cm off
@@ -58,7 +60,7 @@ def test_turns_offset_measured_again_with_the_turns_lever_arm(room):
     assert err_ms < 0.3 and err_ms < err_he_ms - 0.2, (err_he_ms, err_ms)
     assert orient2.time_offset_ns == again.offset_ns
     assert any("measured again" in n for n in notes)
-    # off: the first measurement, untouched
+    # off (the default): the first measurement, untouched
     cfg.calibration.turn_relever_mm = 0.0
     same, orient3 = _turns_again_with_lever(rec, seg, orient, ext_he, ext, turn, cfg, [])
     assert same is turn and orient3 is orient
