@@ -157,6 +157,18 @@ class CalibrationConfig(StrictModel):
     #: fit from them 7-8 mm). 100: half the range of lever arms (0-20 cm), beyond which neither
     #: start says much (15 until stop 34)
     lever_turn_max_sigma_mm: float = Field(default=100.0, gt=0)
+    #: the turns' time offset measured again once the lever-arm fit's start comes from the turns
+    #: (``lever_from_turns``) and lies more than this [mm] from the lever arm the turns' sweeps
+    #: were de-skewed with (one station's hand-eye, often 5-15 cm off): a wrong lever arm leaves
+    #: each 0.1-s sweep smeared by the head's swing (pan rate x lever error x 0.1 s, ~1 cm), a
+    #: smear that grows with the pan rate and so turns the pair's registration by an angle
+    #: proportional to the rate change, as a time offset does (issue 12: dev seeds 40 and 631's
+    #: turns 1.8 / 2.1 ms off with hand-eye's lever, 0.1 / 1.5 with the true one). 0 (default):
+    #: off, the turns' offset from hand-eye's lever arm only. 20 on 10 dev rigs end to end (40
+    #: 83 87 171 631 608 609 612 613 614): median 0.68 -> 0.36 ms but RMS 0.98 -> 0.96, within
+    #: 1 ms 7 -> 7, 609 1.02 -> 2.09 (the turns' lever is still cm off along the spin axis, and a
+    #: re-measure moves the turns' estimate by their noise), +0-20 CPU-s a rig: opt-in
+    turn_relever_mm: float = Field(default=0.0, ge=0)
     #: ... and then its component along the spin axis joins the surfaces' by inverse variance,
     #: the surfaces' sigma there times this (they see it only at vertical edges: 1-8 sigma off
     #: on seven dev rigs, the turns' 0.2-1.6 sigma)
