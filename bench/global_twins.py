@@ -104,8 +104,11 @@ def parse_set(items):
     out = {}
     for it in items or []:
         k, v = it.split("=", 1)
-        out[k] = {"True": True, "False": False}.get(v, None)
-        if out[k] is None:
+        if v in ("True", "False"):
+            out[k] = v == "True"
+        elif "," in v:
+            out[k] = tuple(float(x) for x in v.split(",") if x)
+        else:
             try:
                 out[k] = int(v)
             except ValueError:
@@ -148,7 +151,8 @@ def main(argv=None) -> int:
     ap.add_argument("--ransac-seeds", nargs="+", type=int, default=[0, 1, 2])
     ap.add_argument("--voxel", type=float, default=0.1)
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
-                    help="extra register_global options (e.g. twin_check=False)")
+                    help="extra register_global options (e.g. twin_check=False, "
+                         "twin_turns_deg=90,180,270)")
     ap.add_argument("--diagnose", action="store_true")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)

@@ -135,8 +135,9 @@ class GlobalResult:
     twins : tuple of dict
         The twin check's candidates, the picked one first: ``turn_deg`` (0 for RANSAC's best,
         else the turn about the up from it), ``fitness`` and ``num_inlier_correspondences`` of
-        the RANSAC pose, ``refined_fitness`` / ``refined_rmse`` [m] after the local refinement
-        that judged them, ``score`` (what was compared) and ``T_target_source``. Empty without
+        the RANSAC pose, ``refined_fitness`` / ``refined_rmse`` [m] / ``refined_violation``
+        (free-space violation) after the local refinement that judged them, ``score`` (what was
+        compared: fitness - 10 x violation) and ``T_target_source`` (RANSAC's). Empty without
         a check (no gravity, ``twin_check`` off, or no twin drawn that fits nearly as well).
     """
 
@@ -481,7 +482,7 @@ def register_global(
         (``twin_turns_deg``), the best hypotheses RANSAC drew within 20 deg of those turns. A
         twin whose clouds fit at least ``twin_min_fitness_ratio`` of the pose's fitness is a
         contender: both are refined by point-to-plane ICP on the downsampled clouds and the one
-        that fits better after it wins (see Notes). False: RANSAC's best as it is (the pick
+        that fits better after it, free space counted, wins (see Notes). False: RANSAC's best as it is (the pick
         before stop 37).
     twin_turns_deg : sequence of float
         [deg]; (180,) for a rectangular room, (90, 180, 270) for a square one.
@@ -499,11 +500,16 @@ def register_global(
     -----
     In a room that is nearly symmetric under a half turn (a box with a little furniture) the
     pose and its 180 deg twin put the walls, floor and ceiling on each other alike, and their
-    RANSAC fitness (at 1.5 voxels, from poses good to about a voxel) ties within its noise:
-    the cloud score alone picks the twin about as often as the truth. Refined, the truth also
-    puts the furniture on itself, the twin cannot: the refined fitness at ``inlier_distance``
-    separates them. The check costs two local registrations of the downsampled clouds (about
-    a tenth of the global step) and runs only when a twin fits nearly as well.
+    RANSAC fitness (at 1.5 voxels, from poses good to about a voxel) ties within its noise, or
+    favours the twin when it brings the two sensors closer (what one station sees and the
+    other does not counts against a pose; so does the furniture's shadow): the cloud score
+    alone picks the twin about as often as the truth. The twin check refines both and scores
+    them by fitness less ``TWIN_FREE_SPACE_WEIGHT`` x free-space violation: the twin puts the
+    column or the cabinet of one station where the other's sensor saw through to the wall;
+    the truth puts nothing there. It needs each cloud in its sensor's frame
+    (``viewpoint_source`` / ``viewpoint_target``: the sensor's position in it) and costs two
+    local registrations of the downsampled clouds and two range images; it runs only when a
+    twin fits nearly as well.
     """
     if not voxel_size > 0:
         raise ValueError("voxel_size must be > 0")
@@ -547,21 +553,43 @@ def register_global(
     rivals = [t for t in native.twins if t.fitness >= twin_min_fitness_ratio * res.fitness]
     if not rivals:
         return res
-    return _pick_twin(res, rivals, src, tgt, voxel_size, opt.inlier_distance,
+    return _pick_twin(res, rivals, source, target, src, tgt, voxel_size, opt.inlier_distance,
                       viewpoint_source, viewpoint_target, twin_margin, num_threads)
 
 
-def _pick_twin(res: GlobalResult, rivals, src, tgt, voxel_size: float, inlier_distance: float,
-               viewpoint_source, viewpoint_target, margin: float, num_threads: int
-               ) -> GlobalResult:
+#: weight of the free-space violation in the twin check's score (as the odometry's and the
+#: merge's ``free_space_weight``: one percent of points in the other's free space costs ten
+#: points of fitness)
+TWIN_FREE_SPACE_WEIGHT = 10.0
+
+
+def _pick_twin(res: GlobalResult, rivals, raw_src, raw_tgt, src, tgt, voxel_size: float,
+               inlier_distance: float, viewpoint_source, viewpoint_target, margin: float,
+               num_threads: int) -> GlobalResult:
     """RANSAC's best pose against its contending twins: each refined by point-to-plane ICP on
-    the downsampled clouds (``default_schedule``, then a last stage at ``inlier_distance``),
-    scored by the refined fitness there; the best wins (see :func:`register_global`)."""
+    the downsampled clouds (``default_schedule``, then a last stage at ``inlier_distance``) and
+    scored by its refined fitness less ``TWIN_FREE_SPACE_WEIGHT`` x its free-space violation
+    (the larger share of either cloud's points lying where the other's sensor saw through,
+    :mod:`reconstruction.free_space`); the best wins (see :func:`register_global`)."""
     import dataclasses
 
-    ps = prepare(src, None, 20, viewpoint=viewpoint_source, num_threads=num_threads)
-    pt = prepare(tgt, None, 20, viewpoint=viewpoint_target, num_threads=num_threads)
+    from ..reconstruction import free_space as fs
+
+    vs = np.asarray(viewpoint_source, dtype=np.float64).reshape(3)
+    vt = np.asarray(viewpoint_target, dtype=np.float64).reshape(3)
+    ps = prepare(src, None, 20, viewpoint=vs, num_threads=num_threads)
+    pt = prepare(tgt, None, 20, viewpoint=vt, num_threads=num_threads)
     sched = default_schedule(pt, voxel_size) + [inlier_distance]
+    # range images about each sensor, from the clouds as given (denser than the voxels)
+    img_s = fs.range_image(_finite(raw_src) - vs)
+    img_t = fs.range_image(_finite(raw_tgt) - vt)
+    S, T_ = np.asarray(ps.points, np.float64), np.asarray(pt.points, np.float64)
+
+    def violation(T: np.ndarray) -> float:
+        # source points about the target's sensor, and target points about the source's
+        return max(fs.violation(S, _shift(-vt) @ T, img_t),
+                   fs.violation(T_, _shift(-vs) @ np.linalg.inv(T), img_s))
+
     cands = [{"turn_deg": 0.0, "T_target_source": res.T_target_source, "fitness": res.fitness,
               "inlier_rmse": res.inlier_rmse,
               "num_inlier_correspondences": res.num_inlier_correspondences}]
@@ -575,10 +603,12 @@ def _pick_twin(res: GlobalResult, rivals, src, tgt, voxel_size: float, inlier_di
             r = register(ps, pt, "plane", init=c["T_target_source"],
                          max_correspondence_distance=sched, max_iterations=30,
                          num_threads=num_threads)
-            c["refined_fitness"], c["refined_rmse"] = float(r.fitness), float(r.inlier_rmse)
+            T, fit, rmse = r.T_target_source, float(r.fitness), float(r.inlier_rmse)
         except ValueError:
-            c["refined_fitness"], c["refined_rmse"] = 0.0, 0.0
-        c["score"] = c["refined_fitness"]
+            T, fit, rmse = c["T_target_source"], 0.0, 0.0
+        viol = violation(T)
+        c.update(refined_fitness=fit, refined_rmse=rmse, refined_violation=viol,
+                 score=fit - TWIN_FREE_SPACE_WEIGHT * viol)
     order = sorted(range(len(cands)), key=lambda k: (-cands[k]["score"], k))
     win = cands[order[0]]
     ambiguous = win["score"] - cands[order[1]]["score"] < margin
@@ -590,3 +620,14 @@ def _pick_twin(res: GlobalResult, rivals, src, tgt, voxel_size: float, inlier_di
         inlier_rmse=win["inlier_rmse"],
         num_inlier_correspondences=win["num_inlier_correspondences"], ambiguous=ambiguous,
         twins=twins)
+
+
+def _shift(v: np.ndarray) -> np.ndarray:
+    S = np.eye(4)
+    S[:3, 3] = v
+    return S
+
+
+def _finite(points) -> np.ndarray:
+    P = np.asarray(as_cloud(points), dtype=np.float64)
+    return P[np.isfinite(P).all(axis=1)]
