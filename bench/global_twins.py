@@ -163,7 +163,7 @@ def main(argv=None) -> int:
     extra = parse_set(args.set)
     trials = []
     for fam in args.families:
-        stats = {"n": 0, "ok": 0, "twin": 0, "other": 0, "ambiguous": 0, "ms": []}
+        stats = {"n": 0, "ok": 0, "twin": 0, "other": 0, "ambiguous": 0, "checked": 0, "ms": []}
         for s in args.scene_seeds:
             src, tgt, G, _ = station_pair(fam, s)
             if args.diagnose:
@@ -178,28 +178,32 @@ def main(argv=None) -> int:
                 ok = rot < 1.0 and tr < 0.05
                 twin = abs(rot - 180) < 10
                 amb = bool(getattr(g, "ambiguous", False))
+                checked = bool(getattr(g, "twins", ()))
                 stats["n"] += 1
                 stats["ok"] += ok
                 stats["twin"] += twin
                 stats["other"] += not ok and not twin
                 stats["ambiguous"] += amb
+                stats["checked"] += checked
                 stats["ms"].append(ms)
                 trials.append({"family": fam, "scene_seed": s, "ransac_seed": rs, "ok": ok,
                                "twin": twin, "rot_deg": rot, "trans_m": tr, "ambiguous": amb,
-                               "fitness": g.fitness, "feat_inl": g.num_inlier_correspondences,
+                               "checked": checked, "fitness": g.fitness, "feat_inl": g.num_inlier_correspondences,
                                "ms": ms})
                 if args.diagnose or not ok:
                     print(f"  {fam} scene {s} ransac {rs}: rot {rot:.2f} deg, {tr:.3f} m, "
                           f"fit {g.fitness:.3f}, feat {g.num_inlier_correspondences}, "
-                          f"ambiguous {amb}", flush=True)
+                          f"ambiguous {amb}, checked {checked}", flush=True)
         print(f"{fam:12s} n {stats['n']:3d}  ok {stats['ok']:3d} ({100 * stats['ok'] / max(1, stats['n']):.0f} %)"
               f"  twin {stats['twin']:3d}  other {stats['other']:3d}  ambiguous "
-              f"{stats['ambiguous']:3d}  global {np.mean(stats['ms']):.0f} ms", flush=True)
+              f"{stats['ambiguous']:3d}  twin-checked {stats['checked']:3d}  global "
+              f"{np.mean(stats['ms']):.0f} ms", flush=True)
     n = len(trials)
     print(f"{'all':12s} n {n:3d}  ok {sum(t['ok'] for t in trials):3d}  twin "
           f"{sum(t['twin'] for t in trials):3d}  other "
           f"{sum(not t['ok'] and not t['twin'] for t in trials):3d}  ambiguous "
-          f"{sum(t['ambiguous'] for t in trials):3d}  global "
+          f"{sum(t['ambiguous'] for t in trials):3d}  twin-checked "
+          f"{sum(t['checked'] for t in trials):3d}  global "
           f"{np.mean([t['ms'] for t in trials]):.0f} ms")
     if args.json:
         with open(args.json, "w") as f:
