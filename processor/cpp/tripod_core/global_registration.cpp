@@ -87,6 +87,10 @@ void validate(const GlobalOptions& opt) {
         if (!(opt.rotation_tolerance > 0))
             throw std::invalid_argument("rotation_tolerance must be > 0");
     }
+    if (!(opt.twin_tolerance > 0) || !std::isfinite(opt.twin_tolerance))
+        throw std::invalid_argument("twin_tolerance must be > 0");
+    for (const double t : opt.twin_turns)
+        if (!std::isfinite(t)) throw std::invalid_argument("twin turns must be finite");
 }
 
 /// The finite rows of `in` (at least 3, else std::invalid_argument naming the cloud).
@@ -239,20 +243,41 @@ public:
         return agrees_with_prior(T);
     }
 
+    /// The best hypothesis of a yaw sector (gravity only): its score, index, pose, inliers.
+    struct Best {
+        int64_t score = -1, k = -1, inl = 0;
+        Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+        bool beats(const Best& o) const {
+            return score > o.score || (score == o.score && score >= 0 && k < o.k);
+        }
+    };
+    static constexpr int kSectors = 72;  // 5 deg
+
+    static double yaw_of(const Eigen::Isometry3d& T) {
+        return std::atan2(T.linear()(1, 0), T.linear()(0, 0));
+    }
+    static int sector_of(const Eigen::Isometry3d& T) {
+        const int s = static_cast<int>(std::floor((yaw_of(T) + M_PI) / (2 * M_PI) * kSectors));
+        return std::clamp(s, 0, kSectors - 1);
+    }
+
     /// Draw hypotheses in batches until `confidence` (or max_iterations); the best by
     /// geometric score (ties: the lowest k). Returns false when none agreed with more than its
-    /// sample.
-    bool run(Eigen::Isometry3d& best_T, int64_t& iterations, int nt) const {
+    /// sample. With `sectors` (gravity), the best of each 5 deg yaw sector too.
+    bool run(Eigen::Isometry3d& best_T, int64_t& iterations, int64_t& best_score, int nt,
+             std::vector<Best>* sectors = nullptr) const {
         int64_t best = -1, best_k = -1, best_inl = 0;
         int64_t needed = opt_.max_iterations, done = 0;
         const int64_t M = static_cast<int64_t>(m_.size());
         constexpr int64_t kBatch = 1024;
+        if (sectors) sectors->assign(kSectors, Best{});
         while (done < std::min(needed, opt_.max_iterations)) {
             const int64_t end = std::min(done + kBatch, opt_.max_iterations);
 #pragma omp parallel num_threads(nt)
             {
                 int64_t lb = -1, lk = -1, linl = 0;
                 Eigen::Isometry3d lT = Eigen::Isometry3d::Identity();
+                std::vector<Best> ls(sectors ? kSectors : 0);
 #pragma omp for schedule(dynamic, 64)
                 for (int64_t k = done; k < end; ++k) {
                     Eigen::Isometry3d T;
@@ -266,13 +291,27 @@ public:
                         lT = T;
                         linl = inl;
                     }
+                    if (sectors) {
+                        Best h;
+                        h.score = c;
+                        h.k = k;
+                        h.inl = inl;
+                        h.T = T;
+                        Best& b = ls[sector_of(T)];
+                        if (h.beats(b)) b = h;
+                    }
                 }
 #pragma omp critical
-                if (lb > best || (lb == best && lb >= 0 && lk < best_k)) {
-                    best = lb;
-                    best_k = lk;
-                    best_T = lT;
-                    best_inl = linl;
+                {
+                    if (lb > best || (lb == best && lb >= 0 && lk < best_k)) {
+                        best = lb;
+                        best_k = lk;
+                        best_T = lT;
+                        best_inl = linl;
+                    }
+                    if (sectors)
+                        for (int s = 0; s < kSectors; ++s)
+                            if (ls[s].beats((*sectors)[s])) (*sectors)[s] = ls[s];
                 }
             }
             done = end;
@@ -285,6 +324,7 @@ public:
             }
         }
         iterations = done;
+        best_score = best;
         return best >= 0;
     }
 
@@ -346,6 +386,9 @@ void score_on_clouds(const PointsXYZ& src, const PointsXYZ& tgt, const Eigen::Is
     res.fitness = static_cast<double>(inl) / src.rows();
     res.inlier_rmse = inl ? std::sqrt(sq / inl) : 0;
 }
+double yaw_of_levelled(const Eigen::Isometry3d& T) {
+    return std::atan2(T.linear()(1, 0), T.linear()(0, 0));
+}
 }  // namespace
 
 GlobalResult register_global(const PointsXYZ& source_in, const PointsXYZ& target_in,
@@ -372,19 +415,52 @@ GlobalResult register_global(const PointsXYZ& source_in, const PointsXYZ& target
     }
     // 3. RANSAC; 4. refit on the inliers
     Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-    if (!ransac.run(T, res.iterations, nt)) {
+    std::vector<Ransac::Best> sectors;
+    const bool twins = gravity && !opt.twin_turns.empty();
+    int64_t score = 0;
+    if (!ransac.run(T, res.iterations, score, nt, twins ? &sectors : nullptr)) {
         res.status = "no_consensus";
         return res;
     }
     T = ransac.refine(T);
     res.num_inlier_correspondences = ransac.count_inliers(T);
+    res.geometric_score = ransac.geometric_score(T);
     // back from the levelled frames: T_target_source = Lt^T T Ls
-    Eigen::Isometry3d out = Eigen::Isometry3d::Identity();
-    out.linear() = Lt.transpose() * T.linear() * Ls;
-    out.translation() = Lt.transpose() * T.translation();
+    auto unlevel = [&](const Eigen::Isometry3d& A) {
+        Eigen::Isometry3d out = Eigen::Isometry3d::Identity();
+        out.linear() = Lt.transpose() * A.linear() * Ls;
+        out.translation() = Lt.transpose() * A.translation();
+        return out;
+    };
+    const Eigen::Isometry3d out = unlevel(T);
     res.T_target_source = out.matrix();
     // 5. fitness on the full clouds
-    score_on_clouds(src, tgt, out, opt.inlier_distance * opt.inlier_distance, nt, res);
+    const double thr2 = opt.inlier_distance * opt.inlier_distance;
+    score_on_clouds(src, tgt, out, thr2, nt, res);
+    // 6. twins: the best hypothesis of the sectors about each turn of the pose's yaw
+    const double yaw0 = yaw_of_levelled(T);
+    for (const double turn : opt.twin_turns) {
+        const Ransac::Best* pick = nullptr;
+        for (const Ransac::Best& b : sectors) {
+            if (b.score < 0) continue;
+            const double d = std::remainder(yaw_of_levelled(b.T) - yaw0 - turn, 2 * M_PI);
+            if (std::fabs(d) > opt.twin_tolerance) continue;
+            if (!pick || b.beats(*pick)) pick = &b;
+        }
+        if (!pick) continue;
+        const Eigen::Isometry3d T2 = ransac.refine(pick->T);
+        GlobalTwin tw;
+        tw.turn = turn;
+        tw.num_inlier_correspondences = ransac.count_inliers(T2);
+        tw.geometric_score = ransac.geometric_score(T2);
+        const Eigen::Isometry3d out2 = unlevel(T2);
+        tw.T_target_source = out2.matrix();
+        GlobalResult tmp;
+        score_on_clouds(src, tgt, out2, thr2, nt, tmp);
+        tw.fitness = tmp.fitness;
+        tw.inlier_rmse = tmp.inlier_rmse;
+        res.twins.push_back(tw);
+    }
     res.success = true;
     res.status = "success";
     return res;

@@ -5,6 +5,8 @@
 
 #include <Eigen/Core>
 #include <cstdint>
+#include <string>
+#include <vector>
 
 #include "tripod_core/features.hpp"
 #include "tripod_core/voxel_grid.hpp"
@@ -33,8 +35,23 @@ struct GlobalOptions {
     double rotation_tolerance = 0.5;                         ///< [rad]
     Eigen::Vector3d viewpoint_source = Eigen::Vector3d::Zero();  ///< normals face it [m]
     Eigen::Vector3d viewpoint_target = Eigen::Vector3d::Zero();
+    /// With gravity: the turns about up [rad] (e.g. pi for a rectangle's 180 deg twin) at
+    /// which the best other hypothesis is reported too (GlobalResult::twins), each searched
+    /// within twin_tolerance of the best hypothesis' yaw turned by it. Empty: none.
+    std::vector<double> twin_turns;
+    double twin_tolerance = 0.35;     ///< [rad] (20 deg)
     uint64_t seed = 0;                ///< same seed, same result, whatever num_threads
     int num_threads = 0;
+};
+
+/// A hypothesis at a turn of the best one about up (its twin in a symmetric room).
+struct GlobalTwin {
+    double turn = 0;  ///< the requested turn [rad]
+    Eigen::Matrix4d T_target_source = Eigen::Matrix4d::Identity();
+    int64_t num_inlier_correspondences = 0;
+    int64_t geometric_score = 0;  ///< probe points (at most 2000) with a target point near
+    double fitness = 0;
+    double inlier_rmse = 0;       ///< [m]
 };
 
 /// Result of register_global().
@@ -47,6 +64,10 @@ struct GlobalResult {
     int64_t iterations = 0;        ///< hypotheses drawn
     double fitness = 0;            ///< source points with a target point within inlier_distance
     double inlier_rmse = 0;        ///< [m]
+    int64_t geometric_score = 0;   ///< RANSAC's score of the pose (probe points near the target)
+    /// With gravity and twin_turns: the best hypothesis at each turn that RANSAC drew (a turn
+    /// without one is left out), refitted and scored like the pose.
+    std::vector<GlobalTwin> twins;
 };
 
 /// Find T_target_source from scratch (no initial guess). Clouds should be voxel-downsampled.

@@ -171,8 +171,18 @@ TRIPOD_BINDING(registration) {
         .def_rw("rotation_tolerance", &tripod::GlobalOptions::rotation_tolerance)
         .def_rw("viewpoint_source", &tripod::GlobalOptions::viewpoint_source)
         .def_rw("viewpoint_target", &tripod::GlobalOptions::viewpoint_target)
+        .def_rw("twin_turns", &tripod::GlobalOptions::twin_turns)
+        .def_rw("twin_tolerance", &tripod::GlobalOptions::twin_tolerance)
         .def_rw("seed", &tripod::GlobalOptions::seed)
         .def_rw("num_threads", &tripod::GlobalOptions::num_threads);
+
+    nb::class_<tripod::GlobalTwin>(m, "_GlobalTwin")
+        .def_ro("turn", &tripod::GlobalTwin::turn)
+        .def_ro("T_target_source", &tripod::GlobalTwin::T_target_source)
+        .def_ro("num_inlier_correspondences", &tripod::GlobalTwin::num_inlier_correspondences)
+        .def_ro("geometric_score", &tripod::GlobalTwin::geometric_score)
+        .def_ro("fitness", &tripod::GlobalTwin::fitness)
+        .def_ro("inlier_rmse", &tripod::GlobalTwin::inlier_rmse);
 
     nb::class_<tripod::GlobalResult>(m, "_GlobalResult")
         .def_ro("T_target_source", &tripod::GlobalResult::T_target_source)
@@ -182,7 +192,9 @@ TRIPOD_BINDING(registration) {
         .def_ro("num_inlier_correspondences", &tripod::GlobalResult::num_inlier_correspondences)
         .def_ro("iterations", &tripod::GlobalResult::iterations)
         .def_ro("fitness", &tripod::GlobalResult::fitness)
-        .def_ro("inlier_rmse", &tripod::GlobalResult::inlier_rmse);
+        .def_ro("inlier_rmse", &tripod::GlobalResult::inlier_rmse)
+        .def_ro("geometric_score", &tripod::GlobalResult::geometric_score)
+        .def_ro("twins", &tripod::GlobalResult::twins);
 
     m.def(
         "register_global",

@@ -107,6 +107,11 @@ def register_cmd(
             out["global"] = g.to_dict()
             if not g.success:
                 failure = f"global registration failed: {g.status}"
+            elif g.ambiguous:
+                print("tripod: warning: global registration is ambiguous: a twin turned "
+                      f"{abs(g.twins[1]['turn_deg'] - g.twins[0]['turn_deg']):.0f} deg about the up "
+                      "fits about as well",
+                      file=sys.stderr)
             T0 = g.T_target_source
         if not failure:
             r = reg.register(src, tgt, method=method, init=T0, voxel_size=voxel,

@@ -427,8 +427,10 @@ def global_hypothesis(map_A: np.ndarray, map_B: np.ndarray, cfg: MergeConfig
 
     if len(map_A) < 100 or len(map_B) < 100:
         return None
+    # twin_check off: the merge judges a hypothesis' turned twins on its own, by verified
+    # station links (resolve_twins), stronger evidence than the maps' refined fit
     g = reg.register_global(map_B, map_A, voxel_size=cfg.global_voxel_m, gravity_aligned=True,
-                            seed=0, num_threads=cfg.num_threads)
+                            seed=0, num_threads=cfg.num_threads, twin_check=False)
     return ("global", g.T_target_source, float(g.fitness)) if g.success else None
 
 
@@ -643,6 +645,7 @@ def resolve_twins(recs, cache, coarse, maps, A: int, B: int, H: np.ndarray, src:
         def restricted(turn: float):
             return reg.register_global(maps[B], maps[A], voxel_size=cfg.global_voxel_m,
                                        gravity_aligned=True, seed=0, num_threads=cfg.num_threads,
+                                       twin_check=False,
                                        rotation_prior=_about_z(turn) @ H[:3, :3],
                                        rotation_tolerance=np.radians(30.0))
 

@@ -128,6 +128,17 @@ class GlobalResult:
         Fraction of (downsampled) source points within ``inlier_distance`` of the target.
     inlier_rmse : float
         [m]
+    ambiguous : bool
+        The twin check (``twin_check``) could not tell the pose from a twin turned about the
+        up: their refined fits differ by less than ``twin_margin``. The pose is the better of
+        the two all the same; an IMU yaw (``rotation_prior``) or other evidence must decide.
+    twins : tuple of dict
+        The twin check's candidates, the picked one first: ``turn_deg`` (0 for RANSAC's best,
+        else the turn about the up from it), ``fitness`` and ``num_inlier_correspondences`` of
+        the RANSAC pose, ``refined_fitness`` / ``refined_rmse`` [m] / ``refined_violation``
+        (free-space violation) after the local refinement that judged them, ``score`` (what was
+        compared: fitness - 10 x violation) and ``T_target_source`` (RANSAC's). Empty without
+        a check (no gravity, ``twin_check`` off, or no twin drawn that fits nearly as well).
     """
 
     T_target_source: np.ndarray
@@ -138,6 +149,8 @@ class GlobalResult:
     iterations: int
     fitness: float
     inlier_rmse: float
+    ambiguous: bool = False
+    twins: tuple = ()
 
     @classmethod
     def _from_native(cls, r) -> "GlobalResult":
@@ -148,6 +161,8 @@ class GlobalResult:
     def to_dict(self) -> dict:
         d = dict(self.__dict__)
         d["T_target_source"] = self.T_target_source.tolist()
+        d["twins"] = [{**t, "T_target_source": np.asarray(t["T_target_source"]).tolist()}
+                      for t in self.twins]
         return d
 
 
@@ -418,6 +433,10 @@ def register_global(
     rotation_tolerance: float = np.radians(30.0),
     seed: int = 0,
     num_threads: int = 0,
+    twin_check: bool = True,
+    twin_turns_deg: Sequence[float] = (180.0,),
+    twin_min_fitness_ratio: float = 0.8,
+    twin_margin: float = 0.01,
 ) -> GlobalResult:
     """Global registration from scratch: FPFH features, (mutual) matches, RANSAC.
 
@@ -458,11 +477,39 @@ def register_global(
         Same seed, same result, whatever ``num_threads``.
     num_threads : int
         0 uses every core.
+    twin_check : bool
+        With gravity: RANSAC's best pose against its twins turned about the up
+        (``twin_turns_deg``), the best hypotheses RANSAC drew within 20 deg of those turns. A
+        twin whose clouds fit at least ``twin_min_fitness_ratio`` of the pose's fitness is a
+        contender: both are refined by point-to-plane ICP on the downsampled clouds and the one
+        that fits better after it, free space counted, wins (see Notes). False: RANSAC's best as it is (the pick
+        before stop 37).
+    twin_turns_deg : sequence of float
+        [deg]; (180,) for a rectangular room, (90, 180, 270) for a square one.
+    twin_min_fitness_ratio : float
+        In [0, 1].
+    twin_margin : float
+        Refined scores closer than this are a tie: ``ambiguous`` is set.
 
     Returns
     -------
     GlobalResult
         Refine it with :func:`register` (``init=result.T_target_source``).
+
+    Notes
+    -----
+    In a room that is nearly symmetric under a half turn (a box with a little furniture) the
+    pose and its 180 deg twin put the walls, floor and ceiling on each other alike, and their
+    RANSAC fitness (at 1.5 voxels, from poses good to about a voxel) ties within its noise, or
+    favours the twin when it brings the two sensors closer (what one station sees and the
+    other does not counts against a pose; so does the furniture's shadow): the cloud score
+    alone picks the twin about as often as the truth. The twin check refines both and scores
+    them by fitness less ``TWIN_FREE_SPACE_WEIGHT`` x free-space violation: the twin puts the
+    column or the cabinet of one station where the other's sensor saw through to the wall;
+    the truth puts nothing there. It needs each cloud in its sensor's frame
+    (``viewpoint_source`` / ``viewpoint_target``: the sensor's position in it) and costs two
+    local registrations of the downsampled clouds and two range images; it runs only when a
+    twin fits nearly as well.
     """
     if not voxel_size > 0:
         raise ValueError("voxel_size must be > 0")
@@ -492,6 +539,99 @@ def register_global(
     if rotation_prior is not None:
         opt.R_prior = np.asarray(rotation_prior, dtype=np.float64).reshape(3, 3)
     opt.rotation_tolerance = float(rotation_tolerance)
+    if not 0 <= twin_min_fitness_ratio <= 1:
+        raise ValueError("twin_min_fitness_ratio must be in [0, 1]")
+    gravity = up_source is not None
+    turns = [float(t) for t in twin_turns_deg] if twin_check and gravity else []
+    opt.twin_turns = [float(np.radians(t)) for t in turns]
     opt.seed = int(seed)
     opt.num_threads = int(num_threads)
-    return GlobalResult._from_native(_ext.register_global(src, tgt, opt))
+    native = _ext.register_global(src, tgt, opt)
+    res = GlobalResult._from_native(native)
+    if not res.success or not turns:
+        return res
+    rivals = [t for t in native.twins if t.fitness >= twin_min_fitness_ratio * res.fitness]
+    if not rivals:
+        return res
+    return _pick_twin(res, rivals, source, target, src, tgt, voxel_size, opt.inlier_distance,
+                      viewpoint_source, viewpoint_target, twin_margin, num_threads)
+
+
+#: weight of the free-space violation in the twin check's score (as the odometry's and the
+#: merge's ``free_space_weight``: one percent of points in the other's free space costs ten
+#: points of fitness)
+TWIN_FREE_SPACE_WEIGHT = 10.0
+
+
+def _pick_twin(res: GlobalResult, rivals, raw_src, raw_tgt, src, tgt, voxel_size: float,
+               inlier_distance: float, viewpoint_source, viewpoint_target, margin: float,
+               num_threads: int) -> GlobalResult:
+    """RANSAC's best pose against its contending twins: each refined by point-to-plane ICP on
+    the downsampled clouds (``default_schedule``, then a last stage at ``inlier_distance``) and
+    scored by its refined fitness less ``TWIN_FREE_SPACE_WEIGHT`` x its free-space violation
+    (the larger share of either cloud's points lying where the other's sensor saw through,
+    :mod:`reconstruction.free_space`); the best wins (see :func:`register_global`)."""
+    import dataclasses
+
+    from ..reconstruction import free_space as fs
+
+    vs = np.asarray(viewpoint_source, dtype=np.float64).reshape(3)
+    vt = np.asarray(viewpoint_target, dtype=np.float64).reshape(3)
+    ps = prepare(src, None, 20, viewpoint=vs, num_threads=num_threads)
+    pt = prepare(tgt, None, 20, viewpoint=vt, num_threads=num_threads)
+    sched = default_schedule(pt, voxel_size) + [inlier_distance]
+    # range images about each sensor, from the clouds at half the voxel (at most 6 cm: dense
+    # enough for 1 deg cells at the range of a room, see free_space)
+    fine = min(0.5 * voxel_size, 0.06)
+    img_s = fs.range_image(
+        _finite(voxel_downsample(as_cloud(raw_src), fine, num_threads=num_threads)) - vs)
+    img_t = fs.range_image(
+        _finite(voxel_downsample(as_cloud(raw_tgt), fine, num_threads=num_threads)) - vt)
+    S, T_ = np.asarray(ps.points, np.float64), np.asarray(pt.points, np.float64)
+
+    def violation(T: np.ndarray) -> float:
+        # source points about the target's sensor, and target points about the source's
+        return max(fs.violation(S, _shift(-vt) @ T, img_t),
+                   fs.violation(T_, _shift(-vs) @ np.linalg.inv(T), img_s))
+
+    cands = [{"turn_deg": 0.0, "T_target_source": res.T_target_source, "fitness": res.fitness,
+              "inlier_rmse": res.inlier_rmse,
+              "num_inlier_correspondences": res.num_inlier_correspondences}]
+    for t in rivals:
+        cands.append({"turn_deg": float(np.degrees(t.turn)),
+                      "T_target_source": np.array(t.T_target_source),
+                      "fitness": float(t.fitness), "inlier_rmse": float(t.inlier_rmse),
+                      "num_inlier_correspondences": int(t.num_inlier_correspondences)})
+    for c in cands:
+        try:
+            r = register(ps, pt, "plane", init=c["T_target_source"],
+                         max_correspondence_distance=sched, max_iterations=30,
+                         num_threads=num_threads)
+            T, fit, rmse = r.T_target_source, float(r.fitness), float(r.inlier_rmse)
+        except ValueError:
+            T, fit, rmse = c["T_target_source"], 0.0, 0.0
+        viol = violation(T)
+        c.update(refined_fitness=fit, refined_rmse=rmse, refined_violation=viol,
+                 score=fit - TWIN_FREE_SPACE_WEIGHT * viol)
+    order = sorted(range(len(cands)), key=lambda k: (-cands[k]["score"], k))
+    win = cands[order[0]]
+    ambiguous = win["score"] - cands[order[1]]["score"] < margin
+    twins = tuple(cands[k] for k in order)
+    if order[0] == 0:
+        return dataclasses.replace(res, ambiguous=ambiguous, twins=twins)
+    return dataclasses.replace(
+        res, T_target_source=np.array(win["T_target_source"]), fitness=win["fitness"],
+        inlier_rmse=win["inlier_rmse"],
+        num_inlier_correspondences=win["num_inlier_correspondences"], ambiguous=ambiguous,
+        twins=twins)
+
+
+def _shift(v: np.ndarray) -> np.ndarray:
+    S = np.eye(4)
+    S[:3, 3] = v
+    return S
+
+
+def _finite(points) -> np.ndarray:
+    P = np.asarray(points, dtype=np.float64)
+    return P[np.isfinite(P).all(axis=1)]
