@@ -4,7 +4,7 @@
 A 2 m wide L corridor; stations 6 m apart in its first leg and one 5-6 m into the second leg.
 The pair across the corner overlaps little (~30 %), and a wrong pose that slides one station's
 leg along the other's fits *more* points (both long walls on each other): odometry took it and
-put the station metres off. The free-space check (``reconstruction.free_space``) ranks the
+put the station metres off. The free-space check (``registration.free_space``) ranks the
 candidates that put no point where the other station saw through first. Scans: the
 simulator's corridor and beam model ray-cast from static stations (``sim.station_scan``; a
 second of CPU each).
@@ -16,7 +16,7 @@ import pytest
 from tripod_processor.reconstruction import evaluation as ev
 from tripod_processor.reconstruction.config import OdometryConfig, SlamConfig
 from tripod_processor.reconstruction.fragments import Fragment
-from tripod_processor.reconstruction.free_space import range_image, violation
+from tripod_processor.registration.free_space import range_image, violation
 from tripod_processor.reconstruction.odometry import register_fragments
 from tripod_processor.reconstruction.slam import inv, run_odometry, run_slam
 from tripod_processor.reconstruction.stations import Station

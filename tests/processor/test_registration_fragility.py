@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from tripod_processor.reconstruction.config import OdometryConfig, SlamConfig
-from tripod_processor.reconstruction.free_space import range_image, violation
+from tripod_processor.registration.free_space import range_image, violation
 from tripod_processor.reconstruction.odometry import PairResult, candidate_rank
 from tripod_processor.reconstruction.slam import consensus_initial, inv, optimize_graph
 from tripod_processor.registration import pose_graph as pg

@@ -131,7 +131,7 @@ class CloudCache:
     def range_image(self, key, points: np.ndarray, threads: int | None = None) -> np.ndarray:
         """The fragment's range image (``free_space.range_image``) from its cloud at
         ``ORIENTED_VOXEL_M``."""
-        from .free_space import range_image
+        from ..registration.free_space import range_image
 
         k = ("range", key)
         if k not in self._c:
@@ -319,7 +319,7 @@ def free_space_violation(source: np.ndarray, target: np.ndarray, T_target_source
                          ) -> float:
     """The larger share of either fragment's points (the seeds' coarse clouds) lying in the
     other station's free space with the pair placed by ``T_target_source``."""
-    from .free_space import violation
+    from ..registration.free_space import violation
 
     coarse = cfg.voxels_m[0] * 0.5
     T = np.asarray(T_target_source, dtype=np.float64)

@@ -570,10 +570,10 @@ def _pick_twin(res: GlobalResult, rivals, raw_src, raw_tgt, src, tgt, voxel_size
     the downsampled clouds (``default_schedule``, then a last stage at ``inlier_distance``) and
     scored by its refined fitness less ``TWIN_FREE_SPACE_WEIGHT`` x its free-space violation
     (the larger share of either cloud's points lying where the other's sensor saw through,
-    :mod:`reconstruction.free_space`); the best wins (see :func:`register_global`)."""
+    :mod:`registration.free_space`); the best wins (see :func:`register_global`)."""
     import dataclasses
 
-    from ..reconstruction import free_space as fs
+    from . import free_space as fs
 
     vs = np.asarray(viewpoint_source, dtype=np.float64).reshape(3)
     vt = np.asarray(viewpoint_target, dtype=np.float64).reshape(3)

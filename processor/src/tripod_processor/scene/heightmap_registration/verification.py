@@ -33,19 +33,19 @@ def _lift(ls: "LevelledScan", lt: "LevelledScan", yaw: float, shift) -> np.ndarr
 
 
 class _RangeImage:
-    """Nearest return per direction around a scan's viewpoint (``reconstruction.free_space``'s
+    """Nearest return per direction around a scan's viewpoint (``registration.free_space``'s
     range image about that point, ``step_deg`` bins, eroded over the 3 x 3 neighbourhood so
     that only space seen through in every neighbouring direction counts as free)."""
 
     def __init__(self, P: np.ndarray, viewpoint, step_deg: float = 0.5) -> None:
-        from ...reconstruction import free_space
+        from ...registration import free_space
 
         self.v = np.asarray(viewpoint, np.float64).reshape(3)
         self.step_deg = step_deg
         self.img = free_space.range_image(np.asarray(P, np.float64) - self.v, step_deg)
 
     def _bins(self, P):
-        from ...reconstruction import free_space
+        from ...registration import free_space
 
         return free_space.direction_bins(np.asarray(P, np.float64) - self.v, self.step_deg)
 
