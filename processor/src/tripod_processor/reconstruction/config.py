@@ -169,6 +169,13 @@ class CalibrationConfig(StrictModel):
     #: 1 ms 7 -> 7, 609 1.02 -> 2.09 (the turns' lever is still cm off along the spin axis, and a
     #: re-measure moves the turns' estimate by their noise), +0-20 CPU-s a rig: opt-in
     turn_relever_mm: float = Field(default=0.0, ge=0)
+    #: the turns' time offset measured again after the surfaces' fit, de-skewed with its lever
+    #: arm (within ~5 mm; hand-eye's is often 5-15 cm off, whose smear biases the turns on side
+    #: mounts, see ``turn_relever_mm``) and mount, and that measurement made the result: alone,
+    #: or joined by inverse variance with the surfaces' own estimate when that is sure and agrees
+    #: (the surfaces' posterior with the first turns' prior taken out, so the turns count once).
+    #: One more turns pass (+5-20 CPU-s a rig). Default off (opt-in)
+    turn_remeasure_after_surfaces: bool = False
     #: ... and then its component along the spin axis joins the surfaces' by inverse variance,
     #: the surfaces' sigma there times this (they see it only at vertical edges: 1-8 sigma off
     #: on seven dev rigs, the turns' 0.2-1.6 sigma)
