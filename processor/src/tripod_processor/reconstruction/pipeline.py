@@ -580,6 +580,21 @@ def _surfaces_own_offset(cal, prior_turn):
     return m_own, float(1.0 / np.sqrt(info))
 
 
+def _join_with_surfaces(turn_ns, turn_sigma_ms, surfaces, max_surface_sigma_ms):
+    """(offset_ns, sigma_ms, joined): the turns' offset joined by inverse variance with the
+    surfaces' own ``surfaces`` ((offset_ns, sigma_ms) or None) when that is within
+    ``max_surface_sigma_ms`` and agrees (within 3 sigma); else the turns' alone."""
+    m, s = float(turn_ns), float(turn_sigma_ms)
+    if surfaces is None:
+        return m, s, False
+    m_s, s_s = surfaces
+    d_ms = (m_s - m) * 1e-6
+    if not (s_s <= max_surface_sigma_ms and abs(d_ms) < 3 * np.hypot(s, s_s)):
+        return m, s, False
+    w = s_s**2 / (s**2 + s_s**2)  # the turns' weight
+    return m + (1 - w) * d_ms * 1e6, float(1 / np.sqrt(1 / s**2 + 1 / s_s**2)), True
+
+
 def _turns_after_surfaces(rec, seg, orient, ext, cfg, cal, surfaces, off_ns, notes):
     """The time offset [ns] with the turns measured again, de-skewed by the surfaces' fit's
     lever arm and mount ``ext`` (``orient`` at the offset so far, ``off_ns``): the new turns'
@@ -592,15 +607,9 @@ def _turns_after_surfaces(rec, seg, orient, ext, cfg, cal, surfaces, off_ns, not
         notes.append(f"turns' time offset after the surfaces' fit unsure (σ "
                      f"{again.sigma_ms:.1f} ms): kept {off_ns * 1e-6:.2f} ms")
         return off_ns
-    m, s, how = float(again.offset_ns), float(again.sigma_ms), "turns (after surfaces)"
-    if surfaces is not None:
-        m_s, s_s = surfaces
-        d_ms = (m_s - m) * 1e-6
-        if s_s <= cc.max_time_offset_sigma_ms and abs(d_ms) < 3 * np.hypot(s, s_s):
-            w = s_s**2 / (s**2 + s_s**2)  # the turns' weight
-            m = m + (1 - w) * d_ms * 1e6
-            s = float(1 / np.sqrt(1 / again.sigma_ms**2 + 1 / s_s**2))
-            how = "turns (after surfaces) and surfaces"
+    m, s, joined = _join_with_surfaces(again.offset_ns, again.sigma_ms, surfaces,
+                                       cc.max_time_offset_sigma_ms)
+    how = "turns (after surfaces)" + (" and surfaces" if joined else "")
     notes.append(f"turns' time offset measured again with the surfaces' lever arm: "
                  f"{again.offset_ns * 1e-6:.2f} ± {again.sigma_ms:.2f} ms; "
                  + (f"surfaces' own {surfaces[0] * 1e-6:.2f} ± {surfaces[1]:.2f} ms; "
