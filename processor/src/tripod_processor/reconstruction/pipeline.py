@@ -457,7 +457,8 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
                          "from opposite sides of the pan")
     off = orient.time_offset_ns
     # the surfaces' own offset (without the turns' prior), for a re-measure of the turns below
-    surfaces = _surfaces_own_offset(cal, turn if prior else None)
+    surfaces = (_surfaces_own_offset(cal, turn if prior else None)
+                if turn is not None and cc.turn_remeasure_after_surfaces else None)
     if turn is not None and prior:
         # the joint fit holds both: its offset and sigma are the result
         cal.time_offset_method = "turns and surfaces (joint)"
@@ -573,6 +574,8 @@ def _surfaces_own_offset(cal, prior_turn):
     if prior_turn is None:
         return m, s
     s_p = float(prior_turn.sigma_ms)
+    if not (np.isfinite(s_p) and s_p > 0):
+        return None
     info = 1.0 / s**2 - 1.0 / s_p**2
     if not info > 0.05 / s_p**2:  # the data's own information under 5 % of the prior's
         return None
