@@ -177,8 +177,8 @@ class CalibrationConfig(StrictModel):
     #: One more turns pass (+0-13 CPU-s a rig). 10 dev rigs end to end (40 87 171 83 631 608 609
     #: 612 613 614): median 0.68 -> 0.25 ms, RMS 0.98 -> 0.83, within 1 ms 7 -> 8, worst 1.88 ->
     #: 1.72 (83 1.88 -> 0.69, 608 0.91 -> 0.10; 609 1.02 -> 1.72), lever arm and ATE unchanged.
-    #: Default off (opt-in)
-    turn_remeasure_after_surfaces: bool = False
+    #: On by default (stop 37, i12-offset3; false: the joint fit's offset as before)
+    turn_remeasure_after_surfaces: bool = True
     #: ... and then its component along the spin axis joins the surfaces' by inverse variance,
     #: the surfaces' sigma there times this (they see it only at vertical edges: 1-8 sigma off
     #: on seven dev rigs, the turns' 0.2-1.6 sigma)
