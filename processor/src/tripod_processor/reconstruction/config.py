@@ -169,6 +169,16 @@ class CalibrationConfig(StrictModel):
     #: 1 ms 7 -> 7, 609 1.02 -> 2.09 (the turns' lever is still cm off along the spin axis, and a
     #: re-measure moves the turns' estimate by their noise), +0-20 CPU-s a rig: opt-in
     turn_relever_mm: float = Field(default=0.0, ge=0)
+    #: the turns' time offset measured again after the surfaces' fit, de-skewed with its lever
+    #: arm (within ~5 mm; hand-eye's is often 5-15 cm off, whose smear biases the turns on side
+    #: mounts, see ``turn_relever_mm``) and mount, and that measurement made the result: alone,
+    #: or joined by inverse variance with the surfaces' own estimate when that is sure and agrees
+    #: (the surfaces' posterior with the first turns' prior taken out, so the turns count once).
+    #: One more turns pass (+0-13 CPU-s a rig). 10 dev rigs end to end (40 87 171 83 631 608 609
+    #: 612 613 614): median 0.68 -> 0.25 ms, RMS 0.98 -> 0.83, within 1 ms 7 -> 8, worst 1.88 ->
+    #: 1.72 (83 1.88 -> 0.69, 608 0.91 -> 0.10; 609 1.02 -> 1.72), lever arm and ATE unchanged.
+    #: On by default (stop 37, i12-offset3; false: the joint fit's offset as before)
+    turn_remeasure_after_surfaces: bool = True
     #: ... and then its component along the spin axis joins the surfaces' by inverse variance,
     #: the surfaces' sigma there times this (they see it only at vertical edges: 1-8 sigma off
     #: on seven dev rigs, the turns' 0.2-1.6 sigma)

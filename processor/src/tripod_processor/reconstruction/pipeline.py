@@ -456,6 +456,9 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
                          f"{np.max(cal.lever_arm_sigma_m) * 1000:.1f} mm): few surfaces seen "
                          "from opposite sides of the pan")
     off = orient.time_offset_ns
+    # the surfaces' own offset (without the turns' prior), for a re-measure of the turns below
+    surfaces = (_surfaces_own_offset(cal, turn if prior else None)
+                if turn is not None and cc.turn_remeasure_after_surfaces else None)
     if turn is not None and prior:
         # the joint fit holds both: its offset and sigma are the result
         cal.time_offset_method = "turns and surfaces (joint)"
@@ -496,7 +499,11 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
     src = ext.source if not fit_lever else (
         "calibrated" if ext.source.startswith("calibrated") or fit_rot else "config rotation, "
         "calibrated lever arm")
-    return Extrinsic(R, ell, src), orient.with_offset(off), cal
+    ext_out = Extrinsic(R, ell, src)
+    if fit_time and turn is not None and cc.turn_remeasure_after_surfaces:
+        off = _turns_after_surfaces(rec, seg, orient.with_offset(off), ext_out, cfg, cal,
+                                    surfaces, off, notes)
+    return ext_out, orient.with_offset(off), cal
 
 
 def _points_per_station(rec_stations, orient, R_imu_lidar, cfg) -> int:
@@ -554,6 +561,68 @@ def _turns_again_with_lever(rec, seg, orient, ext_turns, ext, turn, cfg, notes):
                  f" mm from the first's): {turn.offset_ns * 1e-6:.2f} -> "
                  f"{again.offset_ns * 1e-6:.2f} ms")
     return again, orient.with_offset(again.offset_ns)
+
+
+def _surfaces_own_offset(cal, prior_turn):
+    """(offset_ns, sigma_ms) of the surfaces' fit ``cal`` alone: with ``prior_turn`` (the
+    turns' offset it took as a prior) taken out of its posterior (Gaussian: the offset's
+    marginal information is the data's plus the prior's, its mean their weighted mean), or
+    None when nothing is left (a prior-dominated offset)."""
+    m, s = float(cal.time_offset_ns), float(cal.time_offset_sigma_ms)
+    if not (np.isfinite(s) and s > 0):
+        return None
+    if prior_turn is None:
+        return m, s
+    s_p = float(prior_turn.sigma_ms)
+    if not (np.isfinite(s_p) and s_p > 0):
+        return None
+    info = 1.0 / s**2 - 1.0 / s_p**2
+    if not info > 0.05 / s_p**2:  # the data's own information under 5 % of the prior's
+        return None
+    m_own = (m / s**2 - float(prior_turn.offset_ns) / s_p**2) / info
+    return m_own, float(1.0 / np.sqrt(info))
+
+
+def _join_with_surfaces(turn_ns, turn_sigma_ms, surfaces, max_surface_sigma_ms):
+    """(offset_ns, sigma_ms, joined): the turns' offset joined by inverse variance with the
+    surfaces' own ``surfaces`` ((offset_ns, sigma_ms) or None) when that is within
+    ``max_surface_sigma_ms`` and agrees (within 3 sigma); else the turns' alone."""
+    m, s = float(turn_ns), float(turn_sigma_ms)
+    if surfaces is None:
+        return m, s, False
+    m_s, s_s = surfaces
+    d_ms = (m_s - m) * 1e-6
+    if not (s_s <= max_surface_sigma_ms and abs(d_ms) < 3 * np.hypot(s, s_s)):
+        return m, s, False
+    w = s_s**2 / (s**2 + s_s**2)  # the turns' weight
+    return m + (1 - w) * d_ms * 1e6, float(1 / np.sqrt(1 / s**2 + 1 / s_s**2)), True
+
+
+def _turns_after_surfaces(rec, seg, orient, ext, cfg, cal, surfaces, off_ns, notes):
+    """The time offset [ns] with the turns measured again, de-skewed by the surfaces' fit's
+    lever arm and mount ``ext`` (``orient`` at the offset so far, ``off_ns``): the new turns'
+    offset joined by inverse variance with the surfaces' own (``surfaces``, the first turns'
+    prior out) when that is sure and agrees, else the new turns' alone; ``off_ns`` when the
+    new turns are unsure. ``cal``'s offset, sigma and method follow."""
+    cc = cfg.calibration
+    again = _turns_time_offset(rec, seg, orient, ext, cfg)
+    if not again.sigma_ms <= cc.max_turns_time_offset_sigma_ms:
+        notes.append(f"turns' time offset after the surfaces' fit unsure (σ "
+                     f"{again.sigma_ms:.1f} ms): kept {off_ns * 1e-6:.2f} ms")
+        return off_ns
+    m, s, joined = _join_with_surfaces(again.offset_ns, again.sigma_ms, surfaces,
+                                       cc.max_time_offset_sigma_ms)
+    how = "turns (after surfaces)" + (" and surfaces" if joined else "")
+    notes.append(f"turns' time offset measured again with the surfaces' lever arm: "
+                 f"{again.offset_ns * 1e-6:.2f} ± {again.sigma_ms:.2f} ms; "
+                 + (f"surfaces' own {surfaces[0] * 1e-6:.2f} ± {surfaces[1]:.2f} ms; "
+                    if surfaces is not None else "surfaces' own: prior-dominated; ")
+                 + f"{off_ns * 1e-6:.2f} -> {m * 1e-6:.2f} ms")
+    cal.time_offset_ns, cal.time_offset_sigma_ms = int(round(m)), s
+    cal.time_offset_method = how
+    cal.time_offset_observable = bool(s < 0.5)
+    cal.turns = {**(cal.turns or {}), "after_surfaces": again.to_dict()}
+    return int(round(m))
 
 
 def _lever_start_from_turns(rec, seg, orient, ext, cfg, notes):
