@@ -369,8 +369,6 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
     what the data cannot see well is warned about (and a time offset not seen at all is kept
     at the prior). ``tilt_sigma_deg``: hand-eye's mount tilt sigma (the starting ``ext``'s),
     against which a mount tilt the surfaces see poorly is weighed (:func:`_weigh_tilt`)."""
-    from .calibration import self_calibrate
-
     cc = cfg.calibration
     turn = None
     fit_time_surf = fit_time
@@ -396,14 +394,9 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
     split = cc.split_iterations if fit_lever else 0  # the lever-arm fit's split-residual steps
     pps = _points_per_station(seg.stations, orient, ext.R_imu_lidar, cfg)
     try:
-        cal = self_calibrate(rec.lidar, seg.stations, orient, ext, fit_lever=fit_lever,
-                             fit_time=fit_time_surf, fit_rotation=fit_rot,
-                             max_stations=cc.max_stations, num_threads=cfg.num_threads,
-                             denoise_firings=cc.range_denoise_firings,
-                             fit_yaw_drift=cc.fit_yaw_drift,
-                             points_per_station=pps,
-                             yaw_drift_prior_deg_per_min=cc.yaw_drift_prior_deg_per_min,
-                             split_iterations=split, iterations=8 + split, **prior)
+        cal = _fit_surfaces(rec, seg, orient, ext, cfg, pps, fit_lever=fit_lever,
+                            fit_time=fit_time_surf, fit_rotation=fit_rot,
+                            split_iterations=split, iterations=8 + split, **prior)
         if fit_rot and not cal.rotation_observable:
             # the stations' surfaces hardly see the mount's tilt (a spin axis near the pan axis
             # in a small room: the tilt's blur is its angle times the range); hand-eye's sees it
@@ -413,15 +406,10 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
                                       fit_time_surf, prior, tilt_sigma_deg)
             ext = Extrinsic(R_tilt, ext.lever_arm_m.copy(), ext.source)
             if fit_lever or fit_time_surf:
-                cal = self_calibrate(rec.lidar, seg.stations, orient, ext, fit_lever=fit_lever,
-                                     fit_time=fit_time_surf, fit_rotation=False,
-                                     max_stations=cc.max_stations, num_threads=cfg.num_threads,
-                                     denoise_firings=cc.range_denoise_firings,
-                                     fit_yaw_drift=cc.fit_yaw_drift,
-                                     points_per_station=pps,
-                                     yaw_drift_prior_deg_per_min=cc.yaw_drift_prior_deg_per_min,
-                                     split_iterations=split, iterations=8 + split,
-                                     **prior)
+                # pps: the sample size chosen with the mount before the tilt was weighed
+                cal = _fit_surfaces(rec, seg, orient, ext, cfg, pps, fit_lever=fit_lever,
+                                    fit_time=fit_time_surf, fit_rotation=False,
+                                    split_iterations=split, iterations=8 + split, **prior)
             fit_rot = False
             notes.append(how)
     except ValueError as exc:
@@ -504,6 +492,22 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
         off = _turns_after_surfaces(rec, seg, orient.with_offset(off), ext_out, cfg, cal,
                                     surfaces, off, notes)
     return ext_out, orient.with_offset(off), cal
+
+
+def _fit_surfaces(rec, seg, orient, ext, cfg, points_per_station: int, **fit):
+    """``calibration.self_calibrate`` on the recording's stations with the run's common
+    settings (threads, range smoothing, yaw drift and its prior, ``max_stations`` unless
+    ``fit`` gives it); ``fit``: what this call fits and how (``fit_lever``, ``fit_time``,
+    ``fit_rotation``, iterations, the time prior)."""
+    from .calibration import self_calibrate
+
+    cc = cfg.calibration
+    fit.setdefault("max_stations", cc.max_stations)
+    return self_calibrate(rec.lidar, seg.stations, orient, ext, num_threads=cfg.num_threads,
+                          denoise_firings=cc.range_denoise_firings,
+                          fit_yaw_drift=cc.fit_yaw_drift,
+                          points_per_station=points_per_station,
+                          yaw_drift_prior_deg_per_min=cc.yaw_drift_prior_deg_per_min, **fit)
 
 
 def _points_per_station(rec_stations, orient, R_imu_lidar, cfg) -> int:
@@ -678,7 +682,7 @@ def _refit_far_lever(rec, seg, orient, ext, cfg, cal, fit_time, fit_rot, prior, 
     further: from a converged result the split fit drifts a few mm instead (dev seed 245)."""
     from scipy.spatial.transform import Rotation
 
-    from .calibration import across_axis, self_calibrate, spin_axis_from_pan_axis_deg
+    from .calibration import across_axis, spin_axis_from_pan_axis_deg
 
     cc = cfg.calibration
     if cc.lever_refit_move_mm <= 0:
@@ -695,15 +699,9 @@ def _refit_far_lever(rec, seg, orient, ext, cfg, cal, fit_time, fit_rot, prior, 
     pps = _points_per_station(seg.stations, orient, R, cfg)
     o = orient.with_offset(cal.time_offset_ns) if fit_time else orient
     try:
-        more = self_calibrate(rec.lidar, seg.stations, o, start, fit_lever=True,
-                              fit_time=fit_time, fit_rotation=fit_rot,
-                              max_stations=cc.max_stations, num_threads=cfg.num_threads,
-                              denoise_firings=cc.range_denoise_firings,
-                              fit_yaw_drift=cc.fit_yaw_drift,
-                              points_per_station=pps,
-                              yaw_drift_prior_deg_per_min=cc.yaw_drift_prior_deg_per_min,
-                              split_iterations=k, iterations=k + cc.lever_refit_usual_iterations,
-                              **prior)
+        more = _fit_surfaces(rec, seg, o, start, cfg, pps, fit_lever=True, fit_time=fit_time,
+                             fit_rotation=fit_rot, split_iterations=k,
+                             iterations=k + cc.lever_refit_usual_iterations, **prior)
     except ValueError:
         return cal
     further_mm = 1000 * float(np.linalg.norm(across_axis(more.lever_arm_m - cal.lever_arm_m, b)))
@@ -762,8 +760,6 @@ def _weigh_tilt(rec, seg, orient, ext, cfg, cal, fit_lever, fit_time, prior,
     where 4 stations' surfaces gave 0.22° (sigma 0.078°) and 8 gave 0.11° (0.051°)."""
     from scipy.spatial.transform import Rotation
 
-    from .calibration import self_calibrate
-
     cc = cfg.calibration
     R_he = ext.R_imu_lidar
     if not cc.tilt_from_surfaces or not np.isfinite(cal.rotation_sigma_deg):
@@ -771,14 +767,9 @@ def _weigh_tilt(rec, seg, orient, ext, cfg, cal, fit_lever, fit_time, prior,
                       "hand-eye's kept")
     if cc.max_tilt_stations > cc.max_stations and len(seg.stations) > cc.max_stations:
         pps = _points_per_station(seg.stations, orient, ext.R_imu_lidar, cfg)
-        more = self_calibrate(rec.lidar, seg.stations, orient, ext, fit_lever=fit_lever,
-                              fit_time=fit_time, fit_rotation=True,
-                              max_stations=cc.max_tilt_stations, num_threads=cfg.num_threads,
-                              denoise_firings=cc.range_denoise_firings,
-                              fit_yaw_drift=cc.fit_yaw_drift,
-                              points_per_station=pps,
-                              yaw_drift_prior_deg_per_min=cc.yaw_drift_prior_deg_per_min,
-                              **prior)
+        more = _fit_surfaces(rec, seg, orient, ext, cfg, pps, fit_lever=fit_lever,
+                             fit_time=fit_time, fit_rotation=True,
+                             max_stations=cc.max_tilt_stations, **prior)
         if more.rotation_sigma_deg < cal.rotation_sigma_deg:
             cal = more
     s_s = cc.tilt_sigma_inflation * cal.rotation_sigma_deg
