@@ -767,6 +767,18 @@ class _GlobalOptions:
     def viewpoint_target(self, arg: Annotated[NDArray[numpy.float64], dict(shape=(3), order='C')], /) -> None: ...
 
     @property
+    def twin_turns(self) -> list[float]: ...
+
+    @twin_turns.setter
+    def twin_turns(self, arg: Sequence[float], /) -> None: ...
+
+    @property
+    def twin_tolerance(self) -> float: ...
+
+    @twin_tolerance.setter
+    def twin_tolerance(self, arg: float, /) -> None: ...
+
+    @property
     def seed(self) -> int: ...
 
     @seed.setter
@@ -777,6 +789,25 @@ class _GlobalOptions:
 
     @num_threads.setter
     def num_threads(self, arg: int, /) -> None: ...
+
+class _GlobalTwin:
+    @property
+    def turn(self) -> float: ...
+
+    @property
+    def T_target_source(self) -> Annotated[NDArray[numpy.float64], dict(shape=(4, 4), order='F')]: ...
+
+    @property
+    def num_inlier_correspondences(self) -> int: ...
+
+    @property
+    def geometric_score(self) -> int: ...
+
+    @property
+    def fitness(self) -> float: ...
+
+    @property
+    def inlier_rmse(self) -> float: ...
 
 class _GlobalResult:
     @property
@@ -802,6 +833,12 @@ class _GlobalResult:
 
     @property
     def inlier_rmse(self) -> float: ...
+
+    @property
+    def geometric_score(self) -> int: ...
+
+    @property
+    def twins(self) -> list[_GlobalTwin]: ...
 
 def register_global(source: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], target: Annotated[NDArray[numpy.float32], dict(shape=(None, 3), order='C', device='cpu', writable=False)], options: _GlobalOptions) -> _GlobalResult:
     """FPFH + RANSAC global registration (see registration.register_global)."""
