@@ -319,17 +319,12 @@ def free_space_violation(source: np.ndarray, target: np.ndarray, T_target_source
                          ) -> float:
     """The larger share of either fragment's points (the seeds' coarse clouds) lying in the
     other station's free space with the pair placed by ``T_target_source``."""
-    from ..registration.free_space import violation
+    from ..registration.free_space import mutual_violation
 
     coarse = cfg.voxels_m[0] * 0.5
-    T = np.asarray(T_target_source, dtype=np.float64)
-    Ti = np.eye(4)
-    Ti[:3, :3] = T[:3, :3].T
-    Ti[:3, 3] = -T[:3, :3].T @ T[:3, 3]
-    return max(violation(cache.coarse(keys[0], source, coarse), T,
-                         cache.range_image(keys[1], target)),
-               violation(cache.coarse(keys[1], target, coarse), Ti,
-                         cache.range_image(keys[0], source)))
+    return mutual_violation(cache.coarse(keys[0], source, coarse),
+                            cache.coarse(keys[1], target, coarse), T_target_source,
+                            cache.range_image(keys[0], source), cache.range_image(keys[1], target))
 
 
 def candidate_rank(r: PairResult, consistent: bool, cfg: OdometryConfig) -> tuple:

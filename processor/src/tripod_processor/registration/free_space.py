@@ -69,3 +69,20 @@ def violation(points: np.ndarray, T_img_points: np.ndarray, img: np.ndarray,
     if not seen.any():
         return 0.0
     return float((seen & (r < (1.0 - rel) * lim - margin_m)).sum() / seen.sum())
+
+
+def mutual_violation(source: np.ndarray, target: np.ndarray, T_target_source: np.ndarray,
+                     img_source: np.ndarray, img_target: np.ndarray,
+                     viewpoint_source=(0.0, 0.0, 0.0), viewpoint_target=(0.0, 0.0, 0.0)
+                     ) -> float:
+    """The larger share of either cloud's points lying in the other station's free space, the
+    pair placed by ``T_target_source`` (4, 4). Each image is about its station's sensor, at
+    ``viewpoint_*`` [m] in that cloud's frame (the origin for a fragment in its lidar frame)."""
+    T = np.asarray(T_target_source, dtype=np.float64)
+    Ti = np.eye(4)
+    Ti[:3, :3] = T[:3, :3].T
+    Ti[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+    to_t, to_s = T.copy(), Ti
+    to_t[:3, 3] -= np.asarray(viewpoint_target, dtype=np.float64).reshape(3)
+    to_s[:3, 3] -= np.asarray(viewpoint_source, dtype=np.float64).reshape(3)
+    return max(violation(source, to_t, img_target), violation(target, to_s, img_source))

@@ -590,9 +590,7 @@ def _pick_twin(res: GlobalResult, rivals, raw_src, raw_tgt, src, tgt, voxel_size
     S, T_ = np.asarray(ps.points, np.float64), np.asarray(pt.points, np.float64)
 
     def violation(T: np.ndarray) -> float:
-        # source points about the target's sensor, and target points about the source's
-        return max(fs.violation(S, _shift(-vt) @ T, img_t),
-                   fs.violation(T_, _shift(-vs) @ np.linalg.inv(T), img_s))
+        return fs.mutual_violation(S, T_, T, img_s, img_t, vs, vt)
 
     cands = [{"turn_deg": 0.0, "T_target_source": res.T_target_source, "fitness": res.fitness,
               "inlier_rmse": res.inlier_rmse,
@@ -624,12 +622,6 @@ def _pick_twin(res: GlobalResult, rivals, raw_src, raw_tgt, src, tgt, voxel_size
         inlier_rmse=win["inlier_rmse"],
         num_inlier_correspondences=win["num_inlier_correspondences"], ambiguous=ambiguous,
         twins=twins)
-
-
-def _shift(v: np.ndarray) -> np.ndarray:
-    S = np.eye(4)
-    S[:3, 3] = v
-    return S
 
 
 def _finite(points) -> np.ndarray:
