@@ -8,6 +8,7 @@ walls, larger when a wrong offset or mount smears them while the head turns).
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -158,29 +159,90 @@ def _register_sweeps(src, tgt, init: np.ndarray, num_threads: int):
         return None
 
 
+class SweepCache:
+    """The calibration's decoded sweeps (the packets of a window, their ranges smoothed along
+    the scan line: lidar frame, before any de-skew) kept for the later registrations of a run.
+
+    Hand-eye, the turns' lever arm and every pass of the turns' time offset (the first, its
+    second at the new offset, the re-measure after the surfaces' fit) de-skew the same windows
+    of the same stations again with another offset, mount or lever arm; what they decode is the
+    same each time. Keyed by the window's packet range, the range cut and the smoothing; kept
+    while the total stays within ``max_mb`` (0: nothing kept, every call decodes). Thread-safe
+    (stations' sweeps are made side by side); the arrays kept are read-only."""
+
+    def __init__(self, max_mb: float = 256.0):
+        self.max_bytes = int(max(0.0, float(max_mb)) * 2**20)
+        self.nbytes = 0
+        self.hits = 0
+        self.misses = 0
+        self._d: dict = {}
+        self._lock = threading.Lock()
+
+    def get(self, key, make):
+        """The value kept for ``key``, else ``make()`` (kept while the cap allows)."""
+        with self._lock:
+            v = self._d.get(key)
+            if v is not None:
+                self.hits += 1
+                return v
+            self.misses += 1
+        v = make()
+        nb = sum(a.nbytes for a in v)
+        if nb and self.max_bytes > 0:
+            for a in v:
+                a.setflags(write=False)
+            with self._lock:
+                if key not in self._d and self.nbytes + nb <= self.max_bytes:
+                    self._d[key] = v
+                    self.nbytes += nb
+        return v
+
+    def clear(self) -> None:
+        with self._lock:
+            self._d.clear()
+            self.nbytes = 0
+
+
+def _sweep_points(lidar: LidarPackets, a: int, b: int, min_range: float, denoise_firings: int
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """The points of packets [a, b) (returns ``min_range``–40 m), ranges smoothed along the
+    scan line: (xyz (N, 3) float32 [m] lidar frame, firing times (N,) int64 [ns])."""
+    pts = decode_timed_points(lidar.payload, lidar.lidar_ns, a, b,
+                              min_range=min_range, max_range=40.0)
+    if not len(pts):
+        return np.zeros((0, 3), np.float32), np.zeros(0, np.int64)
+    return (denoise_ranges(pts, denoise_firings).astype(np.float32),
+            np.asarray(pts["time_ns"], dtype=np.int64))
+
+
 def _sweep(lidar: LidarPackets, orient: ImuOrientation, ext: Extrinsic, start_ns: int,
            win_ns: int, num_threads: int, min_range: float = 0.5,
-           denoise_firings: int = DENOISE_FIRINGS, with_times: bool = False):
+           denoise_firings: int = DENOISE_FIRINGS, with_times: bool = False,
+           cache: SweepCache | None = None):
     """The packets of [start_ns, start_ns + win_ns) (lidar time) de-skewed by the IMU to the
     window's middle with ``ext``: (N, 3) float64 [m]; returns nearer than ``min_range`` [m]
     left out; ranges smoothed along the scan line over ``denoise_firings`` firings either side
     (:func:`~tripod_processor.decode.timed.denoise_ranges`; 0: as measured). ``with_times``:
-    (points, their firing times (N,) int64 [ns])."""
-    a, b = np.searchsorted(lidar.lidar_ns, [start_ns, start_ns + win_ns])
-    pts = decode_timed_points(lidar.payload, lidar.lidar_ns, int(a), int(b),
-                              min_range=min_range, max_range=40.0)
-    if not len(pts):
+    (points, their firing times (N,) int64 [ns]). ``cache``: the decoded window taken from it
+    (or kept in it) instead of decoded again; the same result to the bit."""
+    a, b = (int(x) for x in np.searchsorted(lidar.lidar_ns, [start_ns, start_ns + win_ns]))
+    if cache is None:
+        xyz, t = _sweep_points(lidar, a, b, min_range, denoise_firings)
+    else:
+        xyz, t = cache.get((id(lidar.payload), a, b, float(min_range), int(denoise_firings)),
+                           lambda: _sweep_points(lidar, a, b, min_range, denoise_firings))
+    if not len(xyz):
         return (np.zeros((0, 3)), np.zeros(0, np.int64)) if with_times else np.zeros((0, 3))
-    xyz = denoise_ranges(pts, denoise_firings).astype(np.float32)
-    out = place_points(xyz, pts["time_ns"], orient, ext, int(start_ns) + win_ns // 2,
+    out = place_points(xyz, t, orient, ext, int(start_ns) + win_ns // 2,
                        num_threads).astype(np.float64)
-    return (out, np.asarray(pts["time_ns"], dtype=np.int64)) if with_times else out
+    return (out, t.copy()) if with_times else out
 
 
 def _turn_pairs(lidar: LidarPackets, st: Station, orient: ImuOrientation, R_guess: np.ndarray,
                 num_threads: int, step_s: float, window_s: float, max_pairs: int,
                 pair_turn_deg: float, denoise_firings: int = DENOISE_FIRINGS,
-                turn_ladder: int = 0) -> tuple[list[np.ndarray], list[np.ndarray]]:
+                turn_ladder: int = 0, sweep_cache: SweepCache | None = None
+                ) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """One station's sweep pairs for hand-eye: (A_list, B_list), A the lidar's motion between
     two short windows (registration, lidar frame, 4x4), B the IMU's relative rotation (IMU
     frame, 3x3); sweeps de-skewed by the IMU with the mount ``R_guess`` and no lever arm.
@@ -198,7 +260,8 @@ def _turn_pairs(lidar: LidarPackets, st: Station, orient: ImuOrientation, R_gues
     tilted scan band moves up and down the walls as the head turns), under the 0.5 fitness
     gate, and half its 22.5° pairs: its pairs were consecutive windows of ~2°, whose axis
     the registration's noise sets (the mount tilt 5-11° off per station). 0: the old ladder
-    (``pair_turn_deg``, its half, consecutive windows; a level's pairs dropped when it fails)."""
+    (``pair_turn_deg``, its half, consecutive windows; a level's pairs dropped when it fails).
+    ``sweep_cache``: the windows' decoded points shared with the run's other registrations."""
     from scipy.spatial.transform import Rotation
 
     t0 = st.start_ns
@@ -213,7 +276,7 @@ def _turn_pairs(lidar: LidarPackets, st: Station, orient: ImuOrientation, R_gues
         # a sweep de-skewed to its middle by the IMU (with the guess of the mount)
         if k not in clouds:
             clouds[k] = _sweep(lidar, orient, ext_g, int(times[k]), win, num_threads,
-                               denoise_firings=denoise_firings)
+                               denoise_firings=denoise_firings, cache=sweep_cache)
         return clouds[k]
 
     def ready(k: int):
@@ -279,7 +342,8 @@ def calibrate_mount(lidar: LidarPackets, stations: list[Station], orient: ImuOri
                     num_threads: int = 0, step_s: float = 0.3, window_s: float = 0.1,
                     max_pairs: int = 16, pair_turn_deg: float = 45.0,
                     guess: Extrinsic | None = None, denoise_firings: int = DENOISE_FIRINGS,
-                    turn_ladder: int = 0) -> tuple[Extrinsic, dict]:
+                    turn_ladder: int = 0, sweep_cache: SweepCache | None = None
+                    ) -> tuple[Extrinsic, dict]:
     """The lidar's mount on the IMU (R_imu_lidar, lever arm) from the data (hand-eye).
 
     While the head turns at a station, the lidar's motion between two short windows, measured by
@@ -297,7 +361,8 @@ def calibrate_mount(lidar: LidarPackets, stations: list[Station], orient: ImuOri
     st = most_turning_station(stations, orient)
     R_guess = np.eye(3) if guess is None else guess.R_imu_lidar
     A_list, B_list = _turn_pairs(lidar, st, orient, R_guess, num_threads, step_s, window_s,
-                                 max_pairs, pair_turn_deg, denoise_firings, turn_ladder)
+                                 max_pairs, pair_turn_deg, denoise_firings, turn_ladder,
+                                 sweep_cache)
     if len(A_list) < 3:
         raise ValueError("too few usable turns to calibrate the lidar mount from the data")
     a = np.array([_rotvec(A[:3, :3]) for A in A_list])
@@ -364,8 +429,8 @@ class TurnLeverArm:
 def lever_arm_from_turns(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
                          ext: Extrinsic, num_threads: int = 0, *, max_stations: int = 8,
                          step_s: float = 0.3, window_s: float = 0.1, max_pairs: int = 16,
-                         pair_turn_deg: float = 45.0, denoise_firings: int = DENOISE_FIRINGS
-                         ) -> TurnLeverArm | None:
+                         pair_turn_deg: float = 45.0, denoise_firings: int = DENOISE_FIRINGS,
+                         sweep_cache: SweepCache | None = None) -> TurnLeverArm | None:
     """Hand-eye's lever arm (:func:`calibrate_mount`: (B − I)·ℓ = R_il·t_A per sweep pair) with
     the mount ``ext.R_imu_lidar`` held and the pairs of up to ``max_stations`` stations (those
     the head turns most in) pooled; only the two components across the pan axis are solved.
@@ -383,9 +448,15 @@ def lever_arm_from_turns(lidar: LidarPackets, stations: list[Station], orient: I
     R_il = ext.R_imu_lidar
     ell_along = b * float(b @ ext.lever_arm_m)
     Ms, ys, gid = [], [], []
-    for q, st in enumerate(use):
-        A_list, B_list = _turn_pairs(lidar, st, orient, R_il, num_threads, step_s, window_s,
-                                     max_pairs, pair_turn_deg, denoise_firings)
+    # the stations side by side on threads (each registration on num_threads when one runs at
+    # a time: the same pairs to the bit on any count), gathered in station order
+    workers = thread_workers(num_threads, len(use))
+    inner = num_threads if workers == 1 else 1
+    per_station = _threaded_map(
+        lambda st: _turn_pairs(lidar, st, orient, R_il, inner, step_s, window_s, max_pairs,
+                               pair_turn_deg, denoise_firings, sweep_cache=sweep_cache),
+        [(st,) for st in use], workers)
+    for q, (A_list, B_list) in enumerate(per_station):
         for A, B in zip(A_list, B_list):
             Mk = (B - np.eye(3))
             Ms.append(Mk @ U)
@@ -1103,7 +1174,8 @@ def turn_measurements(lidar: LidarPackets, stations: list[Station], orient: ImuO
                       denoise_firings: int = DENOISE_FIRINGS,
                       station_information: bool = False,
                       uses_per_sweep: int = 1,
-                      carry_velocity: bool = False) -> "TurnMeasurements":
+                      carry_velocity: bool = False,
+                      sweep_cache: SweepCache | None = None) -> "TurnMeasurements":
     """The sweep pairs of one pass of the IMU time offset from the head's turns
     (:func:`_turn_offset_pass`, which fits them: :func:`fit_turn_offset`).
 
@@ -1140,6 +1212,9 @@ def turn_measurements(lidar: LidarPackets, stations: list[Station], orient: ImuO
     (sandwich) one (a station's pairs share its errors), times ``sigma_inflation`` (on 6
     development rigs the errors were 2.3 sigma RMS without it). A pan at a perfectly constant
     rate with no ramp and no carry gives no pair (sigma inf).
+
+    ``sweep_cache`` (:class:`SweepCache`): the sweeps' decoded points shared with the run's
+    other passes and registrations (the same measurements to the bit).
     """
     from scipy.spatial.transform import Rotation
 
@@ -1170,7 +1245,8 @@ def turn_measurements(lidar: LidarPackets, stations: list[Station], orient: ImuO
         def cloud(k: int) -> tuple[np.ndarray, np.ndarray]:
             if k not in clouds:
                 clouds[k] = _sweep(lidar, orient, ext, int(times[k]), win, num_threads,
-                                   min_range, denoise_firings, with_times=True)
+                                   min_range, denoise_firings, with_times=True,
+                                   cache=sweep_cache)
             return clouds[k]
 
         def ready(k: int):

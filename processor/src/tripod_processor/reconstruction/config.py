@@ -75,6 +75,13 @@ class CalibrationConfig(StrictModel):
     #: smoothed across): two sweeps' 3-cm range noise otherwise biases their registration's
     #: rotation, hence hand-eye's mount tilt, by tenths of a degree in a small room. 0: off
     range_denoise_firings: int = Field(default=5, ge=0, le=50)
+    #: the calibration's decoded sweeps (0.1-s windows, ranges smoothed, before any de-skew)
+    #: are kept for its later registrations: hand-eye, the turns' lever arm and each pass of
+    #: the turns' time offset (up to four: its second at the new offset, the re-measure after
+    #: the surfaces' fit) de-skew the same windows again; kept up to this many MB, dropped after
+    #: the calibration. The same results with any value; 0: every sweep decoded anew (the old
+    #: path)
+    sweep_cache_mb: float = Field(default=256.0, ge=0)
     #: a time offset less certain than this [ms, 1 sigma] is not applied (kept at the prior):
     #: the surfaces' sigma is optimistic (a yaw error hides in walls seen head-on)
     max_time_offset_sigma_ms: float = Field(default=0.5, gt=0)

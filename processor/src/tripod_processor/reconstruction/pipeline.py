@@ -173,16 +173,22 @@ def _reconstruct(recording_path, outdir, cfg: ReconstructConfig, bg: ThreadPoolE
     calib = None
     ext_seg = Extrinsic(ext.R_imu_lidar.copy(), ext.lever_arm_m.copy(), ext.source)
     tilt_sigma_deg = float("inf")  # hand-eye's mount tilt [deg, 1 sigma]
+    from .calibration import SweepCache
+
+    # the sweeps the calibration decodes, for its later registrations (dropped after it)
+    sweeps = SweepCache(cfg.calibration.sweep_cache_mb)
     if pc.extrinsic.q_imu_lidar is None:
         ext, orient, tilt_sigma_deg = _calibrate_mount(rec, seg, orient, ext, cfg, threads, times,
-                                                       quiet, notes)
+                                                       quiet, notes, sweeps)
     fit_lever = pc.extrinsic.lever_arm_m is None and cfg.calibration.lever_arm
     fit_time = pc.imu_time_offset_s is None and cfg.calibration.time_offset
     fit_rot = pc.extrinsic.q_imu_lidar is None and cfg.calibration.mount_rotation
     if fit_lever or fit_time or fit_rot:
         with _Stage(times, "calibration", None, quiet):
             ext, orient, calib = _self_calibrate(rec, seg, orient, ext, cfg, fit_lever,
-                                                 fit_time, fit_rot, notes, tilt_sigma_deg)
+                                                 fit_time, fit_rot, notes, tilt_sigma_deg,
+                                                 sweeps)
+    sweeps.clear()
     if loose_pass or _rig_changed(ext_seg, ext):
         # 4b. the stations again with the calibrated rig: the first pass only had to find
         # stations enough to calibrate on; this one sees every station sharply
@@ -315,7 +321,7 @@ def trajectory(res: ReconstructResult, orient: ImuOrientation, hz: float
     return t, out
 
 
-def _calibrate_mount(rec, seg, orient, ext, cfg, threads, times, quiet, notes):
+def _calibrate_mount(rec, seg, orient, ext, cfg, threads, times, quiet, notes, sweeps=None):
     """(extrinsic, orientation, tilt sigma [deg]) with the mount rotation calibrated from the
     data (hand-eye; the sigma of its tilt from the pairs' axis scatter, inf when it failed);
     identity, and a note, when that fails. When the lever arm is not given either, hand-eye's
@@ -328,7 +334,7 @@ def _calibrate_mount(rec, seg, orient, ext, cfg, threads, times, quiet, notes):
             cal, calib_info = calibrate_mount(
                 rec.lidar, seg.stations, orient, threads,
                 denoise_firings=cfg.calibration.range_denoise_firings,
-                turn_ladder=cfg.calibration.mount_turn_ladder)
+                turn_ladder=cfg.calibration.mount_turn_ladder, sweep_cache=sweeps)
             ell = ext.lever_arm_m
             if (cfg.placement.extrinsic.lever_arm_m is None
                     and np.linalg.norm(cal.lever_arm_m) < 0.3):
@@ -364,11 +370,13 @@ def _rig_changed(a: Extrinsic, b: Extrinsic) -> bool:
 
 
 def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, notes,
-                    tilt_sigma_deg=float("inf")):
+                    tilt_sigma_deg=float("inf"), sweeps=None):
     """(extrinsic, orientation, SelfCalibration | None) refined from the stations' geometry;
     what the data cannot see well is warned about (and a time offset not seen at all is kept
     at the prior). ``tilt_sigma_deg``: hand-eye's mount tilt sigma (the starting ``ext``'s),
-    against which a mount tilt the surfaces see poorly is weighed (:func:`_weigh_tilt`)."""
+    against which a mount tilt the surfaces see poorly is weighed (:func:`_weigh_tilt`).
+    ``sweeps`` (:class:`calibration.SweepCache`): the decoded sweeps shared by the turns'
+    registrations (hand-eye's too)."""
     cc = cfg.calibration
     turn = None
     fit_time_surf = fit_time
@@ -376,7 +384,7 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
         # the time offset first, from the head's turns and the carries' (registrations, all
         # but blind to the lever arm: see _turns_again_with_lever): the surfaces' fit below
         # starts from it
-        turn = _turns_time_offset(rec, seg, orient, ext, cfg)
+        turn = _turns_time_offset(rec, seg, orient, ext, cfg, sweeps)
         if turn.sigma_ms <= cc.max_turns_time_offset_sigma_ms:
             orient = orient.with_offset(turn.offset_ns)
         else:
@@ -384,10 +392,10 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
     turn_lever = None
     if fit_lever and cc.lever_from_turns:
         ext_turns = ext
-        ext, turn_lever = _lever_start_from_turns(rec, seg, orient, ext, cfg, notes)
+        ext, turn_lever = _lever_start_from_turns(rec, seg, orient, ext, cfg, notes, sweeps)
         if turn is not None and turn_lever is not None:
             turn, orient = _turns_again_with_lever(rec, seg, orient, ext_turns, ext, turn, cfg,
-                                                   notes)
+                                                   notes, sweeps)
     # the turns' offset joins the surfaces' fit as a prior: offset and lever arm together
     prior = {} if turn is None or not cc.joint_time_prior else {
         "time_prior_ns": turn.offset_ns, "time_prior_sigma_ms": turn.sigma_ms}
@@ -490,7 +498,7 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
     ext_out = Extrinsic(R, ell, src)
     if fit_time and turn is not None and cc.turn_remeasure_after_surfaces:
         off = _turns_after_surfaces(rec, seg, orient.with_offset(off), ext_out, cfg, cal,
-                                    surfaces, off, notes)
+                                    surfaces, off, notes, sweeps)
     return ext_out, orient.with_offset(off), cal
 
 
@@ -522,7 +530,7 @@ def _points_per_station(rec_stations, orient, R_imu_lidar, cfg) -> int:
     return cc.side_points_per_station if tilt >= cc.side_mount_warn_deg else 80_000
 
 
-def _turns_time_offset(rec, seg, orient, ext, cfg):
+def _turns_time_offset(rec, seg, orient, ext, cfg, sweeps=None):
     """The IMU time offset from the head's turns and the carries
     (:func:`calibration.time_offset_from_turns` with the config's keywords), its sweeps
     de-skewed by ``orient`` and ``ext``."""
@@ -540,10 +548,11 @@ def _turns_time_offset(rec, seg, orient, ext, cfg):
                                   uses_per_sweep=cc.turn_sweep_uses,
                                   combine=cc.turn_combine,
                                   carry_floor_ms=cc.turn_carry_floor_ms,
-                                  carry_mount=cc.turn_carry_mount)
+                                  carry_mount=cc.turn_carry_mount,
+                                  sweep_cache=sweeps)
 
 
-def _turns_again_with_lever(rec, seg, orient, ext_turns, ext, turn, cfg, notes):
+def _turns_again_with_lever(rec, seg, orient, ext_turns, ext, turn, cfg, notes, sweeps=None):
     """(turn, orient): the turns' time offset ``turn`` (found with ``ext_turns``, ``orient``
     already at its offset) measured again with ``ext``'s lever arm when that lies more than
     ``calibration.turn_relever_mm`` from ``ext_turns``' (and the new one applied when its sigma
@@ -558,7 +567,7 @@ def _turns_again_with_lever(rec, seg, orient, ext_turns, ext, turn, cfg, notes):
     moved_mm = 1000 * float(np.linalg.norm(ext.lever_arm_m - ext_turns.lever_arm_m))
     if not (cc.turn_relever_mm > 0 and moved_mm > cc.turn_relever_mm):
         return turn, orient
-    again = _turns_time_offset(rec, seg, orient, ext, cfg)
+    again = _turns_time_offset(rec, seg, orient, ext, cfg, sweeps)
     if not again.sigma_ms <= cc.max_turns_time_offset_sigma_ms:
         return turn, orient
     notes.append(f"turns' time offset measured again with the turns' lever arm ({moved_mm:.0f}"
@@ -602,14 +611,15 @@ def _join_with_surfaces(turn_ns, turn_sigma_ms, surfaces, max_surface_sigma_ms):
     return m + (1 - w) * d_ms * 1e6, float(1 / np.sqrt(1 / s**2 + 1 / s_s**2)), True
 
 
-def _turns_after_surfaces(rec, seg, orient, ext, cfg, cal, surfaces, off_ns, notes):
+def _turns_after_surfaces(rec, seg, orient, ext, cfg, cal, surfaces, off_ns, notes,
+                          sweeps=None):
     """The time offset [ns] with the turns measured again, de-skewed by the surfaces' fit's
     lever arm and mount ``ext`` (``orient`` at the offset so far, ``off_ns``): the new turns'
     offset joined by inverse variance with the surfaces' own (``surfaces``, the first turns'
     prior out) when that is sure and agrees, else the new turns' alone; ``off_ns`` when the
     new turns are unsure. ``cal``'s offset, sigma and method follow."""
     cc = cfg.calibration
-    again = _turns_time_offset(rec, seg, orient, ext, cfg)
+    again = _turns_time_offset(rec, seg, orient, ext, cfg, sweeps)
     if not again.sigma_ms <= cc.max_turns_time_offset_sigma_ms:
         notes.append(f"turns' time offset after the surfaces' fit unsure (σ "
                      f"{again.sigma_ms:.1f} ms): kept {off_ns * 1e-6:.2f} ms")
@@ -629,7 +639,7 @@ def _turns_after_surfaces(rec, seg, orient, ext, cfg, cal, surfaces, off_ns, not
     return int(round(m))
 
 
-def _lever_start_from_turns(rec, seg, orient, ext, cfg, notes):
+def _lever_start_from_turns(rec, seg, orient, ext, cfg, notes, sweeps=None):
     """``ext`` with the lever arm the surfaces' fit starts from: on a lidar at least
     ``calibration.side_mount_warn_deg`` from the pan axis, hand-eye's over several stations'
     turns (:func:`calibration.lever_arm_from_turns`, the mount held) when its sigma is below
@@ -647,7 +657,8 @@ def _lever_start_from_turns(rec, seg, orient, ext, cfg, notes):
     lt = lever_arm_from_turns(rec.lidar, seg.stations, orient, ext, cfg.num_threads,
                               max_stations=cc.lever_turn_stations,
                               max_pairs=cc.lever_turn_pairs,
-                              denoise_firings=cc.range_denoise_firings)
+                              denoise_firings=cc.range_denoise_firings,
+                              sweep_cache=sweeps)
     if lt is None:
         return ext, None
     sig_mm = 1000 * float(np.sqrt(np.max(np.linalg.eigvalsh(lt.cov_m2))))
