@@ -130,6 +130,27 @@ def _rotvec(R: np.ndarray) -> np.ndarray:
     return Rotation.from_matrix(R).as_rotvec()
 
 
+def _turn_angles_deg(R0: np.ndarray, R: np.ndarray, near: tuple[float, ...]) -> np.ndarray:
+    """Angles [deg] of the turns R0ᵀ·R_n (``R0`` (3, 3) or (N, 3, 3), ``R`` (N, 3, 3)), only
+    ever compared with the thresholds ``near``: from the trace (arccos, ~1e-12° off), and
+    within 1e-6° of a threshold as ``Rotation.from_matrix(R0ᵀ·R_n).magnitude()`` has them, so
+    every comparison with a threshold comes out as with scipy's angles (the pair choices the
+    same to the bit) at a tenth of the cost."""
+    from scipy.spatial.transform import Rotation
+
+    one = R0.ndim == 2
+    c = np.einsum("ij,nij->n" if one else "nij,nij->n", R0, R)  # trace(R0ᵀ R_n)
+    ang = np.degrees(np.arccos(np.clip((c - 1.0) / 2.0, -1.0, 1.0)))
+    close = np.zeros(len(ang), dtype=bool)
+    for x in near:
+        close |= np.abs(ang - float(x)) < 1e-6
+    if close.any():
+        ang[close] = np.degrees(Rotation.from_matrix(
+            np.einsum("ji,njk->nik", R0, R[close]) if one
+            else np.einsum("nji,njk->nik", R0[close], R[close])).magnitude())
+    return ang
+
+
 def _prepare_sweep(points: np.ndarray, num_threads: int):
     """A sweep prepared as :func:`_register_sweeps` prepares an array (10-cm voxels, GICP's
     neighbourhoods and covariances), or None where it cannot be (too few points): a sweep that
@@ -288,8 +309,7 @@ def _turn_pairs(lidar: LidarPackets, st: Station, orient: ImuOrientation, R_gues
     def pairs_turned(min_deg: float) -> list[tuple[int, int]]:
         out = []
         for k in range(len(times) - 1):
-            ang = np.degrees(Rotation.from_matrix(
-                np.einsum("ji,njk->nik", R_w[k], R_w[k + 1:])).magnitude())
+            ang = _turn_angles_deg(R_w[k], R_w[k + 1:], (min_deg,))
             j = np.flatnonzero(ang >= min_deg)
             if len(j):
                 out.append((k, k + 1 + int(j[0])))
@@ -1307,8 +1327,7 @@ def turn_measurements(lidar: LidarPackets, stations: list[Station], orient: ImuO
         cand_dr, cand_k, cand_j = [], [], []
         for k in range(len(times) - 1):
             hi = min(len(times), k + 1 + max_lag)
-            ang = np.degrees(Rotation.from_matrix(
-                np.einsum("ji,njk->nik", R_w[k], R_w[k + 1:hi])).magnitude())
+            ang = _turn_angles_deg(R_w[k], R_w[k + 1:hi], (min_turn_deg, turn_max))
             j = np.flatnonzero((ang >= min_turn_deg) & (ang <= turn_max)) + k + 1
             dr = np.abs(rate[j] - rate[k])
             ok = np.degrees(dr) >= min_rate_change_deg_s
@@ -1337,8 +1356,7 @@ def turn_measurements(lidar: LidarPackets, stations: list[Station], orient: ImuO
         for lag in range(lo, min(hi, len(times) - 1) + 1):
             k = np.arange(len(times) - lag)
             j = k + lag
-            ang = np.degrees(Rotation.from_matrix(
-                np.einsum("nji,njk->nik", R_w[k], R_w[j])).magnitude())
+            ang = _turn_angles_deg(R_w[k], R_w[j], (turn_max,))
             dr = np.linalg.norm(w_w[j] - w_w[k], axis=1)
             ok = (np.degrees(dr) >= min_rate_change_deg_s) & (ang <= turn_max)
             cand_dr.append(dr[ok])
