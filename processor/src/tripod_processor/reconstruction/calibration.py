@@ -691,31 +691,16 @@ def _pick_stations(stations: list[Station], orient: ImuOrientation, n: int) -> l
     return sorted(ranked[:n], key=lambda s: s.start_ns)
 
 
-def _station_packets(st: Station, n: int, oversample: float = 0.0) -> np.ndarray:
-    """The packets :func:`_station_points` decodes for about n points: every ``stride``-th,
-    the integer stride that decodes ~10 n points at ~300 points a packet (0, the default; a
-    lidar on its side keeps ~380 a packet and a stride of 2.8 rounds to 2: ~16 n at 160,000),
-    or, with ``oversample`` > 0, ⌈oversample·n/300⌉ packets spread evenly (a fractional
-    stride)."""
-    n_pk = st.packet_stop - st.packet_start
-    if oversample <= 0:
-        stride = max(1, int(n_pk * 300 / (10 * n)))  # ~300 points a packet after the range cut
-        return np.arange(st.packet_start, st.packet_stop, stride)
-    m = int(np.ceil(oversample * n / 300.0))
-    if m >= n_pk:
-        return np.arange(st.packet_start, st.packet_stop)
-    return np.unique(np.round(np.linspace(st.packet_start, st.packet_stop - 1, m)).astype(np.int64))
-
-
 def _station_points(lidar: LidarPackets, st: Station, n: int, seed: int, max_range: float,
                     orient: ImuOrientation | None = None,
-                    denoise_firings: int = DENOISE_FIRINGS, decode_oversample: float = 0.0):
-    """About n points of a station (every few packets decoded, :func:`_station_packets`, their
-    ranges smoothed along the scan line over ``denoise_firings`` firings either side, then a
-    random subset). With ``orient``, points fired while the head turns slowly (rests, ramps, a
-    hand's pauses) are taken 4x as densely: the time offset shows only between those and the
-    fast ones."""
-    idx = _station_packets(st, n, decode_oversample)
+                    denoise_firings: int = DENOISE_FIRINGS):
+    """About n points of a station (every few packets decoded, their ranges smoothed along the
+    scan line over ``denoise_firings`` firings either side, then a random subset). With
+    ``orient``, points fired while the head turns slowly (rests, ramps, a hand's pauses) are
+    taken 4x as densely: the time offset shows only between those and the fast ones."""
+    n_pk = st.packet_stop - st.packet_start
+    stride = max(1, int(n_pk * 300 / (10 * n)))  # ~300 points a packet after the range cut
+    idx = np.arange(st.packet_start, st.packet_stop, stride)
     pts = decode_timed_points(lidar.payload[idx], lidar.lidar_ns[idx], 0, len(idx),
                               min_range=1.0, max_range=max_range)
     if len(pts) <= n:
@@ -867,8 +852,7 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
                    split_iterations: int = 0,
                    denoise_firings: int = DENOISE_FIRINGS,
                    fit_yaw_drift: bool = False,
-                   yaw_drift_prior_deg_per_min: float = float("inf"),
-                   decode_oversample: float = 0.0) -> SelfCalibration:
+                   yaw_drift_prior_deg_per_min: float = float("inf")) -> SelfCalibration:
     """Lever arm, IMU time offset and mount rotation that make every station self-consistent.
 
     At a standing station the head turns about a fixed pivot, so a surface seen at two moments
@@ -906,7 +890,6 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
 
     The stations' sampling and residuals run side by side on ``num_threads`` threads (0: every
     core), one station a thread, gathered in station order: the same result on any count.
-    ``decode_oversample``: the packets decoded for the sample (:func:`_station_packets`).
     """
     from scipy.spatial.transform import Rotation
 
@@ -919,7 +902,7 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
     off = orient.time_offset_ns
     data = _threaded_map(_station_points, [
         (lidar, st, points_per_station, 11 + k, max_range, orient if fit_time else None,
-         denoise_firings, decode_oversample) for k, st in enumerate(use)], workers)
+         denoise_firings) for k, st in enumerate(use)], workers)
     sep_ns = int(min_separation_s * 1e9)
     cols = (["l1", "l2"] if fit_lever else []) + (["dt"] if fit_time else []) + (
         ["r1", "r2"] if fit_rotation else []) + (["yd"] if fit_yaw_drift else [])

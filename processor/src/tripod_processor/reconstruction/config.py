@@ -212,12 +212,6 @@ class CalibrationConfig(StrictModel):
     #: were a near tie of global registration (its 180° twin on 2 of 10 RANSAC seeds with
     #: 80,000, 3 of 10 with 160,000; test_gravity_up.py), not the calibration
     side_points_per_station: int = Field(default=160_000, ge=1000)
-    #: the packets the surfaces' fit decodes for a station's sample (opt-in, stop 38): 0 (the
-    #: default) every k-th, the integer k that decodes ~10x the sample at ~300 points a packet
-    #: (a lidar on its side keeps ~380 and k = 2.8 rounds to 2: 2.6 M decoded for 160,000 on
-    #: dev 1); > 0: ceil(x * sample / 300) packets spread evenly (a fractional stride; 10 cuts
-    #: dev 1's decode by ~30 %). Changes the sample: not checked on the 13 hard dev rigs
-    station_decode_oversample: float = Field(default=0.0, ge=0)
     #: fit the IMU's heading drift [rad/s about the world's vertical] with the lever arm, time
     #: offset and mount in the surfaces' fit (a nuisance parameter, not applied elsewhere).
     #: Held at zero, a drift turns a pan's end against its start, which a lidar on its side's

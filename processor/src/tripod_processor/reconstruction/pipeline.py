@@ -515,8 +515,7 @@ def _fit_surfaces(rec, seg, orient, ext, cfg, points_per_station: int, **fit):
                           denoise_firings=cc.range_denoise_firings,
                           fit_yaw_drift=cc.fit_yaw_drift,
                           points_per_station=points_per_station,
-                          yaw_drift_prior_deg_per_min=cc.yaw_drift_prior_deg_per_min,
-                          decode_oversample=cc.station_decode_oversample, **fit)
+                          yaw_drift_prior_deg_per_min=cc.yaw_drift_prior_deg_per_min, **fit)
 
 
 def _points_per_station(rec_stations, orient, R_imu_lidar, cfg) -> int:
