@@ -60,7 +60,7 @@ def test_mount_turn_about_the_pan_axis_from_the_carries(rig):
 def test_pipeline_turns_mount_and_lever_together(monkeypatch):
     """The pipeline's step (registrations stubbed): mount and estimated lever arm turned by the
     carries' angle, the lever arm in the lidar frame unchanged; a given lever arm stays; a
-    sigma over ``mount_yaw_max_sigma_deg`` leaves both; off by the config switch (the default)."""
+    sigma over ``mount_yaw_max_sigma_deg`` leaves both."""
     b = np.array([0.0, 0.1, 1.0])
     b /= np.linalg.norm(b)
     R = Rotation.from_euler("xyz", [80.0, 5.0, 20.0], degrees=True).as_matrix()
@@ -75,7 +75,7 @@ def test_pipeline_turns_mount_and_lever_together(monkeypatch):
                                lever_basis_imu=C._perp_basis(b), mount_yaw=None)
 
     cfg = ReconstructConfig()
-    assert cfg.calibration.mount_yaw_from_carries is False  # opt-in: the old behaviour default
+    assert cfg.calibration.mount_yaw_from_carries is True  # default; false: hand-eye's turn
     rec, seg = SimpleNamespace(lidar=None), SimpleNamespace(stations=[])
     c = cal()
     notes: list[str] = []

@@ -260,7 +260,7 @@ class CalibrationConfig(StrictModel):
     #: the lidar frame). The carried tripod turns about every axis: the mount and, when
     #: estimated, the lever arm are turned together by the carries' angle (every station's
     #: geometry unchanged). Off: hand-eye's turn about the pan axis, as before
-    mount_yaw_from_carries: bool = False
+    mount_yaw_from_carries: bool = True
     #: carry sweep pairs a carry for it (up to 8 carries, the longest)
     mount_yaw_pairs_per_carry: int = Field(default=16, ge=1)
     #: ... applied only when its sigma is within this [deg]
