@@ -623,6 +623,10 @@ class SelfCalibration:
     #: the IMU's heading drift about the world's vertical [deg/min] fitted with the rest
     #: (``fit_yaw_drift``); NaN when not fitted
     yaw_drift_deg_per_min: float = float("nan")
+    #: the mount's turn about the pan axis from the carries (:func:`mount_yaw_from_carries`,
+    #: its ``to_dict``) when it was estimated; None: held at hand-eye's (unobservable from the
+    #: stations)
+    mount_yaw: dict | None = None
 
     def lever_arm_by_mount(self) -> dict | None:
         """The lever arm's sigma along the lidar's spin axis (projected across the pan axis)
@@ -678,6 +682,7 @@ class SelfCalibration:
             "stations": self.stations, "residual_m": self.residual_m, "pairs": self.pairs,
             **({"imu_yaw_drift_deg_per_min": self.yaw_drift_deg_per_min}
                if np.isfinite(self.yaw_drift_deg_per_min) else {}),
+            **({"mount_yaw_from_carries": self.mount_yaw} if self.mount_yaw else {}),
         }
 
 
@@ -1069,6 +1074,102 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
         stations=[st.index for st in use], residual_m=s_rob, pairs=n_pairs, iterations=history,
         lever_arm_cov_m2=l_cov, lever_basis_imu=U_l if fit_lever else None,
         yaw_drift_deg_per_min=float(np.degrees(drift) * 60.0) if fit_yaw_drift else float("nan"))
+
+
+# ---- the mount's turn about the pan axis from the carries ------------------------------------------
+@dataclass
+class MountYaw:
+    """The mount's turn about the pan axis from the carries' sweep pairs
+    (:func:`mount_yaw_from_carries`): ``angle_rad`` to turn ``R_imu_lidar`` (and with it the
+    lever arm in the IMU frame) about ``pan_axis_imu`` (IMU frame), its 1-sigma, the pairs and
+    carries it came from."""
+
+    angle_rad: float
+    sigma_rad: float
+    pairs: int
+    carries: int
+    pan_axis_imu: np.ndarray
+
+    def rotation(self) -> np.ndarray:
+        """R (3x3, IMU frame): the turn by ``angle_rad`` about the pan axis."""
+        from scipy.spatial.transform import Rotation
+
+        return Rotation.from_rotvec(self.angle_rad * self.pan_axis_imu).as_matrix()
+
+    def to_dict(self) -> dict:
+        return {"angle_deg": float(np.degrees(self.angle_rad)),
+                "sigma_deg": float(np.degrees(self.sigma_rad)), "pairs": self.pairs,
+                "carries": self.carries}
+
+
+def mount_yaw_from_carries(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
+                           ext: Extrinsic, num_threads: int = 0, *, pairs_per_carry: int = 16,
+                           max_carries: int = 8, denoise_firings: int = DENOISE_FIRINGS,
+                           min_pairs: int = 6, pan_axis_imu: np.ndarray | None = None,
+                           sweep_cache: SweepCache | None = None) -> MountYaw | None:
+    """The mount's turn about the pan axis, which no station sees, from the carries.
+
+    At a station the head turns about the pan axis b only, so hand-eye and the surfaces see the
+    mount's two tilts but not its turn about b: R_imu_lidar turned by α about b, with the lever
+    arm (IMU frame) turned alike, places every station the same, turned by α about its pivot
+    (the lever arm in the lidar frame is unchanged). Hand-eye's mount holds whatever α the
+    registrations' noise left (dev seeds 83, 87, 40, 609: 1.2–2.2°), and a lever arm of 15–20 cm
+    read in the IMU frame is then 4–6 mm off. While the tripod is carried it turns about every
+    axis: two 0.1-s sweeps 0.2–0.5 s apart (:func:`turn_measurements`' carry pairs, returns
+    within 1.5 m left out) registered against each other give the lidar's relative rotation A,
+    the IMU predicts P with the mount; a small mount correction ε (R_imu_lidar·exp([ε]×)) turns
+    P by (I − Pᵀ)ε (:func:`_mount_jacobian`). The three components of ε are fitted to every
+    pair's rotation error (whitened by its registration's information), Huber-weighted; σ from
+    the scatter, at least the carries' cluster-robust one. Returned: ε's component about b in
+    the IMU frame (α = b·(R_imu_lidar ε)); the tilts are left to the surfaces (they see them
+    better). ``pan_axis_imu``: b (IMU frame; default: the stations' own). None with fewer than
+    ``min_pairs`` pairs or a singular fit. ``sweep_cache``: the run's decoded sweeps (the turns'
+    carry windows are among them)."""
+    from scipy.spatial.transform import Rotation
+
+    from .placement import pose_world_lidar
+
+    spans = carry_spans(stations)
+    if not spans or pairs_per_carry <= 0:
+        return None
+    tm = turn_measurements(lidar, stations, orient, ext, num_threads, pairs_per_station=0,
+                           carries=spans, max_carries=max_carries,
+                           pairs_per_carry=pairs_per_carry, denoise_firings=denoise_firings,
+                           sweep_cache=sweep_cache)
+    meas = [m for m, c in zip(tm.meas, tm.is_carry) if c]
+    if len(meas) < min_pairs:
+        return None
+    cl = np.repeat(tm.cluster[tm.is_carry], 3)
+    rows, X = [], []
+    for tk, tj, A, _, W in meas:
+        T = pose_world_lidar(orient, ext, np.array([tk, tj], dtype=np.int64))
+        P = (np.linalg.inv(T[0]) @ T[1])[:3, :3]
+        rows.append(W @ Rotation.from_matrix(P.T @ A[:3, :3]).as_rotvec())
+        X.append(W @ _mount_jacobian(orient, ext, tk, tj, P))
+    r, J = np.concatenate(rows), np.vstack(X)
+    w = np.ones(len(r))
+    for _ in range(6):  # IRLS, Huber at 1.345 MAD sigma
+        H = J.T @ (J * w[:, None])
+        if not np.all(np.isfinite(H)) or np.linalg.cond(H) > 1e10:
+            return None
+        eps = np.linalg.solve(H, J.T @ (w * r))
+        e = r - J @ eps
+        sc = 1.4826 * float(np.median(np.abs(e))) + 1e-12
+        w = np.minimum(1.0, 1.345 * sc / np.maximum(np.abs(e), 1e-12))
+    H = J.T @ (J * w[:, None])
+    Hi = np.linalg.inv(H)
+    cov = Hi * float(np.sum(w * e**2) / max(len(r) - 3, 1))
+    groups = np.unique(cl)
+    if len(groups) >= 3:
+        U = np.array([(J[cl == q] * w[cl == q, None]).T @ e[cl == q] for q in groups])
+        V = Hi @ (U.T @ U) @ Hi * len(groups) / (len(groups) - 1)
+        if np.trace(V) > np.trace(cov):
+            cov = V
+    b = pan_axis_in_imu(orient, stations) if pan_axis_imu is None else np.asarray(pan_axis_imu)
+    u = ext.R_imu_lidar.T @ b  # the pan axis in the lidar frame: α = u·ε
+    alpha = float(u @ eps)
+    sigma = float(np.sqrt(max(float(u @ cov @ u), 0.0)))
+    return MountYaw(alpha, sigma, len(meas), len(groups), b)
 
 
 # ---- IMU time offset from the head's turns (lidar sweeps registered against each other) ---------

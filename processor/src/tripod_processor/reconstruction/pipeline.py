@@ -380,6 +380,7 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
     cc = cfg.calibration
     turn = None
     fit_time_surf = fit_time
+    mount_free = fit_rot  # the mount not given: its turn about the pan axis is hand-eye's so far
     if fit_time and cc.time_offset_from_turns:
         # the time offset first, from the head's turns and the carries' (registrations, all
         # but blind to the lever arm: see _turns_again_with_lever): the surfaces' fit below
@@ -499,7 +500,46 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
     if fit_time and turn is not None and cc.turn_remeasure_after_surfaces:
         off = _turns_after_surfaces(rec, seg, orient.with_offset(off), ext_out, cfg, cal,
                                     surfaces, off, notes, sweeps)
+    if mount_free and cc.mount_yaw_from_carries:
+        ext_out = _mount_yaw_from_carries(rec, seg, orient.with_offset(off), ext_out, cfg, cal,
+                                          fit_lever, notes, sweeps)
     return ext_out, orient.with_offset(off), cal
+
+
+def _mount_yaw_from_carries(rec, seg, orient, ext, cfg, cal, fit_lever, notes, sweeps=None):
+    """``ext`` turned about the pan axis by the carries' estimate of the mount's turn there
+    (:func:`calibration.mount_yaw_from_carries`) when its sigma is within
+    ``calibration.mount_yaw_max_sigma_deg``; the lever arm (IMU frame) turns with it when it was
+    estimated, so the lever arm in the lidar frame, and every station's geometry, stay as they
+    are (the stations cannot see that turn); a lever arm given in the config stays. ``cal``
+    follows (mount, lever arm and its basis, ``mount_yaw``)."""
+    from .calibration import mount_yaw_from_carries
+
+    cc = cfg.calibration
+    my = mount_yaw_from_carries(rec.lidar, seg.stations, orient, ext, cfg.num_threads,
+                                pairs_per_carry=cc.mount_yaw_pairs_per_carry,
+                                denoise_firings=cc.range_denoise_firings,
+                                pan_axis_imu=cal.pan_axis_imu, sweep_cache=sweeps)
+    if my is None:
+        return ext
+    d, s = np.degrees(my.angle_rad), np.degrees(my.sigma_rad)
+    applied = bool(s <= cc.mount_yaw_max_sigma_deg)
+    cal.mount_yaw = {**my.to_dict(), "applied": applied}
+    notes.append(f"mount's turn about the pan axis from {my.carries} carries ({my.pairs} sweep "
+                 f"pairs): {d:+.2f} ± {s:.2f}°, "
+                 + ("applied" if applied else
+                    f"not applied (σ over {cc.mount_yaw_max_sigma_deg:g}°: hand-eye's kept)"))
+    if not applied:
+        return ext
+    Rb = my.rotation()
+    R = Rb @ ext.R_imu_lidar
+    ell = Rb @ ext.lever_arm_m if fit_lever else ext.lever_arm_m.copy()
+    cal.R_imu_lidar = R
+    if fit_lever:
+        cal.lever_arm_m = Rb @ cal.lever_arm_m
+        if cal.lever_basis_imu is not None:
+            cal.lever_basis_imu = Rb @ cal.lever_basis_imu
+    return Extrinsic(R, ell, ext.source)
 
 
 def _fit_surfaces(rec, seg, orient, ext, cfg, points_per_station: int, **fit):
