@@ -540,7 +540,8 @@ def _turns_time_offset(rec, seg, orient, ext, cfg):
                                   uses_per_sweep=cc.turn_sweep_uses,
                                   combine=cc.turn_combine,
                                   carry_floor_ms=cc.turn_carry_floor_ms,
-                                  carry_mount=cc.turn_carry_mount)
+                                  carry_mount=cc.turn_carry_mount,
+                                  anchor_smooth_s=cc.turn_anchor_smooth_s)
 
 
 def _turns_again_with_lever(rec, seg, orient, ext_turns, ext, turn, cfg, notes):
