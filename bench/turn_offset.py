@@ -32,6 +32,7 @@ WAYS = {
     "split+floor1": {"combine": "split", "carry_floor_ms": 1.0},
     "split+mount": {"combine": "split", "carry_mount": True},
     "split+mount+floor1": {"combine": "split", "carry_mount": True, "carry_floor_ms": 1.0},
+    "split+mount+floor2": {"combine": "split", "carry_mount": True, "carry_floor_ms": 2.0},
     "stations": {"kind": False},
     "carries": {"kind": True},
     "carries+mount": {"kind": True, "carry_mount": True},
