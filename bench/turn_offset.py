@@ -32,6 +32,7 @@ WAYS = {
     "split+floor1": {"combine": "split", "carry_floor_ms": 1.0},
     "split+mount": {"combine": "split", "carry_mount": True},
     "split+mount+floor1": {"combine": "split", "carry_mount": True, "carry_floor_ms": 1.0},
+    "split+mount+floor2": {"combine": "split", "carry_mount": True, "carry_floor_ms": 2.0},
     "stations": {"kind": False},
     "carries": {"kind": True},
     "carries+mount": {"kind": True, "carry_mount": True},
@@ -46,7 +47,8 @@ WAYS = {
 }
 
 
-def run_one(work: Path, seed: int, threads: int, sets: dict, velocity: bool) -> dict:
+def run_one(work: Path, seed: int, threads: int, sets: dict, velocity: bool,
+            anchor_s: float = 0.0) -> dict:
     from rigs import simulate_cached
 
     from tripod_shared.config_io import load_config
@@ -83,7 +85,7 @@ def run_one(work: Path, seed: int, threads: int, sets: dict, velocity: bool) -> 
               uses_per_sweep=cc.turn_sweep_uses)
     # the pipeline's passes (the old joint fit decides a second pass's de-skew)
     tm = C.turn_measurements(rec.lidar, seg.stations, orient, ext, threads, **kw)
-    first = C.fit_turn_offset(tm, orient, ext)
+    first = C.fit_turn_offset(tm, orient, ext, anchor_smooth_s=anchor_s)
     if (cc.turn_passes > 1 and first.sigma_ms <= 4.0
             and abs(first.offset_ns - orient.time_offset_ns) >= 0.5e6):
         orient = orient.with_offset(first.offset_ns)
@@ -106,7 +108,7 @@ def run_one(work: Path, seed: int, threads: int, sets: dict, velocity: bool) -> 
     for name, way in WAYS.items():
         if way.get("v") and not velocity:
             continue
-        way = dict(way)
+        way = {"anchor_smooth_s": anchor_s, **way}
         kind = way.pop("kind", None)
         base = tm_v if way.pop("v", False) else tm
         sub = base if kind is None else base.subset(base.is_carry == kind)
@@ -141,6 +143,10 @@ def main() -> int:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--anchor", type=float, default=0.0, metavar="S",
+                    help="every way (and the passes) with the prediction anchored at the "
+                         "de-skew's IMU noise, smoothed over S seconds "
+                         "(calibration.turn_anchor_smooth_s; default 0: slerped afresh)")
     ap.add_argument("--velocity", action="store_true",
                     help="also the ways with the carries' walk de-skewed (V:, more CPU)")
     a = ap.parse_args()
@@ -153,7 +159,7 @@ def main() -> int:
     rows = []
     for seed in a.seeds:
         try:
-            row = run_one(a.work, seed, a.threads, sets, a.velocity)
+            row = run_one(a.work, seed, a.threads, sets, a.velocity, a.anchor)
         except Exception as exc:  # one line, counted
             row = {"seed": seed, "error": f"{type(exc).__name__}: {exc}"[:200]}
         rows.append(row)

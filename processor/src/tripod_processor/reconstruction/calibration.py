@@ -1482,7 +1482,7 @@ def turn_measurements(lidar: LidarPackets, stations: list[Station], orient: ImuO
     return tm
 
 
-_FIT_KEYS = ("sigma_inflation", "combine", "carry_mount", "carry_floor_ms")
+_FIT_KEYS = ("sigma_inflation", "combine", "carry_mount", "carry_floor_ms", "anchor_smooth_s")
 
 
 def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
@@ -1515,7 +1515,7 @@ class TurnMeasurements:
 def fit_turn_offset(tm: TurnMeasurements, orient: ImuOrientation, ext: Extrinsic, *,
                     sigma_inflation: float = 2.0, combine: str = "joint",
                     carry_mount: bool = False, carry_floor_ms: float = 0.0,
-                    ) -> TurnTimeOffset:
+                    anchor_smooth_s: float = 0.0) -> TurnTimeOffset:
     """The offset from the registered pairs (:func:`_turn_offset_pass`). ``combine``:
     "joint": stations' and carries' rows in one least-squares fit (each kind weighed by its
     robust scale); "split": each kind fitted alone (:func:`_fit_turn_rows`), then joined by
@@ -1524,12 +1524,15 @@ def fit_turn_offset(tm: TurnMeasurements, orient: ImuOrientation, ext: Extrinsic
     by the Birge ratio when the two disagree by more than their sigmas allow. ``carry_mount``:
     the carries' rows also fit a small correction of the mount rotation (the hand-eye
     equation's: a mount error turns a carried pair's rotation by (I − Pᵀ)ε, which otherwise
-    leaks into the offset)."""
+    leaks into the offset). ``anchor_smooth_s`` > 0: the prediction keeps the IMU samples'
+    noise where the sweeps were de-skewed (``orient``'s offset, as measured) and moves with the
+    offset by the track smoothed over that span (:func:`_predicted_turns`); 0: slerped from the
+    samples at each offset tried, which draws the fit toward ``orient``'s offset."""
     off0 = orient.time_offset_ns
     if len(tm.meas) < 4:
         return TurnTimeOffset(off0, float("inf"), len(tm.meas), 0.0)
     if combine == "joint":
-        res = _fit_turn_rows(tm, orient, ext, carry_mount)
+        res = _fit_turn_rows(tm, orient, ext, carry_mount, anchor_smooth_s)
         return TurnTimeOffset(res.offset_ns, res.sigma_ms * sigma_inflation, res.pairs,
                               res.rate_change_deg_s, res.carry_pairs)
     if combine != "split":
@@ -1538,7 +1541,7 @@ def fit_turn_offset(tm: TurnMeasurements, orient: ImuOrientation, ext: Extrinsic
     for kind in (False, True):
         sel = tm.is_carry == kind
         if sel.sum() >= 4:
-            r = _fit_turn_rows(tm.subset(sel), orient, ext, carry_mount)
+            r = _fit_turn_rows(tm.subset(sel), orient, ext, carry_mount, anchor_smooth_s)
             if np.isfinite(r.sigma_ms) and r.sigma_ms > 0:
                 fits[kind] = r
     if not fits:
@@ -1593,11 +1596,52 @@ def _mount_jacobian(orient: ImuOrientation, ext: Extrinsic, tk: int, tj: int,
     return J
 
 
+def _predicted_turns(meas: list, orient: ImuOrientation, ext: Extrinsic,
+                     anchor_smooth_s: float = 0.0):
+    """predict(offset_ns) -> (M, 3, 3): each pair's relative rotation R_k^T R_j (lidar frames at
+    its two sweeps' middles) as the IMU predicts it at that offset.
+
+    ``anchor_smooth_s`` 0: the attitudes slerped from the samples at that offset. Each sweep,
+    though, was de-skewed to the attitude slerped at its middle at ``orient``'s offset, so its
+    registration carries that attitude's white noise (0.05° a sample per axis, ~70 mdeg on a
+    pair against 10-30 mdeg for 1 ms of offset), and the prediction cancels it only at that
+    same offset: the fit is drawn toward the offset the sweeps were de-skewed at (on dev seed
+    171, de-skewed 5.3 ms off, the turns' estimate moved 1-2 ms that way). With
+    ``anchor_smooth_s`` > 0 the prediction keeps the samples' noise of ``orient``'s offset and
+    only the change with the offset comes from the track smoothed over that span
+    (:meth:`ImuOrientation.smoothed`): R_k(δ) = R̂_k(δ₀) · S_k(δ₀)ᵀ S_k(δ)."""
+    from .placement import pose_world_lidar
+
+    t = np.array([[m[0], m[1]] for m in meas], dtype=np.int64).reshape(-1)
+    n = len(meas)
+
+    def rotations(o: ImuOrientation) -> np.ndarray:
+        return pose_world_lidar(o, ext, t)[:, :3, :3].reshape(n, 2, 3, 3)
+
+    if anchor_smooth_s > 0:
+        R0 = rotations(orient)
+        smooth = orient.smoothed(anchor_smooth_s)
+        S0 = rotations(smooth)
+
+    def predict(off: int) -> np.ndarray:
+        if anchor_smooth_s > 0:
+            S = rotations(smooth.with_offset(off))
+            R = R0 @ np.swapaxes(S0, -1, -2) @ S  # R̂(δ₀) · (S(δ₀)ᵀ S(δ))
+        else:
+            R = rotations(orient.with_offset(off))
+        return np.swapaxes(R[:, 0], -1, -2) @ R[:, 1]
+
+    return predict
+
+
 def _fit_turn_rows(tm: TurnMeasurements, orient: ImuOrientation, ext: Extrinsic,
-                   carry_mount: bool = False) -> TurnTimeOffset:
+                   carry_mount: bool = False, anchor_smooth_s: float = 0.0) -> TurnTimeOffset:
     """The least-squares fit of :func:`_turn_offset_pass` over ``tm``'s pairs (sigma not yet
     inflated): δ, the IMU's yaw drift and, with ``carry_mount``, a small mount correction in
-    the carries' rows; outliers trimmed, each kind weighed by its robust scale."""
+    the carries' rows; outliers trimmed, each kind weighed by its robust scale.
+    ``anchor_smooth_s`` > 0: the prediction at an offset keeps the samples' noise where the
+    sweeps were de-skewed (``orient``'s offset) and moves by the track smoothed over that span
+    (:func:`_predicted_turns`)."""
     from scipy.spatial.transform import Rotation
 
     from .placement import pose_world_lidar
@@ -1611,6 +1655,8 @@ def _fit_turn_rows(tm: TurnMeasurements, orient: ImuOrientation, ext: Extrinsic,
     def rel(o: ImuOrientation, tk: int, tj: int) -> np.ndarray:
         T = pose_world_lidar(o, ext, np.array([tk, tj], dtype=np.int64))
         return np.linalg.inv(T[0]) @ T[1]
+
+    predict = _predicted_turns(meas, orient, ext, anchor_smooth_s)
 
     # rows: a station's pair gives its angle about the pan axis, a carry's all three; each row
     # knows its pair, cluster (station or carry) and kind
@@ -1632,13 +1678,14 @@ def _fit_turn_rows(tm: TurnMeasurements, orient: ImuOrientation, ext: Extrinsic,
     sig = float("inf")
     for it in range(4):
         o = orient.with_offset(off)
-        oh = orient.with_offset(off + h_ns)
+        P_all, Ph_all = predict(off), predict(off + h_ns)
         r_parts, g_parts, m_parts = [], [], []
         for m, (tk, tj, A, _, W) in enumerate(meas):
-            P = rel(o, tk, tj)[:3, :3]
+            P = P_all[m]
             rv = Rotation.from_matrix(P.T @ A[:3, :3]).as_rotvec()
-            gv = Rotation.from_matrix(P.T @ rel(oh, tk, tj)[:3, :3]).as_rotvec() / (h_ns * 1e-9)
-            Jm = _mount_jacobian(o, ext, tk, tj, P) if fit_mount and is_carry[m] else None
+            gv = Rotation.from_matrix(P.T @ Ph_all[m]).as_rotvec() / (h_ns * 1e-9)
+            Jm = (_mount_jacobian(o, ext, tk, tj, rel(o, tk, tj)[:3, :3])
+                  if fit_mount and is_carry[m] else None)
             if is_carry[m]:
                 r_parts.append(W @ rv)
                 g_parts.append(W @ gv)

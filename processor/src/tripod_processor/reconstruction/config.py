@@ -131,6 +131,13 @@ class CalibrationConfig(StrictModel):
     #: leaks into their offset (83's carries −2.1 → −1.4 ms, 87's 3.8 → 3.4; 40's, 3.9° off,
     #: 0.9 → 1.8). Off: the offset and the yaw drift only
     turn_carry_mount: bool = True
+    #: the turns' fit predicts each pair at a trial offset from the IMU attitudes at the offset
+    #: its sweeps were de-skewed at (their samples' noise, 0.05° each, is in the registration
+    #: too and cancels only there) moved by the change of the attitude smoothed over this span
+    #: [s] (zero-phase); 0: slerped afresh at every trial offset, which draws the estimate
+    #: toward the offset the sweeps were de-skewed at (dev 40 and 87 de-skewed at 0: the
+    #: carries +4.0 / +4.2 ms off, +0.7 / +0.8 with 0.1 s)
+    turn_anchor_smooth_s: float = Field(default=0.1, ge=0, le=1.0)
     #: the turns' offset is applied up to this sigma [ms] (their sigma comes from the pairs'
     #: scatter, inflated to be honest; an estimate that sure still beats the prior 0 against IMU
     #: latencies of up to 10 ms, and the station splitter's refit tolerates ±12 ms); above

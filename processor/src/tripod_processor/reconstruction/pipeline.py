@@ -589,6 +589,7 @@ def _turns_time_offset(rec, seg, orient, ext, cfg, sweeps=None):
                                   combine=cc.turn_combine,
                                   carry_floor_ms=cc.turn_carry_floor_ms,
                                   carry_mount=cc.turn_carry_mount,
+                                  anchor_smooth_s=cc.turn_anchor_smooth_s,
                                   sweep_cache=sweeps)
 
 

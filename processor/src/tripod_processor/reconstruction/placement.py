@@ -283,6 +283,34 @@ class ImuOrientation:
         o.time_offset_ns = int(time_offset_ns)
         if hasattr(self, "_slerp_cache"):
             o._slerp_cache = self._slerp_cache
+        o._smoothed_cache = self._smoothed_tracks()
+        return o
+
+    def _smoothed_tracks(self) -> dict:
+        """span [s] -> smoothed quaternions (K, 4), shared by ``with_offset`` copies."""
+        if not hasattr(self, "_smoothed_cache"):
+            self._smoothed_cache = {}
+        return self._smoothed_cache
+
+    def smoothed(self, span_s: float) -> "ImuOrientation":
+        """This track at the same offset with the raw samples smoothed over ``span_s``
+        (:func:`smooth_quaternions`, zero-phase), computed once per track and span (the
+        ``with_offset`` copies share it): a low-noise attitude for what changes with the
+        offset, where the samples' own noise must stay put (:func:`calibration.fit_turn_offset`
+        with ``anchor_noise_smooth_s``)."""
+        cache = self._smoothed_tracks()
+        key = round(float(span_s), 6)
+        if key not in cache:
+            q = self.imu.q_wxyz.copy()
+            for k in range(1, len(q)):
+                if np.dot(q[k], q[k - 1]) < 0:
+                    q[k] = -q[k]
+            cache[key] = smooth_quaternions(self._base_t, q, span_s) if span_s > 0 else q
+        o = ImuOrientation.__new__(ImuOrientation)
+        o.imu, o.clock, o.host_minus_lidar_ns, o._base_t = (
+            self.imu, self.clock, self.host_minus_lidar_ns, self._base_t)
+        o._q, o.smooth_s, o.time_offset_ns = cache[key], float(span_s), self.time_offset_ns
+        o._smoothed_cache = cache
         return o
 
     def _slerp_table(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
