@@ -124,8 +124,11 @@ class CalibrationConfig(StrictModel):
     #: 1 ms) to 0.33 / 0.82 (10/13), README calibration step 3, stop 36
     turn_combine: Literal["joint", "split"] = "split"
     #: ... the floor [ms, 1 sigma before the turns' inflation, in quadrature] of the carries'
-    #: sigma when they join the stations' with "split" (the carries alone keep their own)
-    turn_carry_floor_ms: float = Field(default=2.0, ge=0)
+    #: sigma when they join the stations' with "split" (the carries alone keep their own).
+    #: 2.0 until stop 38: it held off the carries' +1.5-3 ms bias, which was the de-skew's pull
+    #: (``turn_anchor_smooth_s``); with that anchored, 0.5 on 17 dev rigs: offset within 1 ms
+    #: 14 -> 15, worst 1.30 -> 1.13 ms, sum of |error| 6.6 -> 4.2 ms (README, calibration)
+    turn_carry_floor_ms: float = Field(default=0.5, ge=0)
     #: the carries' rows also fit a small correction of the mount rotation (3 unknowns, the
     #: hand-eye equation's (I − Pᵀ)ε): hand-eye's mount, 1-4° off on hard dev rigs, otherwise
     #: leaks into their offset (83's carries −2.1 → −1.4 ms, 87's 3.8 → 3.4; 40's, 3.9° off,
