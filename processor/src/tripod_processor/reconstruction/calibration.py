@@ -486,31 +486,40 @@ def lever_arm_from_turns(lidar: LidarPackets, stations: list[Station], orient: I
         return None
     X = np.concatenate(Ms)  # (3n, 2)
     y = np.concatenate(ys)  # (3n,)
-    g = np.repeat(np.asarray(gid), 3)
+    fit = _huber_lsq_clustered(X, y, np.repeat(np.asarray(gid), 3), iters=5, scale_floor=1e-4)
+    if fit is None:
+        return None
+    c, cov, n_groups = fit
+    return TurnLeverArm(ell_along + U @ c, cov, U, len(Ms), n_groups)
+
+
+def _huber_lsq_clustered(X: np.ndarray, y: np.ndarray, groups: np.ndarray, *, iters: int,
+                         scale_floor: float):
+    """The linear least squares X·c ≈ y, Huber-weighted by IRLS (``iters`` rounds, 1.345 MAD
+    sigma, the scale at least ``scale_floor``): (c, cov, number of groups), cov the weighted
+    residuals' scatter, at least the cluster-robust (sandwich) one over ``groups`` (rows of one
+    group share its errors) when there are three or more; None when the normal matrix is
+    singular."""
     wgt = np.ones(len(y))
-    c = np.zeros(2)
-    for _ in range(5):  # IRLS, Huber
+    for _ in range(iters):
         XW = X * wgt[:, None]
         H = XW.T @ X
-        if np.linalg.cond(H) > 1e10:
+        if not np.all(np.isfinite(H)) or np.linalg.cond(H) > 1e10:
             return None
         c = np.linalg.solve(H, XW.T @ y)
         e = y - X @ c
-        sc = 1.4826 * float(np.median(np.abs(e))) + 1e-4
+        sc = 1.4826 * float(np.median(np.abs(e))) + scale_floor
         wgt = np.minimum(1.0, 1.345 * sc / np.maximum(np.abs(e), 1e-12))
     XW = X * wgt[:, None]
-    H = XW.T @ X
-    Hi = np.linalg.inv(H)
-    e = y - X @ c
-    dof = max(len(y) - 2, 1)
-    cov = Hi * float(np.sum(wgt * e**2) / dof)
-    groups = np.unique(g)
-    if len(groups) >= 3:
-        S = np.array([XW[g == q].T @ e[g == q] for q in groups])
-        V = Hi @ (S.T @ S) @ Hi * len(groups) / (len(groups) - 1)
+    Hi = np.linalg.inv(XW.T @ X)
+    cov = Hi * float(np.sum(wgt * e**2) / max(len(y) - X.shape[1], 1))
+    uniq = np.unique(groups)
+    if len(uniq) >= 3:
+        S = np.array([XW[groups == q].T @ e[groups == q] for q in uniq])
+        V = Hi @ (S.T @ S) @ Hi * len(uniq) / (len(uniq) - 1)
         if np.trace(V) > np.trace(cov):
             cov = V
-    return TurnLeverArm(ell_along + U @ c, cov, U, len(Ms), len(groups))
+    return c, cov, len(uniq)
 
 
 def _axis_tilt_sigma_deg(a: np.ndarray, b: np.ndarray, R_li: np.ndarray) -> float:
@@ -1139,37 +1148,22 @@ def mount_yaw_from_carries(lidar: LidarPackets, stations: list[Station], orient:
     meas = [m for m, c in zip(tm.meas, tm.is_carry) if c]
     if len(meas) < min_pairs:
         return None
-    cl = np.repeat(tm.cluster[tm.is_carry], 3)
     rows, X = [], []
     for tk, tj, A, _, W in meas:
         T = pose_world_lidar(orient, ext, np.array([tk, tj], dtype=np.int64))
         P = (np.linalg.inv(T[0]) @ T[1])[:3, :3]
         rows.append(W @ Rotation.from_matrix(P.T @ A[:3, :3]).as_rotvec())
         X.append(W @ _mount_jacobian(orient, ext, tk, tj, P))
-    r, J = np.concatenate(rows), np.vstack(X)
-    w = np.ones(len(r))
-    for _ in range(6):  # IRLS, Huber at 1.345 MAD sigma
-        H = J.T @ (J * w[:, None])
-        if not np.all(np.isfinite(H)) or np.linalg.cond(H) > 1e10:
-            return None
-        eps = np.linalg.solve(H, J.T @ (w * r))
-        e = r - J @ eps
-        sc = 1.4826 * float(np.median(np.abs(e))) + 1e-12
-        w = np.minimum(1.0, 1.345 * sc / np.maximum(np.abs(e), 1e-12))
-    H = J.T @ (J * w[:, None])
-    Hi = np.linalg.inv(H)
-    cov = Hi * float(np.sum(w * e**2) / max(len(r) - 3, 1))
-    groups = np.unique(cl)
-    if len(groups) >= 3:
-        U = np.array([(J[cl == q] * w[cl == q, None]).T @ e[cl == q] for q in groups])
-        V = Hi @ (U.T @ U) @ Hi * len(groups) / (len(groups) - 1)
-        if np.trace(V) > np.trace(cov):
-            cov = V
+    fit = _huber_lsq_clustered(np.vstack(X), np.concatenate(rows),
+                               np.repeat(tm.cluster[tm.is_carry], 3), iters=6, scale_floor=1e-12)
+    if fit is None:
+        return None
+    eps, cov, n_carries = fit
     b = pan_axis_in_imu(orient, stations) if pan_axis_imu is None else np.asarray(pan_axis_imu)
     u = ext.R_imu_lidar.T @ b  # the pan axis in the lidar frame: α = u·ε
     alpha = float(u @ eps)
     sigma = float(np.sqrt(max(float(u @ cov @ u), 0.0)))
-    return MountYaw(alpha, sigma, len(meas), len(groups), b)
+    return MountYaw(alpha, sigma, len(meas), n_carries, b)
 
 
 # ---- IMU time offset from the head's turns (lidar sweeps registered against each other) ---------
