@@ -178,6 +178,16 @@ class Extrinsic:
         return [float(w), float(x), float(y), float(z)]
 
 
+def _one_hemisphere(q_wxyz: np.ndarray) -> np.ndarray:
+    """A copy of the attitude track (K, 4) with each quaternion's sign chosen on its
+    predecessor's hemisphere, so neighbours slerp (and smooth) the short way."""
+    q = np.array(q_wxyz)  # a copy, its dtype kept
+    for k in range(1, len(q)):
+        if np.dot(q[k], q[k - 1]) < 0:
+            q[k] = -q[k]
+    return q
+
+
 def smooth_quaternions(t_ns: np.ndarray, q_wxyz: np.ndarray, span_s: float) -> np.ndarray:
     """Zero-phase smoothing of an attitude track (K, 4) w, x, y, z (one hemisphere along the
     track) sampled at ``t_ns`` (K,) [ns, non-decreasing]: at each sample, the rotation vectors
@@ -256,11 +266,7 @@ class ImuOrientation:
         self.clock = clock
         self.host_minus_lidar_ns = clock.host_minus_lidar_ns
         self.time_offset_ns = int(time_offset_ns)
-        q = imu.q_wxyz.copy()
-        # one hemisphere along the track, so neighbours slerp the short way
-        for k in range(1, len(q)):
-            if np.dot(q[k], q[k - 1]) < 0:
-                q[k] = -q[k]
+        q = _one_hemisphere(imu.q_wxyz)
         self._base_t = clock.to_lidar(dejitter_periodic(imu.host_ns))
         self.smooth_s = float(smooth_s)
         self._q = smooth_quaternions(self._base_t, q, smooth_s) if smooth_s > 0 else q
@@ -297,14 +303,11 @@ class ImuOrientation:
         (:func:`smooth_quaternions`, zero-phase), computed once per track and span (the
         ``with_offset`` copies share it): a low-noise attitude for what changes with the
         offset, where the samples' own noise must stay put (:func:`calibration.fit_turn_offset`
-        with ``anchor_noise_smooth_s``)."""
+        with ``anchor_smooth_s``)."""
         cache = self._smoothed_tracks()
         key = round(float(span_s), 6)
         if key not in cache:
-            q = self.imu.q_wxyz.copy()
-            for k in range(1, len(q)):
-                if np.dot(q[k], q[k - 1]) < 0:
-                    q[k] = -q[k]
+            q = _one_hemisphere(self.imu.q_wxyz)
             cache[key] = smooth_quaternions(self._base_t, q, span_s) if span_s > 0 else q
         o = ImuOrientation.__new__(ImuOrientation)
         o.imu, o.clock, o.host_minus_lidar_ns, o._base_t = (
