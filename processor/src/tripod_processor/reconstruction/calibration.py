@@ -636,6 +636,9 @@ class SelfCalibration:
     #: its ``to_dict``) when it was estimated; None: held at hand-eye's (unobservable from the
     #: stations)
     mount_yaw: dict | None = None
+    #: [deg] the spread of the stations' own tilt fits (sigma of their mean) that the
+    #: pipeline's ``calibration.tilt_spread_max_deg`` measured; NaN when not measured
+    tilt_spread_sigma_deg: float = float("nan")
 
     def lever_arm_by_mount(self) -> dict | None:
         """The lever arm's sigma along the lidar's spin axis (projected across the pan axis)
@@ -692,6 +695,8 @@ class SelfCalibration:
             **({"imu_yaw_drift_deg_per_min": self.yaw_drift_deg_per_min}
                if np.isfinite(self.yaw_drift_deg_per_min) else {}),
             **({"mount_yaw_from_carries": self.mount_yaw} if self.mount_yaw else {}),
+            **({"mount_tilt_spread_sigma_deg": self.tilt_spread_sigma_deg}
+               if np.isfinite(self.tilt_spread_sigma_deg) else {}),
         }
 
 

@@ -270,6 +270,13 @@ class CalibrationConfig(StrictModel):
     tilt_sigma_inflation: float = Field(default=2.0, gt=0)
     #: off: hand-eye's tilt is kept whenever the surfaces' sigma is over 0.05° (the old rule)
     tilt_from_surfaces: bool = True
+    #: on a lidar whose spin axis lies within this angle [deg] of the pan axis, the surfaces'
+    #: tilt sigma is at least the spread of the stations' own fits (each station fitted alone
+    #: from the joint result; sigma of their mean): the model's sigma counts every voxel as
+    #: independent and missed a bias the stations do not share (dev seed 722, a near-vertical
+    #: lidar in a corridor: 0.78° off at sigma 0.03°; its stations' own fits 0.06-1.13° off).
+    #: 0: off (the model's sigma alone, the old rule)
+    tilt_spread_max_deg: float = Field(default=0.0, ge=0, le=90)
     #: the mount's turn about the pan axis from the carries' sweep pairs
     #: (``calibration.mount_yaw_from_carries``): no station sees it (the head turns about that
     #: axis only), so hand-eye's noise stayed in it (dev seeds 83, 87, 40, 609: 1.2-2.2°) and

@@ -406,6 +406,8 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
         cal = _fit_surfaces(rec, seg, orient, ext, cfg, pps, fit_lever=fit_lever,
                             fit_time=fit_time_surf, fit_rotation=fit_rot,
                             split_iterations=split, iterations=8 + split, **prior)
+        if fit_rot:
+            _tilt_spread_sigma(rec, seg, orient, cfg, cal, pps, fit_lever, fit_time_surf, prior)
         if fit_rot and not cal.rotation_observable:
             # the stations' surfaces hardly see the mount's tilt (a spin axis near the pan axis
             # in a small room: the tilt's blur is its angle times the range); hand-eye's sees it
@@ -822,6 +824,7 @@ def _weigh_tilt(rec, seg, orient, ext, cfg, cal, fit_lever, fit_time, prior,
         more = _fit_surfaces(rec, seg, orient, ext, cfg, pps, fit_lever=fit_lever,
                              fit_time=fit_time, fit_rotation=True,
                              max_stations=cc.max_tilt_stations, **prior)
+        _tilt_spread_sigma(rec, seg, orient, cfg, more, pps, fit_lever, fit_time, prior)
         if more.rotation_sigma_deg < cal.rotation_sigma_deg:
             cal = more
     s_s = cc.tilt_sigma_inflation * cal.rotation_sigma_deg
@@ -838,6 +841,51 @@ def _weigh_tilt(rec, seg, orient, ext, cfg, cal, fit_lever, fit_time, prior,
     return R, (f"WARNING: mount tilt poorly observable: the surfaces' ({len(cal.stations)} "
                f"stations, σ {s_s:.2f}°) and hand-eye's (σ {s_h:.2f}°) weighed, "
                f"{np.degrees(np.linalg.norm(w * d)):.2f}° from hand-eye's, σ {s:.2f}°")
+
+
+def _tilt_spread_sigma(rec, seg, orient, cfg, cal, pps, fit_lever, fit_time, prior) -> None:
+    """``cal``'s tilt sigma raised to the spread of its stations' own fits (each station alone,
+    started from ``cal``'s result; the sigma of their mean, the larger of the two tilts) when
+    ``calibration.tilt_spread_max_deg`` > 0, the lidar's spin axis lies within it of the pan
+    axis, and ``cal`` used at least 3 stations; ``rotation_observable`` follows. The model's
+    sigma counts every voxel's residuals as independent; a bias that a station's geometry
+    shares over all of its voxels shows only as stations that disagree."""
+    import dataclasses
+
+    from scipy.spatial.transform import Rotation
+
+    from .calibration import _perp_basis, spin_axis_from_pan_axis_deg
+    from .scaleout import _threaded_map, thread_workers
+
+    cc = cfg.calibration
+    b = cal.pan_axis_imu
+    use = [st for st in seg.stations if st.index in set(cal.stations)]
+    if (cc.tilt_spread_max_deg <= 0 or len(use) < 3
+            or spin_axis_from_pan_axis_deg(b, cal.R_imu_lidar) > cc.tilt_spread_max_deg):
+        return
+    start = Extrinsic(cal.R_imu_lidar, cal.lever_arm_m.copy(), "calibrated rotation")
+    o = orient.with_offset(cal.time_offset_ns) if fit_time else orient
+    U = _perp_basis(cal.R_imu_lidar.T @ b)  # the seen tilts (lidar frame)
+    def alone(st):  # the station's own tilt against the joint one (2,) [rad], or None
+        try:
+            one = _fit_surfaces(rec, dataclasses.replace(seg, stations=[st]), o, start, cfg,
+                                pps, fit_lever=fit_lever, fit_time=fit_time,
+                                fit_rotation=True, max_stations=1, **prior)
+        except ValueError:
+            return None
+        return U.T @ Rotation.from_matrix(cal.R_imu_lidar.T @ one.R_imu_lidar).as_rotvec()
+
+    # the stations side by side, one a thread (each fit then runs on one)
+    d = [x for x in _threaded_map(alone, [(st,) for st in use],
+                                  thread_workers(cfg.num_threads, len(use))) if x is not None]
+    if len(d) < 3:
+        return
+    d = np.array(d)
+    s_deg = float(np.degrees(np.sqrt(np.max(np.var(d, axis=0, ddof=1)) / len(d))))
+    cal.tilt_spread_sigma_deg = s_deg
+    if s_deg > cal.rotation_sigma_deg:
+        cal.rotation_sigma_deg = s_deg
+        cal.rotation_observable = bool(s_deg < 0.05)
 
 
 def effective_calibration(ext: Extrinsic, orient: ImuOrientation, pc, cal) -> dict:
