@@ -366,6 +366,24 @@ class OdometryConfig(StrictModel):
     #: floor of the edge standard deviations [m], [deg] (registration information is capped)
     sigma_floor_m: float = Field(default=0.003, gt=0)
     sigma_floor_deg: float = Field(default=0.03, gt=0)
+    #: cap the oriented refine's translation information by its surface support counted per
+    #: patch, not per point (``odometry.patch_support_information``): each ``patch_cell_m``
+    #: cell of the overlap is one measurement of ``patch_sigma_m`` along the normals it holds
+    #: (a share of at least ``patch_normal_share``; a wall's noisy normals add nothing
+    #: vertical). 0: off (the per-point information, capped only at ``sigma_floor_m``). Dev
+    #: seed 722's pair round a corridor's corner (0.6 % of its points on horizontal surfaces)
+    #: claimed sigma_z 2.7 mm and slipped 5.7-6.4 cm
+    patch_sigma_m: float = Field(default=0.0, ge=0)
+    patch_cell_m: float = Field(default=0.5, gt=0)
+    patch_normal_share: float = Field(default=0.1, ge=0, lt=1)
+    #: the largest sigma [m] the patch cap gives a direction no patch supports
+    patch_sigma_max_m: float = Field(default=0.2, gt=0)
+    #: probe a pair's translation direction with the least patch support (the smallest
+    #: eigenvalue of ``odometry.patch_support`` under ``flat_probe_support`` cells): the
+    #: oriented refine again from the result moved +-``flat_probe_m`` along it (rotation
+    #: held); how far a start stays is that direction's sigma (``cap_flat_direction``). 0: off
+    flat_probe_m: float = Field(default=0.0, ge=0)
+    flat_probe_support: float = Field(default=8.0, ge=0)
     #: finish every pair with point-to-plane ICP on oriented normals (6 cm voxels): surfaces
     #: seen from opposite sides (a wall between two rooms) are never paired
     oriented_refine: bool = True

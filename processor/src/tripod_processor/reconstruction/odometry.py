@@ -62,6 +62,79 @@ def _cap_information(info: np.ndarray, cfg: OdometryConfig) -> np.ndarray:
     return scaled / np.outer(s, s)
 
 
+def patch_support(src_points: np.ndarray, src_normals: np.ndarray, tgt_points: np.ndarray,
+                  tgt_normals: np.ndarray, T_target_source: np.ndarray, max_dist: float,
+                  cell_m: float, voxel_m: float, normal_share: float = 0.1,
+                  max_source: int = 40_000, planar_ratio: float = 0.1) -> np.ndarray:
+    """The overlap's surface support per patch, (3, 3) in the target frame: the sum over the
+    ``cell_m`` cells of the overlap (source points within ``max_dist`` of a target point whose
+    normal agrees, cosine > 0.5) of each cell's normal spread (the mean n nᵀ of its points,
+    its eigen-directions holding less than ``normal_share`` dropped: a wall's normal noise is
+    no vertical support) times its covered share (its points over a full cell's at
+    ``voxel_m``, at most 1). dᵀ S d counts the surface patches that constrain a translation
+    along the unit d. Normals of 0 (invalid) are ignored."""
+    from scipy.spatial import cKDTree
+
+    src = np.asarray(src_points, np.float64)
+    ns = np.asarray(src_normals, np.float64)
+    keep = np.linalg.norm(ns, axis=1) > 0.5
+    src, ns = src[keep], ns[keep]
+    if len(src) > max_source:
+        step = int(np.ceil(len(src) / max_source))
+        src, ns = src[::step], ns[::step]
+    tgt = np.asarray(tgt_points, np.float64)
+    nt = np.asarray(tgt_normals, np.float64)
+    S = np.zeros((3, 3))
+    if len(src) == 0 or len(tgt) == 0:
+        return S
+    R, t = np.asarray(T_target_source)[:3, :3], np.asarray(T_target_source)[:3, 3]
+    p = src @ R.T + t
+    n = ns @ R.T
+    d, j = cKDTree(tgt).query(p, distance_upper_bound=max_dist)
+    hit = np.isfinite(d)
+    hit[hit] &= np.einsum("ij,ij->i", n[hit], nt[j[hit]]) > 0.5
+    if not hit.any():
+        return S
+    p, n = p[hit], n[hit]
+    full = (cell_m / voxel_m) ** 2
+    _, cell, counts = np.unique(np.floor(p / cell_m).astype(np.int64), axis=0,
+                                return_inverse=True, return_counts=True)
+    cell = cell.ravel()
+    M = np.zeros((len(counts), 3, 3))
+    np.add.at(M, cell, n[:, :, None] * n[:, None, :])
+    M /= counts[:, None, None]
+    w, V = np.linalg.eigh(M)
+    w = np.where(w >= normal_share, w, 0.0)
+    # a planar cell (its points' thickness under a ``planar_ratio`` of their spread in the
+    # plane) is one plane: its normal from the cell's points, whose scatter averages out the
+    # range noise that tilts the 12-neighbour normals of a far wall (dev 722: walls at 6-7 m
+    # with |n . up| 0.4 on average, 5 cells' worth of vertical support that was not there)
+    mean = np.zeros((len(counts), 3))
+    np.add.at(mean, cell, p)
+    mean /= counts[:, None]
+    q = p - mean[cell]
+    C = np.zeros((len(counts), 3, 3))
+    np.add.at(C, cell, q[:, :, None] * q[:, None, :])
+    lc, Vc = np.linalg.eigh(C / counts[:, None, None])
+    planar = (counts >= 10) & (lc[:, 0] < planar_ratio * lc[:, 1])
+    w[planar] = [0.0, 0.0, 1.0]
+    V[planar] = Vc[planar][:, :, [1, 2, 0]]
+    w *= np.minimum(1.0, counts / full)[:, None]
+    return np.einsum("ckj,cj,clj->kl", V, w, V)
+
+
+def cap_by_patches(info: np.ndarray, support: np.ndarray, cfg: OdometryConfig) -> np.ndarray:
+    """``info`` (6, 6; the pose graph's order, translation in the target frame) capped so that
+    along no translation direction d it claims more than dᵀ S d / ``patch_sigma_m``² +
+    1 / ``patch_sigma_max_m``² (S: :func:`patch_support`), the rotation at the floor's cap;
+    the matrix is whitened by the cap and its eigenvalues clipped at 1 (as
+    :func:`_cap_information`)."""
+    C = np.zeros((6, 6))
+    C[:3, :3] = support / cfg.patch_sigma_m**2 + np.eye(3) / cfg.patch_sigma_max_m**2
+    C[3:, 3:] = np.eye(3) / np.radians(cfg.sigma_floor_deg) ** 2
+    return _cap_whitened(info, C)
+
+
 class CloudCache:
     """Fragments prepared for registration (tree, covariances) once per voxel size.
 
@@ -217,7 +290,55 @@ def oriented_refine(source: np.ndarray, target: np.ndarray, T_init: np.ndarray,
     fit, rmse = r.fitness, r.residual_rmse
     # the core's information assumes residuals of sigma: scale it to the measured ones
     info = information_target_frame(r.information, T) * (sigma / max(rmse, sigma)) ** 2
+    if (cfg.patch_sigma_m > 0 or cfg.flat_probe_m > 0) and hold_rotation is None:
+        S = patch_support(src.points, src.normals, tgt.points, tgt.normals, T, max_dist,
+                          cfg.patch_cell_m, voxel, cfg.patch_normal_share, max_source)
+        if cfg.patch_sigma_m > 0:
+            info = cap_by_patches(info, S, cfg)
+        ev, EV = np.linalg.eigh(S)
+        if cfg.flat_probe_m > 0 and ev[0] < cfg.flat_probe_support:
+            def probe(T0):
+                return reg.register(src, tgt, method="plane", init=T0,
+                                    max_correspondence_distance=max_dist,
+                                    max_iterations=iterations, rotation_eps=1e-6,
+                                    translation_eps=1e-5, loss="huber", loss_scale=2 * sigma,
+                                    point_sigma=sigma, oriented=True,
+                                    max_source=min(max_source, 10_000), min_correspondences=100,
+                                    num_threads=num_threads, rotation_prior=T[:3, :3],
+                                    rotation_prior_sigma=0.0).T_target_source
+            info = cap_flat_direction(info, T, EV[:, 0], cfg.flat_probe_m, probe, cfg)
     return T, info, fit, rmse
+
+
+def cap_flat_direction(info: np.ndarray, T: np.ndarray, d: np.ndarray, step_m: float, refine,
+                       cfg: OdometryConfig) -> np.ndarray:
+    """``info`` capped along the translation direction ``d`` (unit, target frame) by how flat
+    the cost is there: ``refine(T0)`` (the registration, rotation held) is started from ``T``
+    moved ±``step_m`` along d, and the larger distance along d at which a start stays from
+    ``T`` is the direction's sigma (at least ``sigma_floor_m``). A well-constrained direction
+    brings both starts back (mm); along a flat one (dev 722's pair round a corridor's corner,
+    vertical: 0.6 % of its points on horizontal surfaces) they stay where they start."""
+    d = np.asarray(d, np.float64) / np.linalg.norm(d)
+    off = []
+    for sgn in (1.0, -1.0):
+        T0 = np.array(T, dtype=np.float64)
+        T0[:3, 3] += sgn * step_m * d
+        off.append(abs(float((np.asarray(refine(T0))[:3, 3] - T[:3, 3]) @ d)))
+    sigma_d = max(max(off), cfg.sigma_floor_m)
+    C = np.zeros((6, 6))
+    C[:3, :3] = (np.eye(3) - np.outer(d, d)) / cfg.sigma_floor_m**2 + np.outer(d, d) / sigma_d**2
+    C[3:, 3:] = np.eye(3) / np.radians(cfg.sigma_floor_deg) ** 2
+    return _cap_whitened(info, C)
+
+
+def _cap_whitened(info: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """``info`` whitened by the cap ``C`` (6, 6, positive definite), its eigenvalues clipped at
+    1, and mapped back: no direction claims more than C does."""
+    w, V = np.linalg.eigh(0.5 * (C + C.T))
+    half, ihalf = (V * np.sqrt(w)) @ V.T, (V / np.sqrt(w)) @ V.T
+    scaled = ihalf @ info @ ihalf
+    w2, V2 = np.linalg.eigh(0.5 * (scaled + scaled.T))
+    return half @ ((V2 * np.clip(w2, 0.0, 1.0)) @ V2.T) @ half
 
 
 def level_rotation(R_target_source: np.ndarray, up_source: np.ndarray,
