@@ -274,9 +274,12 @@ class CalibrationConfig(StrictModel):
     #: tilt sigma is at least the spread of the stations' own fits (each station fitted alone
     #: from the joint result; sigma of their mean): the model's sigma counts every voxel as
     #: independent and missed a bias the stations do not share (dev seed 722, a near-vertical
-    #: lidar in a corridor: 0.78° off at sigma 0.03°; its stations' own fits 0.06-1.13° off).
-    #: 0: off (the model's sigma alone, the old rule)
-    tilt_spread_max_deg: float = Field(default=0.0, ge=0, le=90)
+    #: lidar in a corridor: 0.78° off at sigma 0.03°; its stations' own fits 0.06-1.13° off;
+    #: with it hand-eye's tilt is kept: 16.1 -> 0.72 cm / 0.77 -> 0.10°; dev 1042, also a
+    #: corridor: 3.86 -> 0.57 cm / 0.36 -> 0.02°; the other near-vertical dev rigs 0, 2, 694,
+    #: 721 within 0.1 mm / better in angle; side mounts skip it). Cost: the stations fitted
+    #: again (+5-15 CPU-s a capture on those rigs). 0: off (the model's sigma alone, the old rule)
+    tilt_spread_max_deg: float = Field(default=30.0, ge=0, le=90)
     #: the mount's turn about the pan axis from the carries' sweep pairs
     #: (``calibration.mount_yaw_from_carries``): no station sees it (the head turns about that
     #: axis only), so hand-eye's noise stayed in it (dev seeds 83, 87, 40, 609: 1.2-2.2°) and
