@@ -33,6 +33,8 @@ WAYS = {
     "split+mount": {"combine": "split", "carry_mount": True},
     "split+mount+floor1": {"combine": "split", "carry_mount": True, "carry_floor_ms": 1.0},
     "split+mount+floor2": {"combine": "split", "carry_mount": True, "carry_floor_ms": 2.0},
+    # the pipeline's default since stop 38 (calibration.turn_carry_floor_ms 0.5)
+    "split+mount+floor.5": {"combine": "split", "carry_mount": True, "carry_floor_ms": 0.5},
     "stations": {"kind": False},
     "carries": {"kind": True},
     "carries+mount": {"kind": True, "carry_mount": True},

@@ -1282,6 +1282,40 @@ def _pick_pairs(dr: np.ndarray, k: np.ndarray, j: np.ndarray, n_times: int, n_pa
     return chosen
 
 
+def carry_pairs(orient: ImuOrientation, span: tuple[int, int], n_pairs: int, *,
+                step_s: float = 0.1, window_s: float = 0.1,
+                carry_pair_s: tuple[float, float] = (0.2, 0.5), max_turn_deg: float = 180.0,
+                min_rate_change_deg_s: float = 4.0
+                ) -> tuple[np.ndarray, np.ndarray, list[tuple[int, int, float]]]:
+    """The sweep pairs :func:`turn_measurements` registers in one carry (lidar-time ``span``
+    [ns]): (sweep start times [ns], their middles [ns], chosen (k, j, rate change [rad/s])).
+    Sweeps of ``window_s`` every ``step_s``, pairs ``carry_pair_s`` apart turned at most
+    ``max_turn_deg``, where the carried head's rotation rate (a vector) changes most (at least
+    ``min_rate_change_deg_s``), each sweep in one pair, at most ``n_pairs``."""
+    win = int(window_s * 1e9)
+    times = np.arange(span[0], span[1] - win, int(step_s * 1e9), dtype=np.int64)
+    mids = times + win // 2
+    lo = max(1, int(round(carry_pair_s[0] / step_s)))
+    hi = max(lo, int(round(carry_pair_s[1] / step_s)))
+    if len(times) <= lo:
+        return times, mids, []
+    R_w = orient.rotation_at(mids)
+    w_w = _world_rate(orient, mids, 50_000_000)  # (N, 3) [rad/s]
+    cand_dr, cand_k, cand_j = [], [], []
+    for lag in range(lo, min(hi, len(times) - 1) + 1):
+        k = np.arange(len(times) - lag)
+        j = k + lag
+        ang = _turn_angles_deg(R_w[k], R_w[j], (max_turn_deg,))
+        dr = np.linalg.norm(w_w[j] - w_w[k], axis=1)
+        ok = (np.degrees(dr) >= min_rate_change_deg_s) & (ang <= max_turn_deg)
+        cand_dr.append(dr[ok])
+        cand_k.append(k[ok])
+        cand_j.append(j[ok])
+    chosen = _pick_pairs(np.concatenate(cand_dr), np.concatenate(cand_k),
+                         np.concatenate(cand_j), len(times), n_pairs)
+    return times, mids, chosen
+
+
 def turn_measurements(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
                       ext: Extrinsic, num_threads: int = 0, *, max_stations: int = 8,
                       pairs_per_station: int = 6, step_s: float = 0.1,
@@ -1442,28 +1476,11 @@ def turn_measurements(lidar: LidarPackets, stations: list[Station], orient: ImuO
         return register_chosen(times, mids, chosen, num_threads, 0.5)
 
     def carry_turns(span: tuple[int, int], num_threads: int) -> list[Meas]:
-        """One carry's measurements, as :func:`station_turns`: sweeps ``carry_pair_s`` apart
-        where the carried head's rotation rate (a vector) changes most."""
-        times = np.arange(span[0], span[1] - win, int(step_s * 1e9), dtype=np.int64)
-        lo = max(1, int(round(carry_pair_s[0] / step_s)))
-        hi = max(lo, int(round(carry_pair_s[1] / step_s)))
-        if len(times) <= lo:
-            return []
-        mids = times + win // 2
-        R_w = orient.rotation_at(mids)
-        w_w = _world_rate(orient, mids, 50_000_000)  # (N, 3) [rad/s]
-        cand_dr, cand_k, cand_j = [], [], []
-        for lag in range(lo, min(hi, len(times) - 1) + 1):
-            k = np.arange(len(times) - lag)
-            j = k + lag
-            ang = _turn_angles_deg(R_w[k], R_w[j], (turn_max,))
-            dr = np.linalg.norm(w_w[j] - w_w[k], axis=1)
-            ok = (np.degrees(dr) >= min_rate_change_deg_s) & (ang <= turn_max)
-            cand_dr.append(dr[ok])
-            cand_k.append(k[ok])
-            cand_j.append(j[ok])
-        chosen = _pick_pairs(np.concatenate(cand_dr), np.concatenate(cand_k),
-                             np.concatenate(cand_j), len(times), pairs_per_carry)
+        """One carry's measurements (:func:`carry_pairs`), as :func:`station_turns`."""
+        times, mids, chosen = carry_pairs(orient, span, pairs_per_carry, step_s=step_s,
+                                          window_s=window_s, carry_pair_s=carry_pair_s,
+                                          max_turn_deg=turn_max,
+                                          min_rate_change_deg_s=min_rate_change_deg_s)
         return register_chosen(times, mids, chosen, num_threads, carry_min_range_m, True)
 
     spans = sorted(carries or [], key=lambda c: c[0] - c[1])[:max_carries]  # longest first
