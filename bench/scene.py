@@ -36,7 +36,7 @@
 
 Usage: ``python bench/scene.py [--quick] [--pairs 50] [--pictures] [--only SECTION]
 [--split test|dev|val|test2|test3] [--buildings 3] [--no-lofo] [--lofo-steps N] [--lofo-per-family N]
-[--lofo-models DIR] [--lofo-older-generator] [--weights NPZ]
+[--lofo-models DIR] [--lofo-older-generator] [--generator N] [--weights NPZ]
 [--no-twin] [--pair-split test|dev] [--hm-split S] [--hm-scenes ...] [--pair-source twin|synthetic] [--no-baselines]``
 (``--pictures`` rewrites docs/*.png; ``--quick``: two families, one building each, small
 leave-one-family-out models, the room capture only of the twin, 8 pairs from the first seed,
@@ -615,6 +615,10 @@ def main(argv=None) -> int:
     ap.add_argument("--lofo-older-generator", action="store_true",
                     help="leave-one-family-out: also load saved models trained on an older "
                          "generator's rows (the row says so) instead of training again")
+    ap.add_argument("--generator", type=int, default=None,
+                    help="generated buildings: draw them (and any rows or held-out models "
+                         "trained here) with this version of the generator "
+                         "(procedural.TALL_BY_GENERATOR; default procedural.GENERATOR)")
     ap.add_argument("--weights", default=None, metavar="NPZ",
                     help="segmentation on generated buildings: these weights instead of the "
                          "shipped ones")
@@ -632,6 +636,12 @@ def main(argv=None) -> int:
         a.no_baselines = True
         a.pairs = min(a.pairs, 8)
     DOCS.mkdir(exist_ok=True)
+    if a.generator is not None:  # before anything reads procedural.GENERATOR
+        from tripod_processor.sim import procedural
+
+        if a.generator not in procedural.TALL_BY_GENERATOR:
+            ap.error(f"--generator: one of {sorted(procedural.TALL_BY_GENERATOR)}")
+        procedural.GENERATOR = a.generator
     t0 = time.perf_counter()
     if a.only in (None, "segmentation"):
         bench_procedural(a.split if a.split != "val" else "dev", a.buildings, not a.no_lofo,

@@ -151,3 +151,36 @@ def test_procedural_training_smoke_and_leave_one_family_out_rows():
     m1, r1 = train_on_families(feats, ["rooms"], steps=60, batch=1024, num_threads=1)
     m2, r2 = train_on_families(feats, ["rooms"], steps=60, batch=1024, num_threads=1)
     assert r1.points == 20_000 and r1.final_loss == r2.final_loss
+
+
+def test_tall_buildings_reach_a_halls_height_and_older_generators_stay_reachable():
+    """Generator 3 (opt-in): the tall buildings of rooms, open plans and L/U wings reach 10 m (a
+    hall's range, 4.5-10 m; generator 2, the default, stops at 8 m), drawn from their own
+    stream: the same layout as generator 2's draw, a taller ceiling; a building that is not tall
+    is the same in both."""
+    from tripod_processor.sim import procedural
+
+    assert procedural.GENERATOR == 2 and procedural.TALL is procedural.TALL_BY_GENERATOR[2]
+    for fam in ("rooms", "open_plan", "L", "U"):
+        assert procedural.TALL_BY_GENERATOR[3][fam][2] == 10.0
+        assert procedural.TALL_BY_GENERATOR[2][fam][2] == 8.0
+    # the first train seed of `rooms` whose building is over 8 m high, and one that is not tall
+    heights = {s: make_building("rooms", s, generator=3).height for s in range(30)}
+    over = [s for s, h in heights.items() if h > 8.0]
+    plain = [s for s, h in heights.items() if h < 3.6]
+    assert over and plain, heights
+    b3, b2 = make_building("rooms", over[0], generator=3), make_building("rooms", over[0])
+    assert b3.height > 8.0 and 4.0 <= b2.height <= 8.0
+    assert b3.rooms == b2.rooms and b3.room_types == b2.room_types  # same layout, taller
+    assert b3.vertices[:, 2].max() == pytest.approx(b3.height)
+    n3, n2 = make_building("rooms", plain[0], generator=3), make_building("rooms", plain[0])
+    assert n3.height == n2.height
+    np.testing.assert_array_equal(n3.vertices, n2.vertices)
+    np.testing.assert_array_equal(n3.parts, n2.parts)
+    # the module's version picks the table when none is given (bench/scene.py --generator)
+    old = procedural.GENERATOR
+    try:
+        procedural.GENERATOR = 3
+        assert make_building("rooms", over[0]).height == b3.height
+    finally:
+        procedural.GENERATOR = old

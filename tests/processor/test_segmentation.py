@@ -387,11 +387,11 @@ def test_coplanar_pairs_are_those_of_the_full_matrix():
 
 
 def test_wall_planes_cost_grows_with_the_building_not_its_square():
-    """Regression guard (issue 18's throughput): on a tall building (dev seed, 7.8 m) twice over,
-    ``wall_planes`` costs under half the CPU time of the 10 cm ``planar_segments`` it follows
-    (0.23-0.31 measured; the all-pairs matrix and a pass over every candidate voxel per plane
-    gave 0.67-1.04, growing with the building). CPU time of this process, best of 3: valid on a
-    loaded machine, unlike wall time."""
+    """Regression guard (issue 18's throughput): on a tall building (dev seed, 7.8 m; 9.6 m in
+    generator 3) twice over, ``wall_planes`` costs under half the CPU time of the 10 cm
+    ``planar_segments`` it follows (0.23-0.31 measured; the all-pairs matrix and a pass over
+    every candidate voxel per plane gave 0.67-1.04, growing with the building). CPU time of this
+    process, best of 3: valid on a loaded machine, unlike wall time."""
     import os
     import time
 

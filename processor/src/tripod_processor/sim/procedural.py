@@ -918,30 +918,45 @@ def _stairs(b: _Builder, pl: _Placer, area, h, rng) -> None:
 
 # ------------------------------------------------------------------------------ building
 #: version of the generator: rows and models trained on an older one are told apart by it
-#: (1: issue 18's first two rounds; 2: tall buildings in every family, :data:`TALL`)
+#: (1: issue 18's first two rounds; 2: tall buildings in every family, :data:`TALL`; 3, opt-in:
+#: their tall range reaches a hall's 10 m — not the default: the weights trained on its rows
+#: were worse on 30 dev halls, shipped and held out). Set it (``bench/scene.py --generator 3``)
+#: to draw another version's buildings (2 and 3: only :data:`TALL_BY_GENERATOR` differs).
 GENERATOR = 2
-#: family -> (chance, lowest, highest [m]): some buildings of every family but the hall are
-#: tall (lobbies, atria, old buildings, workshops), so that a model never trained on halls has
-#: seen small rooms with walls 4-8 m high. Drawn from a stream of its own: the layout and
-#: contents of a building are those of its normal-height draw.
-TALL = {"rooms": (0.3, 4.0, 8.0), "corridor": (0.2, 3.5, 6.0), "open_plan": (0.3, 4.0, 8.0),
-        "L": (0.3, 4.0, 8.0), "U": (0.3, 4.0, 8.0), "apartment": (0.25, 3.0, 4.5)}
+#: generator version -> family -> (chance, lowest, highest [m]): some buildings of every family
+#: but the hall are tall (lobbies, atria, old buildings, workshops), so that a model never trained
+#: on halls has seen small rooms with walls as high as a hall's (4.5-10 m; generator 2 stopped at
+#: 8 m, so walls of 8-10 m were a hall's alone). Drawn from a stream of its own: the layout and
+#: contents of a building are those of its normal-height draw, and a building that is not tall is
+#: the same in every version; a tall one keeps its uniform draw, scaled to the new range.
+TALL_BY_GENERATOR = {
+    2: {"rooms": (0.3, 4.0, 8.0), "corridor": (0.2, 3.5, 6.0), "open_plan": (0.3, 4.0, 8.0),
+        "L": (0.3, 4.0, 8.0), "U": (0.3, 4.0, 8.0), "apartment": (0.25, 3.0, 4.5)},
+    3: {"rooms": (0.3, 4.0, 10.0), "corridor": (0.2, 3.5, 6.0), "open_plan": (0.3, 4.0, 10.0),
+        "L": (0.3, 4.0, 10.0), "U": (0.3, 4.0, 10.0), "apartment": (0.25, 3.0, 4.5)},
+}
+#: the current version's table (what :func:`make_building` draws with :data:`GENERATOR` unset)
+TALL = TALL_BY_GENERATOR[GENERATOR]
 
 
-def _tall(family: str, h: float, rng) -> float:
-    """The ceiling height [m]: ``h`` or, with :data:`TALL`'s chance, a tall one."""
-    chance, lo, hi = TALL.get(family, (0.0, h, h))
+def _tall(family: str, h: float, rng, generator: int | None = None) -> float:
+    """The ceiling height [m]: ``h`` or, with the chance of ``generator``'s table
+    (:data:`TALL_BY_GENERATOR`, default :data:`GENERATOR`), a tall one."""
+    table = TALL_BY_GENERATOR[GENERATOR if generator is None else int(generator)]
+    chance, lo, hi = table.get(family, (0.0, h, h))
     return float(rng.uniform(lo, hi)) if rng.random() < chance else h
 
 
-def make_building(family: str, seed: int) -> Building:
-    """A random building of ``family`` (one of :data:`FAMILIES`); same (family, seed), same
-    building."""
+def make_building(family: str, seed: int, generator: int | None = None) -> Building:
+    """A random building of ``family`` (one of :data:`FAMILIES`); same (family, seed,
+    generator), same building (``generator``: a version of :data:`TALL_BY_GENERATOR`, default
+    :data:`GENERATOR`)."""
     if family not in FAMILIES:
         raise ValueError(f"unknown family {family!r} (choose from {', '.join(FAMILIES)})")
     rng = np.random.default_rng([int(seed), FAMILIES.index(family), 0xB11D])
     rooms, types, h, opt = _plan(family, rng)
-    h = _tall(family, h, np.random.default_rng([int(seed), FAMILIES.index(family), 0x7A11]))
+    h = _tall(family, h, np.random.default_rng([int(seed), FAMILIES.index(family), 0x7A11]),
+              generator)
     thick = opt.get("thick_walls", False)
     t_ext = rng.uniform(0.3, 0.5) if thick else rng.uniform(0.2, 0.45)
     t_int = rng.uniform(0.08, 0.25)
