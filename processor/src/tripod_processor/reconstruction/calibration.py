@@ -707,30 +707,47 @@ def _pick_stations(stations: list[Station], orient: ImuOrientation, n: int) -> l
 
 def _station_points(lidar: LidarPackets, st: Station, n: int, seed: int, max_range: float,
                     orient: ImuOrientation | None = None,
-                    denoise_firings: int = DENOISE_FIRINGS):
+                    denoise_firings: int = DENOISE_FIRINGS, cache: SweepCache | None = None):
     """About n points of a station (every few packets decoded, their ranges smoothed along the
     scan line over ``denoise_firings`` firings either side, then a random subset). With
     ``orient``, points fired while the head turns slowly (rests, ramps, a hand's pauses) are
-    taken 4x as densely: the time offset shows only between those and the fast ones."""
+    taken 4x as densely: the time offset shows only between those and the fast ones.
+
+    ``cache`` (:class:`SweepCache`): the result kept for a later call with the same station,
+    sample size, seed, range cut, smoothing and slow-turn rates (what the sample depends on: the
+    surfaces' fit runs again on the same stations after the mount tilt is weighed), the same
+    arrays to the bit; the slow-turn rates are the 200 the weights come from, so a call at
+    another time offset draws its own sample."""
     n_pk = st.packet_stop - st.packet_start
     stride = max(1, int(n_pk * 300 / (10 * n)))  # ~300 points a packet after the range cut
-    idx = np.arange(st.packet_start, st.packet_stop, stride)
-    pts = decode_timed_points(lidar.payload[idx], lidar.lidar_ns[idx], 0, len(idx),
-                              min_range=1.0, max_range=max_range)
-    if len(pts) <= n:
-        return denoise_ranges(pts, denoise_firings), pts["time_ns"].astype(np.int64)
-    rng = np.random.default_rng(seed)
-    w = np.ones(len(pts))
+    rate = None
     if orient is not None:
         grid = np.linspace(st.start_ns, st.end_ns, 200).astype(np.int64)
         rate = np.linalg.norm(_world_rate(orient, grid), axis=1)
-        slow = np.interp(pts["time_ns"], grid, rate) < 0.7 * np.percentile(rate, 95)
-        w[slow] = 4.0
-    keep = np.sort(rng.choice(len(pts), n, replace=False, p=w / w.sum()))
-    # the kept points' ranges smoothed over all the decoded ones (the same to the bit as
-    # smoothing all, then keeping: a tenth of the cost)
-    xyz = denoise_ranges(pts, denoise_firings, at=keep)
-    return xyz, pts["time_ns"][keep].astype(np.int64)
+
+    def make():
+        idx = np.arange(st.packet_start, st.packet_stop, stride)
+        pts = decode_timed_points(lidar.payload[idx], lidar.lidar_ns[idx], 0, len(idx),
+                                  min_range=1.0, max_range=max_range)
+        if len(pts) <= n:
+            return denoise_ranges(pts, denoise_firings), pts["time_ns"].astype(np.int64)
+        rng = np.random.default_rng(seed)
+        w = np.ones(len(pts))
+        if rate is not None:
+            slow = np.interp(pts["time_ns"], grid, rate) < 0.7 * np.percentile(rate, 95)
+            w[slow] = 4.0
+        keep = np.sort(rng.choice(len(pts), n, replace=False, p=w / w.sum()))
+        # the kept points' ranges smoothed over all the decoded ones (the same to the bit as
+        # smoothing all, then keeping: a tenth of the cost)
+        xyz = denoise_ranges(pts, denoise_firings, at=keep)
+        return xyz, pts["time_ns"][keep].astype(np.int64)
+
+    if cache is None:
+        return make()
+    key = ("station", id(lidar.payload), int(st.packet_start), int(st.packet_stop),
+           int(st.start_ns), int(st.end_ns), int(n), int(seed), float(max_range),
+           int(denoise_firings), None if rate is None else rate.tobytes())
+    return cache.get(key, make)
 
 
 def _world_rate(orient: ImuOrientation, t_ns: np.ndarray, h_ns: int = 100_000_000
@@ -866,7 +883,8 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
                    split_iterations: int = 0,
                    denoise_firings: int = DENOISE_FIRINGS,
                    fit_yaw_drift: bool = False,
-                   yaw_drift_prior_deg_per_min: float = float("inf")) -> SelfCalibration:
+                   yaw_drift_prior_deg_per_min: float = float("inf"),
+                   points_cache: SweepCache | None = None) -> SelfCalibration:
     """Lever arm, IMU time offset and mount rotation that make every station self-consistent.
 
     At a standing station the head turns about a fixed pivot, so a surface seen at two moments
@@ -904,6 +922,8 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
 
     The stations' sampling and residuals run side by side on ``num_threads`` threads (0: every
     core), one station a thread, gathered in station order: the same result on any count.
+    ``points_cache`` (:class:`SweepCache`): the stations' sample points kept for the run's later
+    fits (:func:`_station_points`; the same result to the bit).
     """
     from scipy.spatial.transform import Rotation
 
@@ -916,7 +936,7 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
     off = orient.time_offset_ns
     data = _threaded_map(_station_points, [
         (lidar, st, points_per_station, 11 + k, max_range, orient if fit_time else None,
-         denoise_firings) for k, st in enumerate(use)], workers)
+         denoise_firings, points_cache) for k, st in enumerate(use)], workers)
     sep_ns = int(min_separation_s * 1e9)
     cols = (["l1", "l2"] if fit_lever else []) + (["dt"] if fit_time else []) + (
         ["r1", "r2"] if fit_rotation else []) + (["yd"] if fit_yaw_drift else [])
