@@ -816,9 +816,10 @@ def _voxel_plane_residuals(p: np.ndarray, J: np.ndarray, t: np.ndarray, voxel_m:
     c, d, ev, nrm, Jbar = _voxel_planes(ps, Js, iv, W)
     planar = ev[:, 0] < 0.2 * ev[:, 1]
     keep = planar[iv]
-    nn = nrm[iv][keep]
+    ivk = iv[keep]  # the planar voxels' points' voxels (gathered once, not per array)
+    nn = nrm[ivk]
     r = np.einsum("qi,qi->q", nn, d[keep])
-    Jr = np.einsum("qi,qij->qj", nn, Js[keep] - Jbar[iv][keep])
+    Jr = np.einsum("qi,qij->qj", nn, Js[keep] - Jbar[ivk])
     return r, Jr
 
 
@@ -882,7 +883,8 @@ def _split_plane_residuals(p: np.ndarray, J: np.ndarray, t: np.ndarray, inv: np.
     pos_c = np.minimum(pos, W - 1)
     has = (pos < W) & (uk[pos_c] == key[late]) & good[pos_c]
     k = pos_c[has]
-    pl, Jl = p[late][has], J[late][has]
+    li = np.flatnonzero(late)[has]  # the kept later points (one gather of J, not two)
+    pl, Jl = p[li], J[li]
     nn = nrm[k]
     r = np.einsum("qi,qi->q", nn, pl - c[k])
     Jr = np.einsum("qi,qij->qj", nn, Jl - Jbar[k])
