@@ -25,14 +25,17 @@ def rig(tmp_path_factory):
 
 
 def _counting(monkeypatch):
+    """The windows decoded (either decoder path of ``_sweep_points``), in call order."""
     calls = []
-    real = cal.decode_timed_points
 
-    def counted(payload, lidar_ns, a, b, **kw):
-        calls.append((a, b))
-        return real(payload, lidar_ns, a, b, **kw)
+    def counting(real):
+        def counted(payload, lidar_ns, a, b, **kw):
+            calls.append((a, b))
+            return real(payload, lidar_ns, a, b, **kw)
+        return counted
 
-    monkeypatch.setattr(cal, "decode_timed_points", counted)
+    for name in ("decode_timed_points", "decode_xyz_time"):
+        monkeypatch.setattr(cal, name, counting(getattr(cal, name)))
     return calls
 
 
@@ -119,3 +122,23 @@ def test_lever_arm_from_turns_stations_side_by_side_the_same_to_the_bit(rig, mon
         assert len(A) == len(A2) and all(np.array_equal(x, y) for x, y in zip(A, A2))
         assert all(np.array_equal(x, y) for x, y in zip(B, B2))
     assert two is None or two.pairs == sum(len(A) for A, _ in seq.values())
+
+
+@pytest.mark.parametrize("firings,min_range", [(5, 0.5), (0, 0.5), (3, 1.5)])
+def test_sweep_points_one_call_equal_to_the_records_smoothed(rig, firings, min_range):
+    """A sweep decoded and smoothed in one decoder call (``decode_xyz_time``) is the records'
+    ``denoise_ranges`` to the bit: the same points, order, xyz and times."""
+    from tripod_processor.decode.timed import decode_timed_points, denoise_ranges
+
+    rec, stations, _, _ = rig
+    lidar = rec.lidar
+    for st in stations[:2]:
+        for a in range(st.packet_start, st.packet_stop - 80, 450):
+            b = a + 75
+            xyz, t = cal._sweep_points(lidar, a, b, min_range, firings)
+            pts = decode_timed_points(lidar.payload, lidar.lidar_ns, a, b,
+                                      min_range=min_range, max_range=40.0)
+            ref = denoise_ranges(pts, firings).astype(np.float32)
+            assert xyz.dtype == np.float32 and t.dtype == np.int64
+            assert np.array_equal(xyz, ref)
+            assert np.array_equal(t, pts["time_ns"].astype(np.int64))

@@ -577,3 +577,30 @@ def test_window_pipeline_gives_the_block_wise_shifts_bit_for_bit(rig):
         assert rng_again.bit_generator.state == rng_old.bit_generator.state
         for w, g in zip(want, again):
             assert np.array_equal(w, g, equal_nan=True)
+
+
+def test_timed_records_filled_in_place_equal_the_per_field_records(rig):
+    """``decode_timed_points`` fills one record array in place (the shared fields in one
+    multi-field copy): the same records, byte for byte, as each decoder call's points copied a
+    field at a time into their own records, then concatenated (the old path)."""
+    from tripod_processor.decode.native import NativeVlp16Decoder
+    from tripod_processor.decode.timed import TIMED_POINT_DTYPE
+
+    _, rec, _ = rig
+    lid = rec.lidar
+    for a, b, chunk in ((100, 2600, 1000), (7, 8, 1000), (50, 50, 1000), (0, 900, 128)):
+        got = decode_timed_points(lid.payload, lid.lidar_ns, a, b, min_range=0.5,
+                                  max_range=40.0, chunk=chunk)
+        dec = NativeVlp16Decoder(min_range_m=0.5, max_range_m=40.0)
+        ref = []
+        for s in range(a, b, chunk):
+            pts = dec.decode(lid.payload[s:min(b, s + chunk)],
+                             lid.lidar_ns[s:min(b, s + chunk)]).points
+            c = np.empty(len(pts), dtype=TIMED_POINT_DTYPE)
+            for f in ("x", "y", "z", "intensity", "ring", "return_type"):
+                c[f] = pts[f]
+            c["time_ns"] = lid.lidar_ns[s] + pts["time_offset_ns"].astype(np.int64)
+            ref.append(c)
+        ref = np.concatenate(ref) if ref else np.empty(0, TIMED_POINT_DTYPE)
+        assert got.dtype == TIMED_POINT_DTYPE and got.tobytes() == ref.tobytes()
+        assert (len(got) > 0) == (b - a > 0)

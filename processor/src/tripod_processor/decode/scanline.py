@@ -71,7 +71,9 @@ def smooth_scanline_ranges(points: np.ndarray, firings: int, max_step_m: float =
     smooth = fit_ranges(rs, ks, ts, firings, max_step_m, fit)
     scale = np.empty(len(rs))
     scale[order] = smooth / np.maximum(rs, 1e-9)
-    return (xyz * scale[:, None]).astype(np.float32)
+    # the float64 product rounded into float32 as it is written (as .astype(np.float32) rounds
+    # it: the same to the bit, without the (M, 3) float64 temporary)
+    return np.multiply(xyz, scale[:, None], out=np.empty_like(xyz))
 
 
 def fit_ranges(rs: np.ndarray, ks: np.ndarray, ts: np.ndarray, firings: int,

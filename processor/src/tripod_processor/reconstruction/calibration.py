@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..decode.timed import decode_timed_points, denoise_ranges
+from ..decode.timed import decode_timed_points, decode_xyz_time, denoise_ranges
 from .inputs import LidarPackets
 from .placement import Extrinsic, ImuOrientation, place_points
 from .scaleout import _threaded_map, thread_workers
@@ -24,6 +24,11 @@ from .stations import Station
 #: over this many firings either side (``decode.timed.denoise_ranges``; config
 #: ``calibration.range_denoise_firings``)
 DENOISE_FIRINGS = 5
+#: a sweep of up to this many packets is decoded and smoothed in one decoder call
+#: (:func:`_sweep_points`; the decoder's int32 time offsets span 2.1 s, 1,000 packets 1.33 s)
+_SWEEP_CHUNK = 1000
+#: :func:`~tripod_processor.decode.timed.denoise_ranges`'s default neighbour step [m]
+_DENOISE_MAX_STEP_M = 0.1
 
 
 def plane_spread(points: np.ndarray, n_query: int = 4000, k: int = 12, seed: int = 0) -> float:
@@ -227,7 +232,19 @@ class SweepCache:
 def _sweep_points(lidar: LidarPackets, a: int, b: int, min_range: float, denoise_firings: int
                   ) -> tuple[np.ndarray, np.ndarray]:
     """The points of packets [a, b) (returns ``min_range``–40 m), ranges smoothed along the
-    scan line: (xyz (N, 3) float32 [m] lidar frame, firing times (N,) int64 [ns])."""
+    scan line: (xyz (N, 3) float32 [m] lidar frame, firing times (N,) int64 [ns]).
+
+    A window of at most :data:`_SWEEP_CHUNK` packets (a sweep: 0.1 s is 75) is one decoder call
+    smoothed as the fragments smooth theirs (:func:`~tripod_processor.decode.timed.
+    decode_xyz_time`, without the per-point records: half the cost), the same points and xyz to
+    the bit as :func:`~tripod_processor.decode.timed.denoise_ranges` of the records (the same
+    fit, scan lines and neighbours; ``tests/processor/test_calibration_sweep_cache.py``)."""
+    if 0 <= b - a <= _SWEEP_CHUNK:
+        xyz, t, _ = decode_xyz_time(lidar.payload, lidar.lidar_ns, a, b, min_range=min_range,
+                                    max_range=40.0, chunk=_SWEEP_CHUNK,
+                                    denoise_firings=denoise_firings,
+                                    denoise_max_step_m=_DENOISE_MAX_STEP_M)
+        return xyz, t
     pts = decode_timed_points(lidar.payload, lidar.lidar_ns, a, b,
                               min_range=min_range, max_range=40.0)
     if not len(pts):
@@ -712,30 +729,47 @@ def _pick_stations(stations: list[Station], orient: ImuOrientation, n: int) -> l
 
 def _station_points(lidar: LidarPackets, st: Station, n: int, seed: int, max_range: float,
                     orient: ImuOrientation | None = None,
-                    denoise_firings: int = DENOISE_FIRINGS):
+                    denoise_firings: int = DENOISE_FIRINGS, cache: SweepCache | None = None):
     """About n points of a station (every few packets decoded, their ranges smoothed along the
     scan line over ``denoise_firings`` firings either side, then a random subset). With
     ``orient``, points fired while the head turns slowly (rests, ramps, a hand's pauses) are
-    taken 4x as densely: the time offset shows only between those and the fast ones."""
+    taken 4x as densely: the time offset shows only between those and the fast ones.
+
+    ``cache`` (:class:`SweepCache`): the result kept for a later call with the same station,
+    sample size, seed, range cut, smoothing and slow-turn rates (what the sample depends on: the
+    surfaces' fit runs again on the same stations after the mount tilt is weighed), the same
+    arrays to the bit; the slow-turn rates are the 200 the weights come from, so a call at
+    another time offset draws its own sample."""
     n_pk = st.packet_stop - st.packet_start
     stride = max(1, int(n_pk * 300 / (10 * n)))  # ~300 points a packet after the range cut
-    idx = np.arange(st.packet_start, st.packet_stop, stride)
-    pts = decode_timed_points(lidar.payload[idx], lidar.lidar_ns[idx], 0, len(idx),
-                              min_range=1.0, max_range=max_range)
-    if len(pts) <= n:
-        return denoise_ranges(pts, denoise_firings), pts["time_ns"].astype(np.int64)
-    rng = np.random.default_rng(seed)
-    w = np.ones(len(pts))
+    rate = None
     if orient is not None:
         grid = np.linspace(st.start_ns, st.end_ns, 200).astype(np.int64)
         rate = np.linalg.norm(_world_rate(orient, grid), axis=1)
-        slow = np.interp(pts["time_ns"], grid, rate) < 0.7 * np.percentile(rate, 95)
-        w[slow] = 4.0
-    keep = np.sort(rng.choice(len(pts), n, replace=False, p=w / w.sum()))
-    # the kept points' ranges smoothed over all the decoded ones (the same to the bit as
-    # smoothing all, then keeping: a tenth of the cost)
-    xyz = denoise_ranges(pts, denoise_firings, at=keep)
-    return xyz, pts["time_ns"][keep].astype(np.int64)
+
+    def make():
+        idx = np.arange(st.packet_start, st.packet_stop, stride)
+        pts = decode_timed_points(lidar.payload[idx], lidar.lidar_ns[idx], 0, len(idx),
+                                  min_range=1.0, max_range=max_range)
+        if len(pts) <= n:
+            return denoise_ranges(pts, denoise_firings), pts["time_ns"].astype(np.int64)
+        rng = np.random.default_rng(seed)
+        w = np.ones(len(pts))
+        if rate is not None:
+            slow = np.interp(pts["time_ns"], grid, rate) < 0.7 * np.percentile(rate, 95)
+            w[slow] = 4.0
+        keep = np.sort(rng.choice(len(pts), n, replace=False, p=w / w.sum()))
+        # the kept points' ranges smoothed over all the decoded ones (the same to the bit as
+        # smoothing all, then keeping: a tenth of the cost)
+        xyz = denoise_ranges(pts, denoise_firings, at=keep)
+        return xyz, pts["time_ns"][keep].astype(np.int64)
+
+    if cache is None:
+        return make()
+    key = ("station", id(lidar.payload), int(st.packet_start), int(st.packet_stop),
+           int(st.start_ns), int(st.end_ns), int(n), int(seed), float(max_range),
+           int(denoise_firings), None if rate is None else rate.tobytes())
+    return cache.get(key, make)
 
 
 def _world_rate(orient: ImuOrientation, t_ns: np.ndarray, h_ns: int = 100_000_000
@@ -787,9 +821,10 @@ def _voxel_plane_residuals(p: np.ndarray, J: np.ndarray, t: np.ndarray, voxel_m:
     c, d, ev, nrm, Jbar = _voxel_planes(ps, Js, iv, W)
     planar = ev[:, 0] < 0.2 * ev[:, 1]
     keep = planar[iv]
-    nn = nrm[iv][keep]
+    ivk = iv[keep]  # the planar voxels' points' voxels (gathered once, not per array)
+    nn = nrm[ivk]
     r = np.einsum("qi,qi->q", nn, d[keep])
-    Jr = np.einsum("qi,qij->qj", nn, Js[keep] - Jbar[iv][keep])
+    Jr = np.einsum("qi,qij->qj", nn, Js[keep] - Jbar[ivk])
     return r, Jr
 
 
@@ -853,7 +888,8 @@ def _split_plane_residuals(p: np.ndarray, J: np.ndarray, t: np.ndarray, inv: np.
     pos_c = np.minimum(pos, W - 1)
     has = (pos < W) & (uk[pos_c] == key[late]) & good[pos_c]
     k = pos_c[has]
-    pl, Jl = p[late][has], J[late][has]
+    li = np.flatnonzero(late)[has]  # the kept later points (one gather of J, not two)
+    pl, Jl = p[li], J[li]
     nn = nrm[k]
     r = np.einsum("qi,qi->q", nn, pl - c[k])
     Jr = np.einsum("qi,qij->qj", nn, Jl - Jbar[k])
@@ -871,7 +907,8 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
                    split_iterations: int = 0,
                    denoise_firings: int = DENOISE_FIRINGS,
                    fit_yaw_drift: bool = False,
-                   yaw_drift_prior_deg_per_min: float = float("inf")) -> SelfCalibration:
+                   yaw_drift_prior_deg_per_min: float = float("inf"),
+                   points_cache: SweepCache | None = None) -> SelfCalibration:
     """Lever arm, IMU time offset and mount rotation that make every station self-consistent.
 
     At a standing station the head turns about a fixed pivot, so a surface seen at two moments
@@ -909,6 +946,8 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
 
     The stations' sampling and residuals run side by side on ``num_threads`` threads (0: every
     core), one station a thread, gathered in station order: the same result on any count.
+    ``points_cache`` (:class:`SweepCache`): the stations' sample points kept for the run's later
+    fits (:func:`_station_points`; the same result to the bit).
     """
     from scipy.spatial.transform import Rotation
 
@@ -921,7 +960,7 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
     off = orient.time_offset_ns
     data = _threaded_map(_station_points, [
         (lidar, st, points_per_station, 11 + k, max_range, orient if fit_time else None,
-         denoise_firings) for k, st in enumerate(use)], workers)
+         denoise_firings, points_cache) for k, st in enumerate(use)], workers)
     sep_ns = int(min_separation_s * 1e9)
     cols = (["l1", "l2"] if fit_lever else []) + (["dt"] if fit_time else []) + (
         ["r1", "r2"] if fit_rotation else []) + (["yd"] if fit_yaw_drift else [])

@@ -82,6 +82,11 @@ class CalibrationConfig(StrictModel):
     #: the calibration. The same results with any value; 0: every sweep decoded anew (the old
     #: path)
     sweep_cache_mb: float = Field(default=256.0, ge=0)
+    #: the surfaces' fit's sample points of each station (decoded, smoothed, drawn) are kept
+    #: for its later fits on the same stations with the same draw (the fit again after the
+    #: mount tilt is weighed, at the same time offset); up to this many MB, dropped after the
+    #: calibration. The same results with any value; 0: every fit decodes anew (the old path)
+    station_points_cache_mb: float = Field(default=128.0, ge=0)
     #: a time offset less certain than this [ms, 1 sigma] is not applied (kept at the prior):
     #: the surfaces' sigma is optimistic (a yaw error hides in walls seen head-on)
     max_time_offset_sigma_ms: float = Field(default=0.5, gt=0)

@@ -378,6 +378,10 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
     ``sweeps`` (:class:`calibration.SweepCache`): the decoded sweeps shared by the turns'
     registrations (hand-eye's too)."""
     cc = cfg.calibration
+    from .calibration import SweepCache
+
+    # the stations' sample points, for the surfaces' later fits on the same stations
+    points = SweepCache(cc.station_points_cache_mb)
     turn = None
     fit_time_surf = fit_time
     mount_free = fit_rot  # the mount not given: its turn about the pan axis is hand-eye's so far
@@ -405,22 +409,25 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
     try:
         cal = _fit_surfaces(rec, seg, orient, ext, cfg, pps, fit_lever=fit_lever,
                             fit_time=fit_time_surf, fit_rotation=fit_rot,
-                            split_iterations=split, iterations=8 + split, **prior)
+                            split_iterations=split, iterations=8 + split,
+                            points_cache=points, **prior)
         if fit_rot:
-            _tilt_spread_sigma(rec, seg, orient, cfg, cal, pps, fit_lever, fit_time_surf, prior)
+            _tilt_spread_sigma(rec, seg, orient, cfg, cal, pps, fit_lever, fit_time_surf, prior,
+                               points_cache=points)
         if fit_rot and not cal.rotation_observable:
             # the stations' surfaces hardly see the mount's tilt (a spin axis near the pan axis
             # in a small room: the tilt's blur is its angle times the range); hand-eye's sees it
             # no better there. More stations, then the two weighed by their sigmas; the rest
             # again with the tilt held
             R_tilt, how = _weigh_tilt(rec, seg, orient, ext, cfg, cal, fit_lever,
-                                      fit_time_surf, prior, tilt_sigma_deg)
+                                      fit_time_surf, prior, tilt_sigma_deg, points)
             ext = Extrinsic(R_tilt, ext.lever_arm_m.copy(), ext.source)
             if fit_lever or fit_time_surf:
                 # pps: the sample size chosen with the mount before the tilt was weighed
                 cal = _fit_surfaces(rec, seg, orient, ext, cfg, pps, fit_lever=fit_lever,
                                     fit_time=fit_time_surf, fit_rotation=False,
-                                    split_iterations=split, iterations=8 + split, **prior)
+                                    split_iterations=split, iterations=8 + split,
+                                    points_cache=points, **prior)
             fit_rot = False
             notes.append(how)
     except ValueError as exc:
@@ -430,7 +437,7 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
     if fit_lever and split == 0:
         # the start was one station's hand-eye lever arm (the turns' too uncertain, or off)
         cal = _refit_far_lever(rec, seg, orient, ext, cfg, cal, fit_time_surf, fit_rot, prior,
-                               notes, uncertain_start=turn_lever is None)
+                               notes, uncertain_start=turn_lever is None, points_cache=points)
     if turn_lever is not None:
         _spin_axis_lever_from_turns(cal, turn_lever, cc.lever_spin_sigma_inflation,
                                     cc.lever_spin_sigma_floor_mm * 1e-3)
@@ -715,7 +722,7 @@ def _lever_start_from_turns(rec, seg, orient, ext, cfg, notes, sweeps=None):
 
 
 def _refit_far_lever(rec, seg, orient, ext, cfg, cal, fit_time, fit_rot, prior, notes,
-                     uncertain_start: bool = False):
+                     uncertain_start: bool = False, points_cache=None):
     """``cal``, or the lever-arm fit continued from it with split residuals
     (``calibration.lever_refit_split_iterations``) when the lidar is on its side (at least
     ``side_mount_warn_deg`` from the pan axis) and ``cal``'s lever arm ended more than
@@ -755,7 +762,8 @@ def _refit_far_lever(rec, seg, orient, ext, cfg, cal, fit_time, fit_rot, prior, 
     try:
         more = _fit_surfaces(rec, seg, o, start, cfg, pps, fit_lever=True, fit_time=fit_time,
                              fit_rotation=fit_rot, split_iterations=k,
-                             iterations=k + cc.lever_refit_usual_iterations, **prior)
+                             iterations=k + cc.lever_refit_usual_iterations,
+                             points_cache=points_cache, **prior)
     except ValueError:
         return cal
     further_mm = 1000 * float(np.linalg.norm(across_axis(more.lever_arm_m - cal.lever_arm_m, b)))
@@ -803,7 +811,7 @@ def _spin_axis_lever_from_turns(cal, lt, inflation: float, floor_m: float = 0.0)
 
 
 def _weigh_tilt(rec, seg, orient, ext, cfg, cal, fit_lever, fit_time, prior,
-                tilt_sigma_deg: float) -> tuple[np.ndarray, str]:
+                tilt_sigma_deg: float, points_cache=None) -> tuple[np.ndarray, str]:
     """(R_imu_lidar, note) for a mount tilt the surfaces of ``cal`` (``max_stations``) do not
     pin down: fitted again on up to ``max_tilt_stations`` stations, then mixed with hand-eye's
     (``ext``, sigma ``tilt_sigma_deg``) by inverse variance when the surfaces' sigma, inflated
@@ -823,8 +831,10 @@ def _weigh_tilt(rec, seg, orient, ext, cfg, cal, fit_lever, fit_time, prior,
         pps = _points_per_station(seg.stations, orient, ext.R_imu_lidar, cfg)
         more = _fit_surfaces(rec, seg, orient, ext, cfg, pps, fit_lever=fit_lever,
                              fit_time=fit_time, fit_rotation=True,
-                             max_stations=cc.max_tilt_stations, **prior)
-        _tilt_spread_sigma(rec, seg, orient, cfg, more, pps, fit_lever, fit_time, prior)
+                             max_stations=cc.max_tilt_stations, points_cache=points_cache,
+                             **prior)
+        _tilt_spread_sigma(rec, seg, orient, cfg, more, pps, fit_lever, fit_time, prior,
+                           points_cache=points_cache)
         if more.rotation_sigma_deg < cal.rotation_sigma_deg:
             cal = more
     s_s = cc.tilt_sigma_inflation * cal.rotation_sigma_deg
@@ -843,7 +853,8 @@ def _weigh_tilt(rec, seg, orient, ext, cfg, cal, fit_lever, fit_time, prior,
                f"{np.degrees(np.linalg.norm(w * d)):.2f}° from hand-eye's, σ {s:.2f}°")
 
 
-def _tilt_spread_sigma(rec, seg, orient, cfg, cal, pps, fit_lever, fit_time, prior) -> None:
+def _tilt_spread_sigma(rec, seg, orient, cfg, cal, pps, fit_lever, fit_time, prior,
+                       points_cache=None) -> None:
     """``cal``'s tilt sigma raised to the spread of its stations' own fits (each station alone,
     started from ``cal``'s result; the sigma of their mean, the larger of the two tilts) when
     ``calibration.tilt_spread_max_deg`` > 0, the lidar's spin axis lies within it of the pan
@@ -870,7 +881,8 @@ def _tilt_spread_sigma(rec, seg, orient, cfg, cal, pps, fit_lever, fit_time, pri
         try:
             one = _fit_surfaces(rec, dataclasses.replace(seg, stations=[st]), o, start, cfg,
                                 pps, fit_lever=fit_lever, fit_time=fit_time,
-                                fit_rotation=True, max_stations=1, **prior)
+                                fit_rotation=True, max_stations=1, points_cache=points_cache,
+                                **prior)
         except ValueError:
             return None
         return U.T @ Rotation.from_matrix(cal.R_imu_lidar.T @ one.R_imu_lidar).as_rotvec()
