@@ -882,7 +882,7 @@ def _tilt_spread_sigma(rec, seg, orient, cfg, cal, pps, fit_lever, fit_time, pri
             one = _fit_surfaces(rec, dataclasses.replace(seg, stations=[st]), o, start, cfg,
                                 pps, fit_lever=fit_lever, fit_time=fit_time,
                                 fit_rotation=True, max_stations=1, points_cache=points_cache,
-                                **prior)
+                                iterations=cc.tilt_spread_iterations, **prior)
         except ValueError:
             return None
         return U.T @ Rotation.from_matrix(cal.R_imu_lidar.T @ one.R_imu_lidar).as_rotvec()
