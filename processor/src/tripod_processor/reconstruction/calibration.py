@@ -29,6 +29,9 @@ DENOISE_FIRINGS = 5
 _SWEEP_CHUNK = 1000
 #: :func:`~tripod_processor.decode.timed.denoise_ranges`'s default neighbour step [m]
 _DENOISE_MAX_STEP_M = 0.1
+#: [deg] a mount tilt whose sigma is under this counts as observable from the stations' surfaces
+#: (:attr:`SelfCalibration.rotation_observable`)
+TILT_OBSERVABLE_SIGMA_DEG = 0.05
 
 
 def plane_spread(points: np.ndarray, n_query: int = 4000, k: int = 12, seed: int = 0) -> float:
@@ -1123,7 +1126,7 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
         R_il, ell, l_sig, b, off, t_sig, r_sig, rot_change,
         time_offset_observable=bool(fit_time and t_sig < 0.5),
         lever_arm_observable=bool(fit_lever and np.all(l_sig < 0.003)),
-        rotation_observable=bool(fit_rotation and r_sig < 0.05),
+        rotation_observable=bool(fit_rotation and r_sig < TILT_OBSERVABLE_SIGMA_DEG),
         stations=[st.index for st in use], residual_m=s_rob, pairs=n_pairs, iterations=history,
         lever_arm_cov_m2=l_cov, lever_basis_imu=U_l if fit_lever else None,
         yaw_drift_deg_per_min=float(np.degrees(drift) * 60.0) if fit_yaw_drift else float("nan"))

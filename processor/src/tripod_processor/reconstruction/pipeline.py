@@ -865,12 +865,13 @@ def _tilt_spread_sigma(rec, seg, orient, cfg, cal, pps, fit_lever, fit_time, pri
 
     from scipy.spatial.transform import Rotation
 
-    from .calibration import _perp_basis, spin_axis_from_pan_axis_deg
+    from .calibration import TILT_OBSERVABLE_SIGMA_DEG, _perp_basis, spin_axis_from_pan_axis_deg
     from .scaleout import _threaded_map, thread_workers
 
     cc = cfg.calibration
     b = cal.pan_axis_imu
-    use = [st for st in seg.stations if st.index in set(cal.stations)]
+    fitted = set(cal.stations)
+    use = [st for st in seg.stations if st.index in fitted]
     if (cc.tilt_spread_max_deg <= 0 or len(use) < 3
             or spin_axis_from_pan_axis_deg(b, cal.R_imu_lidar) > cc.tilt_spread_max_deg):
         return
@@ -897,7 +898,7 @@ def _tilt_spread_sigma(rec, seg, orient, cfg, cal, pps, fit_lever, fit_time, pri
     cal.tilt_spread_sigma_deg = s_deg
     if s_deg > cal.rotation_sigma_deg:
         cal.rotation_sigma_deg = s_deg
-        cal.rotation_observable = bool(s_deg < 0.05)
+        cal.rotation_observable = bool(s_deg < TILT_OBSERVABLE_SIGMA_DEG)
 
 
 def effective_calibration(ext: Extrinsic, orient: ImuOrientation, pc, cal) -> dict:
