@@ -351,6 +351,11 @@ class FragmentConfig(StrictModel):
     #: depth edge); 0.15 is 5 sigma of the noise: a tighter test cuts the window short at
     #: random where the range climbs along the line (a wall seen at 30°+ incidence)
     range_denoise_max_step_m: float = Field(default=0.15, gt=0)
+    #: in process on more than one thread: every station's chunks (decode, smoothing,
+    #: placement) on one pool while each station is voxel-filtered as its chunks come in,
+    #: instead of the stations side by side, one a thread (whose longest station finishes
+    #: alone); the same fragments to the bit (``reconstruction.fragments``)
+    chunk_pipeline: bool = True
 
 
 class OdometryConfig(StrictModel):

@@ -214,7 +214,8 @@ def _reconstruct(recording_path, outdir, cfg: ReconstructConfig, bg: ThreadPoolE
                                 anchor_max_deviation_deg=pc.anchor_max_deviation_deg,
                                 denoise_firings=cfg.fragments.range_denoise_firings,
                                 denoise_fit=cfg.fragments.range_denoise_fit,
-                                denoise_max_step_m=cfg.fragments.range_denoise_max_step_m)
+                                denoise_max_step_m=cfg.fragments.range_denoise_max_step_m,
+                                chunk_pipeline=cfg.fragments.chunk_pipeline)
     notes += _anchor_notes(frags, pc.anchor_max_deviation_deg)
     early = None
     if cfg.output.report:

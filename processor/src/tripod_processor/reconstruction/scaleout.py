@@ -91,12 +91,27 @@ def build_fragments(engine, lidar: LidarPackets, stations: list[Station], orient
                     num_threads: int = 0, with_intensity: bool = False, progress=None,
                     anchor_fit: bool = True, anchor_max_deviation_deg: float = 0.3,
                     denoise_firings: int = 0, denoise_fit: str = "mean",
-                    denoise_max_step_m: float = 0.15) -> list[Fragment]:
+                    denoise_max_step_m: float = 0.15, chunk_pipeline: bool = True
+                    ) -> list[Fragment]:
     """:func:`~.fragments.build_fragment` for every station, in station order. ``progress``: a
-    bar (``update(1)`` per station)."""
+    bar (``update(1)`` per station). In process the stations run side by side, one a thread;
+    ``chunk_pipeline`` (on more than one thread): a thread with no station left helps those
+    still running with their chunks (:func:`~.fragments.build_fragments_shared`, the same
+    fragments to the bit)."""
     step = (lambda _k: progress.update(1)) if progress is not None else None
     engine = engine or _IN_PROCESS
     if not engine.distributed:
+        cores = thread_workers(num_threads, 1 << 30)
+        if chunk_pipeline and cores > 1 and stations:
+            # no thread idle while the longest station finishes alone (the same fragments)
+            from .fragments import build_fragments_shared
+
+            return build_fragments_shared(
+                lidar, stations, orient, ext, voxel_m, min_range, max_range, cores,
+                num_threads, with_intensity, step,
+                anchor_fit=anchor_fit, anchor_max_deviation_deg=anchor_max_deviation_deg,
+                denoise_firings=denoise_firings, denoise_fit=denoise_fit,
+                denoise_max_step_m=denoise_max_step_m)
         # stations side by side on threads, one thread each (decode, placement and voxel filter
         # run natively without the GIL; a fragment does not depend on the threads)
         workers = thread_workers(num_threads, len(stations))
