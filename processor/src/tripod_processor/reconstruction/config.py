@@ -227,6 +227,10 @@ class CalibrationConfig(StrictModel):
     #: were a near tie of global registration (its 180° twin on 2 of 10 RANSAC seeds with
     #: 80,000, 3 of 10 with 160,000; test_gravity_up.py), not the calibration
     side_points_per_station: int = Field(default=160_000, ge=1000)
+    #: sample points a station in the surfaces' fit on a lidar less than ``side_mount_warn_deg``
+    #: from the pan axis (with ``tilt_range_weight_exp``: dev 722's first fit 0.13-0.16° off at
+    #: 80,000 on four sample seeds, 0.005-0.014° at 100,000; i12-tiltbias, stop 39)
+    near_points_per_station: int = Field(default=80_000, ge=1000)
     #: fit the IMU's heading drift [rad/s about the world's vertical] with the lever arm, time
     #: offset and mount in the surfaces' fit (a nuisance parameter, not applied elsewhere).
     #: Held at zero, a drift turns a pan's end against its start, which a lidar on its side's
