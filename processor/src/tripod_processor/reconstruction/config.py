@@ -227,6 +227,10 @@ class CalibrationConfig(StrictModel):
     #: were a near tie of global registration (its 180° twin on 2 of 10 RANSAC seeds with
     #: 80,000, 3 of 10 with 160,000; test_gravity_up.py), not the calibration
     side_points_per_station: int = Field(default=160_000, ge=1000)
+    #: sample points a station in the surfaces' fit on a lidar less than ``side_mount_warn_deg``
+    #: from the pan axis (with ``tilt_range_weight_exp``: dev 722's first fit 0.13-0.16° off at
+    #: 80,000 on four sample seeds, 0.005-0.014° at 100,000; i12-tiltbias, stop 39)
+    near_points_per_station: int = Field(default=80_000, ge=1000)
     #: fit the IMU's heading drift [rad/s about the world's vertical] with the lever arm, time
     #: offset and mount in the surfaces' fit (a nuisance parameter, not applied elsewhere).
     #: Held at zero, a drift turns a pan's end against its start, which a lidar on its side's
@@ -285,6 +289,15 @@ class CalibrationConfig(StrictModel):
     #: 721 within 0.1 mm / better in angle; side mounts skip it). Cost: the stations fitted
     #: again (+5-15 CPU-s a capture on those rigs). 0: off (the model's sigma alone, the old rule)
     tilt_spread_max_deg: float = Field(default=30.0, ge=0, le=90)
+    #: on a lidar less than ``side_mount_warn_deg`` from the pan axis, the surfaces' fit draws its
+    #: sample points max(1, r / 3 m) ** this times as densely at range r (the same number of
+    #: points). Such a lidar sees its mount tilt mostly at the floor and ceiling (73-92 % of the
+    #: tilt information on dev 722 / 1351), the far parts of which, with a uniform 80,000 points
+    #: a station, rarely fill the 0.25-m voxels' 10-point minimum: the fit then rests on the
+    #: near ones and its tilt was biased toward the pan axis (722 0.78°, 1351 0.35°; 240,000
+    #: points: 0.03 / 0.02°). 2: 722 0.12°, 1351 0.007° at the same cost (i12-tiltbias, stop 39).
+    #: 0: a uniform sample (the default)
+    tilt_range_weight_exp: float = Field(default=0.0, ge=0, le=6)
     #: Gauss-Newton iterations of each station's own fit for ``tilt_spread_max_deg`` (started
     #: from the joint result; the first ones on coarser voxels, as every surfaces' fit). Dev
     #: seeds 0, 2, 721, 722, 1042, 1465: 5 gives every accuracy field of 8 to the bit at ~3 CPU-s
