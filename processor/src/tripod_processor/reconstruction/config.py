@@ -410,6 +410,14 @@ class OdometryConfig(StrictModel):
     #: held); how far a start stays is that direction's sigma (``cap_flat_direction``). 0: off
     flat_probe_m: float = Field(default=0.0, ge=0)
     flat_probe_support: float = Field(default=8.0, ge=0)
+    #: a pair whose registration (the GICP stages' information) leaves its height (along the
+    #: world's up) less determined than this sigma [m] takes the height of its fragments' height
+    #: histograms (``odometry.height_from_seed``: floor and ceiling wherever each fragment
+    #: sees them), and claims ``height_seed_sigma_m`` along up in the pose graph. 0: off. Dev
+    #: seed 722's pair round a corridor's corner (near-vertical lidar): sigma_up 4.1 cm, the
+    #: coarse GICP pulled the seed's 0.3-cm height error to 6.9 cm
+    height_seed_gate_m: float = Field(default=0.0, ge=0)
+    height_seed_sigma_m: float = Field(default=0.01, gt=0)
     #: finish every pair with point-to-plane ICP on oriented normals (6 cm voxels): surfaces
     #: seen from opposite sides (a wall between two rooms) are never paired
     oriented_refine: bool = True
