@@ -481,6 +481,13 @@ class SlamConfig(StrictModel):
     #: small room the fragments' range noise tilts a registration by 0.1-0.6°, which the capped
     #: information claimed at 0.03°); off: every edge's full information
     tilt_from_imu: bool = True
+    #: floors of a loop closure's standard deviations [m], [deg] (its information capped there,
+    #: as ``odometry.sigma_floor_*`` caps every pair's); 0: the odometry's floors. A loop joins
+    #: stations farther apart over a smaller overlap than an odometry pair: dev seed 722's loop
+    #: 1->3 (round a corridor's corner, the overlap one corner 4-5 m from both) was 1.9 cm and
+    #: 0.27° off in yaw at the odometry's 3 mm / 0.03°, where its odometry pairs were 0.02°
+    loop_sigma_floor_m: float = Field(default=0.0, ge=0)
+    loop_sigma_floor_deg: float = Field(default=0.0, ge=0)
 
 
 class OutputConfig(StrictModel):
