@@ -411,11 +411,12 @@ class OdometryConfig(StrictModel):
     flat_probe_m: float = Field(default=0.0, ge=0)
     flat_probe_support: float = Field(default=8.0, ge=0)
     #: a pair whose registration (the GICP stages' information) leaves its height (along the
-    #: world's up) less determined than this sigma [m] takes the height of its fragments' height
-    #: histograms (``odometry.height_from_seed``: floor and ceiling wherever each fragment
-    #: sees them), and claims ``height_seed_sigma_m`` along up in the pose graph. 0: off. Dev
-    #: seed 722's pair round a corridor's corner (near-vertical lidar): sigma_up 4.1 cm, the
-    #: coarse GICP pulled the seed's 0.3-cm height error to 6.9 cm
+    #: world's up) less determined than this sigma [m] takes the height of its fragments'
+    #: horizontal surfaces (``odometry.horizontal_height_shift``: floor and ceiling wherever
+    #: each fragment sees them), held through the last stages, and claims
+    #: ``height_seed_sigma_m`` along up in the pose graph. 0: off. Dev seed 722's pair round a
+    #: corridor's corner (near-vertical lidar): sigma_up 4.1 cm, the coarse GICP pulled the
+    #: seed's 0.3-cm height error to 6.9 cm (0.1 cm with this at 0.01)
     height_seed_gate_m: float = Field(default=0.0, ge=0)
     height_seed_sigma_m: float = Field(default=0.01, gt=0)
     #: finish every pair with point-to-plane ICP on oriented normals (6 cm voxels): surfaces
