@@ -730,13 +730,20 @@ def _pick_stations(stations: list[Station], orient: ImuOrientation, n: int) -> l
     return sorted(ranked[:n], key=lambda s: s.start_ns)
 
 
+#: range [m] below which ``_station_points``' range weighting leaves a point's weight at 1
+RANGE_WEIGHT_REF_M = 3.0
+
+
 def _station_points(lidar: LidarPackets, st: Station, n: int, seed: int, max_range: float,
                     orient: ImuOrientation | None = None,
-                    denoise_firings: int = DENOISE_FIRINGS, cache: SweepCache | None = None):
+                    denoise_firings: int = DENOISE_FIRINGS, cache: SweepCache | None = None,
+                    range_weight_exp: float = 0.0):
     """About n points of a station (every few packets decoded, their ranges smoothed along the
     scan line over ``denoise_firings`` firings either side, then a random subset). With
     ``orient``, points fired while the head turns slowly (rests, ramps, a hand's pauses) are
     taken 4x as densely: the time offset shows only between those and the fast ones.
+    ``range_weight_exp`` > 0: a point at range r is drawn max(1, r / RANGE_WEIGHT_REF_M) ** exp
+    times as often (the far surfaces, thinly sampled, reach the voxels' 10-point minimum).
 
     ``cache`` (:class:`SweepCache`): the result kept for a later call with the same station,
     sample size, seed, range cut, smoothing and slow-turn rates (what the sample depends on: the
@@ -761,6 +768,10 @@ def _station_points(lidar: LidarPackets, st: Station, n: int, seed: int, max_ran
         if rate is not None:
             slow = np.interp(pts["time_ns"], grid, rate) < 0.7 * np.percentile(rate, 95)
             w[slow] = 4.0
+        if range_weight_exp > 0:
+            r_m = np.sqrt(pts["x"].astype(np.float64) ** 2 + pts["y"].astype(np.float64) ** 2
+                          + pts["z"].astype(np.float64) ** 2)
+            w *= np.maximum(r_m / RANGE_WEIGHT_REF_M, 1.0) ** range_weight_exp
         keep = np.sort(rng.choice(len(pts), n, replace=False, p=w / w.sum()))
         # the kept points' ranges smoothed over all the decoded ones (the same to the bit as
         # smoothing all, then keeping: a tenth of the cost)
@@ -771,7 +782,7 @@ def _station_points(lidar: LidarPackets, st: Station, n: int, seed: int, max_ran
         return make()
     key = ("station", id(lidar.payload), int(st.packet_start), int(st.packet_stop),
            int(st.start_ns), int(st.end_ns), int(n), int(seed), float(max_range),
-           int(denoise_firings), None if rate is None else rate.tobytes())
+           int(denoise_firings), None if rate is None else rate.tobytes(), float(range_weight_exp))
     return cache.get(key, make)
 
 
@@ -911,7 +922,8 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
                    denoise_firings: int = DENOISE_FIRINGS,
                    fit_yaw_drift: bool = False,
                    yaw_drift_prior_deg_per_min: float = float("inf"),
-                   points_cache: SweepCache | None = None) -> SelfCalibration:
+                   points_cache: SweepCache | None = None,
+                   range_weight_exp: float = 0.0) -> SelfCalibration:
     """Lever arm, IMU time offset and mount rotation that make every station self-consistent.
 
     At a standing station the head turns about a fixed pivot, so a surface seen at two moments
@@ -950,7 +962,8 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
     The stations' sampling and residuals run side by side on ``num_threads`` threads (0: every
     core), one station a thread, gathered in station order: the same result on any count.
     ``points_cache`` (:class:`SweepCache`): the stations' sample points kept for the run's later
-    fits (:func:`_station_points`; the same result to the bit).
+    fits (:func:`_station_points`; the same result to the bit). ``range_weight_exp``: the
+    sample drawn denser at range (:func:`_station_points`; 0: uniform).
     """
     from scipy.spatial.transform import Rotation
 
@@ -963,7 +976,7 @@ def self_calibrate(lidar: LidarPackets, stations: list[Station], orient: ImuOrie
     off = orient.time_offset_ns
     data = _threaded_map(_station_points, [
         (lidar, st, points_per_station, 11 + k, max_range, orient if fit_time else None,
-         denoise_firings, points_cache) for k, st in enumerate(use)], workers)
+         denoise_firings, points_cache, range_weight_exp) for k, st in enumerate(use)], workers)
     sep_ns = int(min_separation_s * 1e9)
     cols = (["l1", "l2"] if fit_lever else []) + (["dt"] if fit_time else []) + (
         ["r1", "r2"] if fit_rotation else []) + (["yd"] if fit_yaw_drift else [])

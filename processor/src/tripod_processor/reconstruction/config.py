@@ -227,6 +227,10 @@ class CalibrationConfig(StrictModel):
     #: were a near tie of global registration (its 180° twin on 2 of 10 RANSAC seeds with
     #: 80,000, 3 of 10 with 160,000; test_gravity_up.py), not the calibration
     side_points_per_station: int = Field(default=160_000, ge=1000)
+    #: sample points a station in the surfaces' fit on a lidar less than ``side_mount_warn_deg``
+    #: from the pan axis (with ``tilt_range_weight_exp``: dev 722's first fit 0.13-0.16° off at
+    #: 80,000 on four sample seeds, 0.005-0.014° at 100,000; i12-tiltbias, stop 39)
+    near_points_per_station: int = Field(default=80_000, ge=1000)
     #: fit the IMU's heading drift [rad/s about the world's vertical] with the lever arm, time
     #: offset and mount in the surfaces' fit (a nuisance parameter, not applied elsewhere).
     #: Held at zero, a drift turns a pan's end against its start, which a lidar on its side's
@@ -285,6 +289,15 @@ class CalibrationConfig(StrictModel):
     #: 721 within 0.1 mm / better in angle; side mounts skip it). Cost: the stations fitted
     #: again (+5-15 CPU-s a capture on those rigs). 0: off (the model's sigma alone, the old rule)
     tilt_spread_max_deg: float = Field(default=30.0, ge=0, le=90)
+    #: on a lidar less than ``side_mount_warn_deg`` from the pan axis, the surfaces' fit draws its
+    #: sample points max(1, r / 3 m) ** this times as densely at range r (the same number of
+    #: points). Such a lidar sees its mount tilt mostly at the floor and ceiling (73-92 % of the
+    #: tilt information on dev 722 / 1351), the far parts of which, with a uniform 80,000 points
+    #: a station, rarely fill the 0.25-m voxels' 10-point minimum: the fit then rests on the
+    #: near ones and its tilt was biased toward the pan axis (722 0.78°, 1351 0.35°; 240,000
+    #: points: 0.03 / 0.02°). 2: 722 0.12°, 1351 0.007° at the same cost (i12-tiltbias, stop 39).
+    #: 0: a uniform sample (the default)
+    tilt_range_weight_exp: float = Field(default=0.0, ge=0, le=6)
     #: Gauss-Newton iterations of each station's own fit for ``tilt_spread_max_deg`` (started
     #: from the joint result; the first ones on coarser voxels, as every surfaces' fit). Dev
     #: seeds 0, 2, 721, 722, 1042, 1465: 5 gives every accuracy field of 8 to the bit at ~3 CPU-s
@@ -402,6 +415,15 @@ class OdometryConfig(StrictModel):
     #: held); how far a start stays is that direction's sigma (``cap_flat_direction``). 0: off
     flat_probe_m: float = Field(default=0.0, ge=0)
     flat_probe_support: float = Field(default=8.0, ge=0)
+    #: a pair whose registration (the GICP stages' information) leaves its height (along the
+    #: world's up) less determined than this sigma [m] takes the height of its fragments'
+    #: horizontal surfaces (``odometry.horizontal_height_shift``: floor and ceiling wherever
+    #: each fragment sees them), held through the last stages, and claims
+    #: ``height_seed_sigma_m`` along up in the pose graph. 0: off. Dev seed 722's pair round a
+    #: corridor's corner (near-vertical lidar): sigma_up 4.1 cm, the coarse GICP pulled the
+    #: seed's 0.3-cm height error to 6.9 cm (0.1 cm with this at 0.01)
+    height_seed_gate_m: float = Field(default=0.0, ge=0)
+    height_seed_sigma_m: float = Field(default=0.01, gt=0)
     #: finish every pair with point-to-plane ICP on oriented normals (6 cm voxels): surfaces
     #: seen from opposite sides (a wall between two rooms) are never paired
     oriented_refine: bool = True
@@ -465,6 +487,13 @@ class SlamConfig(StrictModel):
     #: small room the fragments' range noise tilts a registration by 0.1-0.6°, which the capped
     #: information claimed at 0.03°); off: every edge's full information
     tilt_from_imu: bool = True
+    #: floors of a loop closure's standard deviations [m], [deg] (its information capped there,
+    #: as ``odometry.sigma_floor_*`` caps every pair's); 0: the odometry's floors. A loop joins
+    #: stations farther apart over a smaller overlap than an odometry pair: dev seed 722's loop
+    #: 1->3 (round a corridor's corner, the overlap one corner 4-5 m from both) was 1.9 cm and
+    #: 0.27° off in yaw at the odometry's 3 mm / 0.03°, where its odometry pairs were 0.02°
+    loop_sigma_floor_m: float = Field(default=0.0, ge=0)
+    loop_sigma_floor_deg: float = Field(default=0.0, ge=0)
 
 
 class OutputConfig(StrictModel):

@@ -255,7 +255,7 @@ def oriented_refine(source: np.ndarray, target: np.ndarray, T_init: np.ndarray,
                     cfg: OdometryConfig, num_threads: int = 0, voxel: float = ORIENTED_VOXEL_M,
                     max_dist: float = 0.15, iterations: int = 10, max_source: int = 40_000,
                     cache: "CloudCache | None" = None, keys=("source", "target"),
-                    hold_rotation: np.ndarray | None = None
+                    hold_rotation: np.ndarray | None = None, lock_z: bool = False
                     ) -> tuple[np.ndarray, np.ndarray, float, float]:
     """Point-to-plane ICP that only pairs surfaces seen from the same side (the last stage).
 
@@ -266,7 +266,7 @@ def oriented_refine(source: np.ndarray, target: np.ndarray, T_init: np.ndarray,
     ``max_source`` source points (an even stride), the target stays dense. Runs in the native
     core (``registration.register(method="plane", oriented=True)``). ``hold_rotation``: the
     rotation R_target_source (3, 3) held fixed (``T_init``'s should be it): the translation
-    only.
+    only. ``lock_z``: the translation's z (the target frame's) held at ``T_init``'s.
 
     Returns (T_target_source, information (6, 6) in the pose graph's convention, fitness,
     inlier RMSE [m]).
@@ -283,7 +283,7 @@ def oriented_refine(source: np.ndarray, target: np.ndarray, T_init: np.ndarray,
                      max_iterations=iterations, rotation_eps=1e-6, translation_eps=1e-5,
                      loss="huber", loss_scale=2 * sigma, point_sigma=sigma, oriented=True,
                      max_source=max_source, min_correspondences=100, num_threads=num_threads,
-                     **held)
+                     lock_z=lock_z, **held)
     T = r.T_target_source
     if r.status == "too_few_correspondences":
         return T, np.zeros((6, 6)), 0.0, np.inf
@@ -364,8 +364,8 @@ TILT_REFIT_MAX_SOURCE = 10_000
 
 def tilt_refit(source: np.ndarray, target: np.ndarray, r: PairResult,
                R_world_source: np.ndarray, R_world_target: np.ndarray, cfg: OdometryConfig,
-               num_threads: int = 0, cache: CloudCache | None = None, keys=("source", "target")
-               ) -> PairResult:
+               num_threads: int = 0, cache: CloudCache | None = None, keys=("source", "target"),
+               lock_z: bool = False) -> PairResult:
     """A registered pair ``r`` finished at the IMU's relative tilt: its rotation levelled
     (:func:`level_rotation`, the anchors' up directions) and its translation refitted by
     :func:`oriented_refine` with that rotation held; ``r`` as it was when the refit finds too
@@ -381,7 +381,7 @@ def tilt_refit(source: np.ndarray, target: np.ndarray, r: PairResult,
     T0[:3, :3] = level_rotation(T0[:3, :3], R_world_source.T @ up, R_world_target.T @ up)
     T, _info, fit, _rmse = oriented_refine(source, target, T0, cfg, num_threads, cache=cache,
                                            keys=keys, hold_rotation=T0[:3, :3],
-                                           max_source=TILT_REFIT_MAX_SOURCE)
+                                           max_source=TILT_REFIT_MAX_SOURCE, lock_z=lock_z)
     if fit <= 0 or np.linalg.norm(T[:3, 3] - T0[:3, 3]) >= 0.3:
         return r
     return PairResult(T, r.fitness, r.rmse, r.information, r.ok, r.seed, r.violation, r.status)
@@ -395,6 +395,114 @@ def _topdown(points_w: np.ndarray, cell: float, half: int) -> np.ndarray:
     np.add.at(img, (ij[ok, 0], ij[ok, 1]), 1.0)
     img = np.log1p(img)
     return img - img.mean()
+
+
+def height_shift(target_w: np.ndarray, source_w: np.ndarray, refine: bool = False,
+                 bin_m: float = 0.02) -> float:
+    """dz [m] with target_w ≈ source_w + dz (heights of gravity-aligned points about each
+    fragment's origin): the peak of the correlation of their height histograms (``bin_m``
+    bins, log counts; floor and ceiling are strong peaks). ``refine``: the peak interpolated
+    between bins (a parabola through the three bins about it), else the bin's shift (the
+    translation seeds')."""
+    bins = np.arange(-6.0, 6.0 + bin_m, bin_m)
+    ht, _ = np.histogram(np.asarray(target_w)[:, 2], bins)
+    hs, _ = np.histogram(np.asarray(source_w)[:, 2], bins)
+    zcorr = np.correlate(np.log1p(ht) - np.log1p(ht).mean(), np.log1p(hs) - np.log1p(hs).mean(),
+                         "full")
+    k = int(np.argmax(zcorr))
+    frac = 0.0
+    if refine and 0 < k < len(zcorr) - 1:
+        a, b, c = zcorr[k - 1], zcorr[k], zcorr[k + 1]
+        den = a - 2 * b + c
+        if den < 0:
+            frac = float(np.clip(0.5 * (a - c) / den, -0.5, 0.5))
+    return (k + frac - (len(hs) - 1)) * bin_m
+
+
+#: the floor/ceiling height histograms (:func:`horizontal_height_shift`): points whose normal
+#: is within acos(0.9) of the up, their least count a fragment, and the bins [m]
+HORIZONTAL_NORMAL_COS = 0.9
+HORIZONTAL_MIN_POINTS = 100
+HORIZONTAL_BIN_M = 0.01
+
+
+def horizontal_height_shift(source: np.ndarray, target: np.ndarray, R_world_source: np.ndarray,
+                            R_world_target: np.ndarray, cache: CloudCache,
+                            keys=("source", "target")) -> float | None:
+    """dz [m] (target_w ≈ source_w + dz, as :func:`translation_seeds`) from the heights of the
+    two fragments' horizontal surfaces only (their oriented clouds' points whose normal is
+    near the up, levelled by the IMU attitudes): floor and ceiling wherever each fragment sees
+    them, not only in the overlap, at 1-cm bins refined between them. None when either holds
+    fewer than ``HORIZONTAL_MIN_POINTS``.
+
+    The whole clouds' histograms (the seeds') are dominated by the walls' band about the
+    sensor's height on a near-vertical lidar (dev 722, pair 0->1: 0.7 cm off the truth's
+    -15.1 cm with 2-cm bins and walls, 0.05 cm with horizontal surfaces at 1 cm refined; the
+    six station pairs of 722: 0.03-0.12 cm)."""
+    h = []
+    for key, pts, R in ((keys[1], target, R_world_target), (keys[0], source, R_world_source)):
+        pc = cache.oriented(key, pts, ORIENTED_VOXEL_M)
+        up = np.asarray(R, np.float64).T @ np.array([0.0, 0.0, 1.0])
+        n_up = np.asarray(pc.normals, np.float64) @ up
+        sel = np.abs(n_up) > HORIZONTAL_NORMAL_COS
+        if int(sel.sum()) < HORIZONTAL_MIN_POINTS:
+            return None
+        h.append(np.asarray(pc.points, np.float64)[sel] @ np.asarray(R, np.float64).T)
+    return height_shift(h[0], h[1], refine=True, bin_m=HORIZONTAL_BIN_M)
+
+
+def up_sigma_m(info: np.ndarray, up: np.ndarray) -> float:
+    """The standard deviation [m] of a pair's translation along the unit ``up`` (its target
+    frame) from its information (6, 6; the pose graph's order), the rotation marginalised;
+    inf where the information holds none."""
+    u = np.asarray(up, np.float64) / np.linalg.norm(up)
+    A = 0.5 * (info + info.T)
+    A = A + 1e-12 * max(float(np.trace(A)), 1.0) * np.eye(6)  # a direction held by nothing: huge
+    v = float(u @ np.linalg.inv(A)[:3, :3] @ u)
+    return float(np.sqrt(v)) if v > 0 else float("inf")
+
+
+#: a height reset by :func:`height_from_seed` is held (``lock_z``) through the oriented refine
+#: and the tilt refit where the target's z axis is within this [deg] of the world's up
+HEIGHT_HOLD_MAX_DEG = 10.0
+
+
+def height_from_seed(r: PairResult, dz: float | None, up_t: np.ndarray, cfg: OdometryConfig
+                     ) -> tuple[PairResult, bool]:
+    """``r`` with its translation's component along the world's up (``up_t``, unit, in the
+    target frame) set to the floor's and ceiling's height shift ``dz``
+    (:func:`horizontal_height_shift`; None: ``r`` as it is) when its registration leaves the
+    height less determined than ``cfg.height_seed_gate_m`` (σ along up, :func:`up_sigma_m`);
+    returns (pair, whether it was reset).
+
+    Why (dev seed 722, a corridor round a corner seen by a near-vertical lidar, ±15° about
+    the horizon: 0.6 % of the overlap's points on horizontal surfaces): the pair round the
+    corner had σ_up 4.1 cm in the fine GICP; the 0.6-m GICP stage pulled its seed's height
+    (0.3 cm off) to 6.9 cm, and the oriented refine, flat along up, left it at 5.4 cm while
+    claiming 3 mm (the loop over it then failed the pose graph's gate). The two stations'
+    floors and ceilings, seen far away in each leg, give the shift to 0.1 cm."""
+    if cfg.height_seed_gate_m <= 0 or not r.ok or dz is None:
+        return r, False
+    if up_sigma_m(r.information, up_t) < cfg.height_seed_gate_m:
+        return r, False
+    u = np.asarray(up_t, np.float64) / np.linalg.norm(up_t)
+    T = np.array(r.T_target_source, dtype=np.float64)
+    T[:3, 3] += u * (dz - float(u @ T[:3, 3]))
+    return PairResult(T, r.fitness, r.rmse, r.information, r.ok, r.seed, r.violation,
+                      r.status), True
+
+
+def up_from_seed_information(info: np.ndarray, up_t: np.ndarray, sigma_up_m: float
+                             ) -> np.ndarray:
+    """``info`` (6, 6; the pose graph's order) with its translation along the unit ``up_t``
+    (target frame) measured by the height seed alone: whatever the registration claimed along
+    up (with the height held: nothing) replaced by 1 / ``sigma_up_m``²."""
+    u = np.asarray(up_t, np.float64) / np.linalg.norm(up_t)
+    P = np.eye(6)
+    P[:3, :3] -= np.outer(u, u)
+    out = P @ (0.5 * (info + info.T)) @ P
+    out[:3, :3] += np.outer(u, u) / sigma_up_m**2
+    return out
 
 
 def translation_seeds(target_w: np.ndarray, source_w: np.ndarray, cell: float,
@@ -411,14 +519,7 @@ def translation_seeds(target_w: np.ndarray, source_w: np.ndarray, cell: float,
     R = A * np.conj(B)
     R /= np.abs(R) + 1e-9
     corr = np.fft.irfft2(R, s=(4 * half, 4 * half))
-    # z: correlate height histograms (floor and ceiling are strong peaks)
-    zc = 0.02
-    bins = np.arange(-6.0, 6.0 + zc, zc)
-    ht, _ = np.histogram(target_w[:, 2], bins)
-    hs, _ = np.histogram(source_w[:, 2], bins)
-    zcorr = np.correlate(np.log1p(ht) - np.log1p(ht).mean(), np.log1p(hs) - np.log1p(hs).mean(),
-                         "full")
-    dz = (int(np.argmax(zcorr)) - (len(hs) - 1)) * zc
+    dz = height_shift(target_w, source_w, refine=False)
     seeds = []
     flat = corr.ravel().copy()
     n = 4 * half
@@ -561,15 +662,29 @@ def register_fragments(source: np.ndarray, target: np.ndarray, R_world_source: n
     if check and not best.ok and best.fitness >= cfg.min_fitness_free_space \
             and best.status != "too_few_correspondences" and free(best):
         best.ok = True  # little overlap, but placed where free space agrees
+    # a height the overlap hardly holds: the floor's and ceiling's, wherever each fragment
+    # sees them
+    up_t = R_world_target.T @ np.array([0.0, 0.0, 1.0])
+    height_reset = False
+    if best.ok and cfg.height_seed_gate_m > 0 \
+            and up_sigma_m(best.information, up_t) >= cfg.height_seed_gate_m:
+        best, height_reset = height_from_seed(
+            best, horizontal_height_shift(source, target, R_world_source, R_world_target, cache,
+                                          keys), up_t, cfg)
+    # ... held by the last stages where the target's z is the up (a near-vertical lidar)
+    hold_z = height_reset and abs(float(up_t[2])) >= np.cos(np.radians(HEIGHT_HOLD_MAX_DEG))
     if best.ok and cfg.oriented_refine:
         T, info, fit, rmse = oriented_refine(source, target, best.T_target_source, cfg,
-                                             num_threads, cache=cache, keys=keys)
+                                             num_threads, cache=cache, keys=keys, lock_z=hold_z)
         D = np.linalg.inv(best.T_target_source) @ T
         if np.linalg.norm(D[:3, 3]) < 0.3 and fit > 0.5 * best.fitness:
             best = PairResult(T, best.fitness, rmse, _cap_information(info, cfg), True, best.seed)
     if best.ok and tilt_known and cfg.tilt_from_imu:
         best = tilt_refit(source, target, best, R_world_source, R_world_target, cfg,
-                          num_threads, cache, keys)
+                          num_threads, cache, keys, lock_z=hold_z)
+    if height_reset and best.ok:
+        best.information = up_from_seed_information(best.information, up_t,
+                                                    cfg.height_seed_sigma_m)
     if check and best.ok:
         free(best)  # the final pose's violation, for the notes
     return best

@@ -557,10 +557,16 @@ def _fit_surfaces(rec, seg, orient, ext, cfg, points_per_station: int, **fit):
     settings (threads, range smoothing, yaw drift and its prior, ``max_stations`` unless
     ``fit`` gives it); ``fit``: what this call fits and how (``fit_lever``, ``fit_time``,
     ``fit_rotation``, iterations, the time prior)."""
-    from .calibration import self_calibrate
+    from .calibration import pan_axis_in_imu, self_calibrate, spin_axis_from_pan_axis_deg
 
     cc = cfg.calibration
     fit.setdefault("max_stations", cc.max_stations)
+    if cc.tilt_range_weight_exp > 0 and "range_weight_exp" not in fit:
+        # a lidar near the pan axis sees its tilt at the far floor and ceiling: drawn denser
+        tilt = spin_axis_from_pan_axis_deg(pan_axis_in_imu(orient, seg.stations),
+                                           ext.R_imu_lidar)
+        if tilt < cc.side_mount_warn_deg:
+            fit["range_weight_exp"] = cc.tilt_range_weight_exp
     return self_calibrate(rec.lidar, seg.stations, orient, ext, num_threads=cfg.num_threads,
                           denoise_firings=cc.range_denoise_firings,
                           fit_yaw_drift=cc.fit_yaw_drift,
@@ -572,12 +578,14 @@ def _points_per_station(rec_stations, orient, R_imu_lidar, cfg) -> int:
     """Sample points a station for the surfaces' fit: ``calibration.side_points_per_station``
     on a lidar at least ``side_mount_warn_deg`` from the pan axis (its lever arm along the spin
     axis is seen only at vertical edges, and was mostly the sampling's noise in a hall with
-    80,000; 160,000 by default, see the config), else 80,000 (``self_calibrate``'s own)."""
+    80,000; 160,000 by default, see the config), else ``calibration.near_points_per_station``
+    (80,000 by default, ``self_calibrate``'s own)."""
     from .calibration import pan_axis_in_imu, spin_axis_from_pan_axis_deg
 
     cc = cfg.calibration
     tilt = spin_axis_from_pan_axis_deg(pan_axis_in_imu(orient, rec_stations), R_imu_lidar)
-    return cc.side_points_per_station if tilt >= cc.side_mount_warn_deg else 80_000
+    return (cc.side_points_per_station if tilt >= cc.side_mount_warn_deg
+            else cc.near_points_per_station)
 
 
 def _turns_time_offset(rec, seg, orient, ext, cfg, sweeps=None):

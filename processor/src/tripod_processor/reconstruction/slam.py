@@ -152,7 +152,7 @@ def run_slam(frags: list[Fragment], T_odom: np.ndarray, odom_edges: list[pg.Edge
         else:
             r = register_pairs(None, frags, [(j, i)], ocfg, num_threads, cache, [guess])[0]
         if r.ok:
-            edges.append(_edge(i, j, r, "loop"))
+            edges.append(_edge(i, j, loop_capped(r, ocfg, scfg), "loop"))
             if comp[i] != comp[j]:
                 notes.append(f"stations {i} and {j} joined by a loop closure")
                 _merge_components(comp, i, j)
@@ -186,6 +186,21 @@ def run_slam(frags: list[Fragment], T_odom: np.ndarray, odom_edges: list[pg.Edge
                      "its fragment is written alone, not merged")
     comp_out = np.where(comp == main, 0, comp + 1)
     return SlamResult(T_odom, T_opt, edges, graph, gres, comp_out, disconnected, len(cands), notes)
+
+
+def loop_capped(r: PairResult, ocfg: OdometryConfig, scfg: SlamConfig) -> PairResult:
+    """A loop closure's pair with its information capped at the loop floors
+    (``slam.loop_sigma_floor_m`` / ``_deg``; either 0: the odometry's floor there, both 0:
+    ``r`` as it is)."""
+    if scfg.loop_sigma_floor_m <= 0 and scfg.loop_sigma_floor_deg <= 0:
+        return r
+    from .odometry import _cap_whitened
+
+    sm = max(scfg.loop_sigma_floor_m, ocfg.sigma_floor_m)
+    sd = np.radians(max(scfg.loop_sigma_floor_deg, ocfg.sigma_floor_deg))
+    C = np.diag([1 / sm**2] * 3 + [1 / sd**2] * 3)
+    return PairResult(r.T_target_source, r.fitness, r.rmse, _cap_whitened(r.information, C),
+                      r.ok, r.seed, r.violation, r.status)
 
 
 def station_graph(frags: list[Fragment], members: list[int], T_init: np.ndarray,
