@@ -1229,11 +1229,17 @@ class TurnTimeOffset:
     pairs: int
     rate_change_deg_s: float
     carry_pairs: int = 0
+    #: the cluster (station or carry, :class:`TurnMeasurements`' numbering) left out as
+    #: disagreeing with all the others (``cluster_outlier_z``), or None
+    dropped_cluster: int | None = None
 
     def to_dict(self) -> dict:
-        return {"imu_time_offset_ms": self.offset_ns * 1e-6, "sigma_ms": self.sigma_ms,
-                "pairs": self.pairs, "rate_change_deg_s": self.rate_change_deg_s,
-                "carry_pairs": self.carry_pairs}
+        d = {"imu_time_offset_ms": self.offset_ns * 1e-6, "sigma_ms": self.sigma_ms,
+             "pairs": self.pairs, "rate_change_deg_s": self.rate_change_deg_s,
+             "carry_pairs": self.carry_pairs}
+        if self.dropped_cluster is not None:
+            d["dropped_cluster"] = self.dropped_cluster
+        return d
 
 
 def time_offset_from_turns(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
@@ -1540,7 +1546,8 @@ def turn_measurements(lidar: LidarPackets, stations: list[Station], orient: ImuO
     return tm
 
 
-_FIT_KEYS = ("sigma_inflation", "combine", "carry_mount", "carry_floor_ms", "anchor_smooth_s")
+_FIT_KEYS = ("sigma_inflation", "combine", "carry_mount", "carry_floor_ms", "anchor_smooth_s",
+             "cluster_outlier_z")
 
 
 def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
@@ -1571,6 +1578,62 @@ class TurnMeasurements:
 
 
 def fit_turn_offset(tm: TurnMeasurements, orient: ImuOrientation, ext: Extrinsic, *,
+                    sigma_inflation: float = 2.0, combine: str = "joint",
+                    carry_mount: bool = False, carry_floor_ms: float = 0.0,
+                    anchor_smooth_s: float = 0.0, cluster_outlier_z: float = 0.0
+                    ) -> TurnTimeOffset:
+    """The offset from the registered pairs (:func:`_fit_turns_once`, its keywords), with
+    ``cluster_outlier_z`` > 0 one cluster (a station's or a carry's pairs) left out when it
+    disagrees with all the others (:func:`cluster_outlier`): a station whose registrations
+    share one bias (a small room's view, a sway) or a span mis-taken for a carry pulls the whole
+    offset, which the pairs' trimming (one pair at a time, against the pooled fit that cluster
+    already pulled) does not catch. 0: every cluster kept (the old fit, to the bit)."""
+    fk = dict(sigma_inflation=sigma_inflation, combine=combine, carry_mount=carry_mount,
+              carry_floor_ms=carry_floor_ms, anchor_smooth_s=anchor_smooth_s)
+    res = _fit_turns_once(tm, orient, ext, **fk)
+    if not cluster_outlier_z > 0 or not np.isfinite(res.sigma_ms):
+        return res
+    out = cluster_outlier(tm, orient, ext, cluster_outlier_z, **fk)
+    if out is None:
+        return res
+    q, _ = out
+    rest = _fit_turns_once(tm.subset(tm.cluster != q), orient, ext, **fk)
+    if not np.isfinite(rest.sigma_ms):
+        return res
+    rest.dropped_cluster = int(q)
+    return rest
+
+
+def cluster_outlier(tm: TurnMeasurements, orient: ImuOrientation, ext: Extrinsic, z_max: float,
+                    **fit_kw) -> tuple[int, float] | None:
+    """(cluster, z) of the one cluster of ``tm`` whose own offset lies furthest from the
+    others' pooled one, in their combined sigma (z = |δ_c − δ_rest| / hypot(σ_c, σ_rest), both
+    as :func:`_fit_turns_once` gives them with ``fit_kw``), when z exceeds ``z_max``; None
+    when no cluster does, or when fewer than 3 clusters have an offset of their own (two that
+    disagree cannot tell which is off)."""
+    cl = np.unique(tm.cluster)
+    own = {}
+    for q in cl:
+        sel = tm.cluster == q
+        if int(sel.sum()) >= 4:
+            r = _fit_turns_once(tm.subset(sel), orient, ext, **{**fit_kw, "combine": "joint"})
+            if np.isfinite(r.sigma_ms) and r.sigma_ms > 0:
+                own[int(q)] = r
+    if len(own) < 3:
+        return None
+    best = None
+    for q, r in own.items():
+        rest = _fit_turns_once(tm.subset(tm.cluster != q), orient, ext, **fit_kw)
+        if not (np.isfinite(rest.sigma_ms) and rest.sigma_ms > 0):
+            continue
+        z = abs(r.offset_ns - rest.offset_ns) * 1e-6 / float(np.hypot(r.sigma_ms,
+                                                                      rest.sigma_ms))
+        if z > z_max and (best is None or z > best[1]):
+            best = (q, float(z))
+    return best
+
+
+def _fit_turns_once(tm: TurnMeasurements, orient: ImuOrientation, ext: Extrinsic, *,
                     sigma_inflation: float = 2.0, combine: str = "joint",
                     carry_mount: bool = False, carry_floor_ms: float = 0.0,
                     anchor_smooth_s: float = 0.0) -> TurnTimeOffset:
