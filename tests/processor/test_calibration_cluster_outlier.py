@@ -71,7 +71,7 @@ def test_one_biased_cluster_is_left_out(setup):
     old = fit_turn_offset(tm, o, ext, anchor_smooth_s=0.1)
     assert abs(old.offset_ns - T_TRUE_NS) > 2e6, old
     assert old.dropped_cluster is None
-    q, z = cluster_outlier(tm, o, ext, 3.0, anchor_smooth_s=0.1)
+    q, z, _ = cluster_outlier(tm, o, ext, 3.0, anchor_smooth_s=0.1)
     assert q == BAD and z > 3.0
     new = fit_turn_offset(tm, o, ext, anchor_smooth_s=0.1, cluster_outlier_z=3.0)
     assert new.dropped_cluster == BAD

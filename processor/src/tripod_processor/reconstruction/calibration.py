@@ -1593,27 +1593,30 @@ def fit_turn_offset(tm: TurnMeasurements, orient: ImuOrientation, ext: Extrinsic
     res = _fit_turns_once(tm, orient, ext, **fk)
     if not cluster_outlier_z > 0 or not np.isfinite(res.sigma_ms):
         return res
-    out = cluster_outlier(tm, orient, ext, cluster_outlier_z, **fk)
+    out = cluster_outlier(tm, orient, ext, cluster_outlier_z, pooled=res, **fk)
     if out is None:
         return res
-    q, _ = out
-    rest = _fit_turns_once(tm.subset(tm.cluster != q), orient, ext, **fk)
-    if not np.isfinite(rest.sigma_ms):
-        return res
+    q, _, rest = out
     rest.dropped_cluster = int(q)
     return rest
 
 
 def cluster_outlier(tm: TurnMeasurements, orient: ImuOrientation, ext: Extrinsic, z_max: float,
-                    **fit_kw) -> tuple[int, float] | None:
-    """(cluster, z) of the one cluster of ``tm`` whose own offset lies furthest from the
-    others' pooled one, in their combined sigma (z = |δ_c − δ_rest| / hypot(σ_c, σ_rest), both
-    as :func:`_fit_turns_once` gives them with ``fit_kw``), when z exceeds ``z_max``; None
-    when no cluster does, or when fewer than 3 clusters have an offset of their own (two that
-    disagree cannot tell which is off)."""
-    cl = np.unique(tm.cluster)
+                    pooled: TurnTimeOffset | None = None, **fit_kw
+                    ) -> tuple[int, float, TurnTimeOffset] | None:
+    """(cluster, z, the others' fit) for the cluster of ``tm`` furthest from the pooled fit
+    (``pooled``, else fitted here) in its own and the pool's sigma, when its own offset lies
+    more than ``z_max`` from the others' fit: z = |δ_c − δ_rest| / hypot(σ_c, σ_rest), all as
+    :func:`_fit_turns_once` gives them with ``fit_kw`` (a cluster alone: "joint"). None when
+    it does not, or when fewer than 3 clusters have an offset of their own (two that disagree
+    cannot tell which is off). Costs a fit of each cluster alone (a few pairs each) and one of
+    all but the suspect."""
+    if pooled is None:
+        pooled = _fit_turns_once(tm, orient, ext, **fit_kw)
+    if not (np.isfinite(pooled.sigma_ms) and pooled.sigma_ms > 0):
+        return None
     own = {}
-    for q in cl:
+    for q in np.unique(tm.cluster):
         sel = tm.cluster == q
         if int(sel.sum()) >= 4:
             r = _fit_turns_once(tm.subset(sel), orient, ext, **{**fit_kw, "combine": "joint"})
@@ -1621,16 +1624,17 @@ def cluster_outlier(tm: TurnMeasurements, orient: ImuOrientation, ext: Extrinsic
                 own[int(q)] = r
     if len(own) < 3:
         return None
-    best = None
-    for q, r in own.items():
-        rest = _fit_turns_once(tm.subset(tm.cluster != q), orient, ext, **fit_kw)
-        if not (np.isfinite(rest.sigma_ms) and rest.sigma_ms > 0):
-            continue
-        z = abs(r.offset_ns - rest.offset_ns) * 1e-6 / float(np.hypot(r.sigma_ms,
-                                                                      rest.sigma_ms))
-        if z > z_max and (best is None or z > best[1]):
-            best = (q, float(z))
-    return best
+
+    def dev(r: TurnTimeOffset, other: TurnTimeOffset) -> float:
+        return abs(r.offset_ns - other.offset_ns) * 1e-6 / float(np.hypot(r.sigma_ms,
+                                                                         other.sigma_ms))
+
+    q = max(own, key=lambda c: dev(own[c], pooled))
+    rest = _fit_turns_once(tm.subset(tm.cluster != q), orient, ext, **fit_kw)
+    if not (np.isfinite(rest.sigma_ms) and rest.sigma_ms > 0):
+        return None
+    z = dev(own[q], rest)
+    return (q, float(z), rest) if z > z_max else None
 
 
 def _fit_turns_once(tm: TurnMeasurements, orient: ImuOrientation, ext: Extrinsic, *,
