@@ -35,6 +35,9 @@ WAYS = {
     "split+mount+floor2": {"combine": "split", "carry_mount": True, "carry_floor_ms": 2.0},
     # the pipeline's default since stop 38 (calibration.turn_carry_floor_ms 0.5)
     "split+mount+floor.5": {"combine": "split", "carry_mount": True, "carry_floor_ms": 0.5},
+    # ... with one disagreeing station or carry left out (calibration.turn_cluster_outlier_z 3)
+    "split+mount+floor.5+z3": {"combine": "split", "carry_mount": True, "carry_floor_ms": 0.5,
+                               "cluster_outlier_z": 3.0},
     "stations": {"kind": False},
     "carries": {"kind": True},
     "carries+mount": {"kind": True, "carry_mount": True},

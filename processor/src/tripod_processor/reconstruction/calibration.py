@@ -1242,11 +1242,17 @@ class TurnTimeOffset:
     pairs: int
     rate_change_deg_s: float
     carry_pairs: int = 0
+    #: the cluster (station or carry, :class:`TurnMeasurements`' numbering) left out as
+    #: disagreeing with all the others (``cluster_outlier_z``), or None
+    dropped_cluster: int | None = None
 
     def to_dict(self) -> dict:
-        return {"imu_time_offset_ms": self.offset_ns * 1e-6, "sigma_ms": self.sigma_ms,
-                "pairs": self.pairs, "rate_change_deg_s": self.rate_change_deg_s,
-                "carry_pairs": self.carry_pairs}
+        d = {"imu_time_offset_ms": self.offset_ns * 1e-6, "sigma_ms": self.sigma_ms,
+             "pairs": self.pairs, "rate_change_deg_s": self.rate_change_deg_s,
+             "carry_pairs": self.carry_pairs}
+        if self.dropped_cluster is not None:
+            d["dropped_cluster"] = self.dropped_cluster
+        return d
 
 
 def time_offset_from_turns(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
@@ -1553,7 +1559,8 @@ def turn_measurements(lidar: LidarPackets, stations: list[Station], orient: ImuO
     return tm
 
 
-_FIT_KEYS = ("sigma_inflation", "combine", "carry_mount", "carry_floor_ms", "anchor_smooth_s")
+_FIT_KEYS = ("sigma_inflation", "combine", "carry_mount", "carry_floor_ms", "anchor_smooth_s",
+             "cluster_outlier_z")
 
 
 def _turn_offset_pass(lidar: LidarPackets, stations: list[Station], orient: ImuOrientation,
@@ -1584,6 +1591,66 @@ class TurnMeasurements:
 
 
 def fit_turn_offset(tm: TurnMeasurements, orient: ImuOrientation, ext: Extrinsic, *,
+                    sigma_inflation: float = 2.0, combine: str = "joint",
+                    carry_mount: bool = False, carry_floor_ms: float = 0.0,
+                    anchor_smooth_s: float = 0.0, cluster_outlier_z: float = 0.0
+                    ) -> TurnTimeOffset:
+    """The offset from the registered pairs (:func:`_fit_turns_once`, its keywords), with
+    ``cluster_outlier_z`` > 0 one cluster (a station's or a carry's pairs) left out when it
+    disagrees with all the others (:func:`cluster_outlier`): a station whose registrations
+    share one bias (a small room's view, a sway) or a span mis-taken for a carry pulls the whole
+    offset, which the pairs' trimming (one pair at a time, against the pooled fit that cluster
+    already pulled) does not catch. 0: every cluster kept (the old fit, to the bit)."""
+    fk = dict(sigma_inflation=sigma_inflation, combine=combine, carry_mount=carry_mount,
+              carry_floor_ms=carry_floor_ms, anchor_smooth_s=anchor_smooth_s)
+    res = _fit_turns_once(tm, orient, ext, **fk)
+    if not cluster_outlier_z > 0 or not np.isfinite(res.sigma_ms):
+        return res
+    out = cluster_outlier(tm, orient, ext, cluster_outlier_z, pooled=res, **fk)
+    if out is None:
+        return res
+    q, _, rest = out
+    rest.dropped_cluster = int(q)
+    return rest
+
+
+def cluster_outlier(tm: TurnMeasurements, orient: ImuOrientation, ext: Extrinsic, z_max: float,
+                    pooled: TurnTimeOffset | None = None, **fit_kw
+                    ) -> tuple[int, float, TurnTimeOffset] | None:
+    """(cluster, z, the others' fit) for the cluster of ``tm`` furthest from the pooled fit
+    (``pooled``, else fitted here) in its own and the pool's sigma, when its own offset lies
+    more than ``z_max`` from the others' fit: z = |δ_c − δ_rest| / hypot(σ_c, σ_rest), all as
+    :func:`_fit_turns_once` gives them with ``fit_kw`` (a cluster alone: "joint"). None when
+    it does not, or when fewer than 3 clusters have an offset of their own (two that disagree
+    cannot tell which is off). Costs a fit of each cluster alone (a few pairs each) and one of
+    all but the suspect."""
+    if pooled is None:
+        pooled = _fit_turns_once(tm, orient, ext, **fit_kw)
+    if not (np.isfinite(pooled.sigma_ms) and pooled.sigma_ms > 0):
+        return None
+    own = {}
+    for q in np.unique(tm.cluster):
+        sel = tm.cluster == q
+        if int(sel.sum()) >= 4:
+            r = _fit_turns_once(tm.subset(sel), orient, ext, **{**fit_kw, "combine": "joint"})
+            if np.isfinite(r.sigma_ms) and r.sigma_ms > 0:
+                own[int(q)] = r
+    if len(own) < 3:
+        return None
+
+    def dev(r: TurnTimeOffset, other: TurnTimeOffset) -> float:
+        return abs(r.offset_ns - other.offset_ns) * 1e-6 / float(np.hypot(r.sigma_ms,
+                                                                         other.sigma_ms))
+
+    q = max(own, key=lambda c: dev(own[c], pooled))
+    rest = _fit_turns_once(tm.subset(tm.cluster != q), orient, ext, **fit_kw)
+    if not (np.isfinite(rest.sigma_ms) and rest.sigma_ms > 0):
+        return None
+    z = dev(own[q], rest)
+    return (q, float(z), rest) if z > z_max else None
+
+
+def _fit_turns_once(tm: TurnMeasurements, orient: ImuOrientation, ext: Extrinsic, *,
                     sigma_inflation: float = 2.0, combine: str = "joint",
                     carry_mount: bool = False, carry_floor_ms: float = 0.0,
                     anchor_smooth_s: float = 0.0) -> TurnTimeOffset:

@@ -134,6 +134,12 @@ class CalibrationConfig(StrictModel):
     #: (``turn_anchor_smooth_s``); with that anchored, 0.5 on 17 dev rigs: offset within 1 ms
     #: 14 -> 15, worst 1.30 -> 1.13 ms, sum of |error| 6.6 -> 4.2 ms (README, calibration)
     turn_carry_floor_ms: float = Field(default=0.5, ge=0)
+    #: the turns' offset leaves out the one cluster (a station's pairs, or a carry's) whose own
+    #: offset lies more than this many combined sigmas from all the others' pooled one (at
+    #: least 3 clusters with an offset of their own), and is the others' fit: one bad station
+    #: (a small room's biased registrations) or a span mis-taken for a carry otherwise pulls the
+    #: whole offset. 0: every cluster kept (the old fit, to the bit). Issue 12, stop 40
+    turn_cluster_outlier_z: float = Field(default=0.0, ge=0)
     #: the carries' rows also fit a small correction of the mount rotation (3 unknowns, the
     #: hand-eye equation's (I − Pᵀ)ε): hand-eye's mount, 1-4° off on hard dev rigs, otherwise
     #: leaks into their offset (83's carries −2.1 → −1.4 ms, 87's 3.8 → 3.4; 40's, 3.9° off,

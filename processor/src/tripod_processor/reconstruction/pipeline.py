@@ -606,6 +606,7 @@ def _turns_time_offset(rec, seg, orient, ext, cfg, sweeps=None):
                                   uses_per_sweep=cc.turn_sweep_uses,
                                   combine=cc.turn_combine,
                                   carry_floor_ms=cc.turn_carry_floor_ms,
+                                  cluster_outlier_z=cc.turn_cluster_outlier_z,
                                   carry_mount=cc.turn_carry_mount,
                                   anchor_smooth_s=cc.turn_anchor_smooth_s,
                                   sweep_cache=sweeps)
