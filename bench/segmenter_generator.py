@@ -7,7 +7,8 @@ which are recomputed (deterministic) instead of kept on disk (~6 GB). The held-o
 with the bench's meta, so ``bench/scene.py --generator N --lofo-models DIR`` loads it.
 
 Usage: ``python bench/segmenter_generator.py --generator 3 -o w.npz --lofo-models DIR
-[--held-out hall] [--only-held]`` (one thread; ~25 min of CPU for both at load 5-10).
+[--held-out hall] [--only-held] [--seed N]`` (``--seed``: the training seed, default 0, the recipe's;
+another one measures the training noise) (one thread; ~25 min of CPU for both at load 5-10).
 """
 import argparse
 import sys
@@ -22,6 +23,8 @@ ap.add_argument("-o", "--output", type=Path, default=None, help="the shipped-rec
 ap.add_argument("--lofo-models", type=Path, required=True)
 ap.add_argument("--held-out", default="hall")
 ap.add_argument("--only-held", action="store_true", help="the held-out model only")
+ap.add_argument("--seed", type=int, default=0,
+                help="training seed (0: the recipe's; another one measures the training noise)")
 a = ap.parse_args()
 if not a.only_held and a.output is None:
     ap.error("-o is needed unless --only-held")
@@ -30,7 +33,7 @@ out_shipped, lofo_dir, HELD, ONLY_HELD = a.output, a.lofo_models, a.held_out, a.
 sys.argv = ["train-segmenter", "-o", str(out_shipped), "--procedural", "20", "--families", "all",
             "--copies", "2", "--keep", "30000", "--steps", "9000", "--batch", "4096",
             "--hidden", "128,128", "--stages", "2", "--hidden2", "128,128", "--steps2", "3000",
-            "--lr", "0.003", "--class-power", "0.25", "--seed", "0", "--threads", "1"]
+            "--lr", "0.003", "--class-power", "0.25", "--seed", str(a.seed), "--threads", "1"]
 from tripod_processor.sim import procedural  # noqa: E402
 
 procedural.GENERATOR = a.generator
@@ -41,7 +44,7 @@ from tripod_processor.scene.segmentation.train import (RECIPE, procedural_copies
 from tripod_processor.sim.procedural import FAMILIES, GENERATOR  # noqa: E402
 
 print("generator", GENERATOR, "held out", HELD, "only held", ONLY_HELD, flush=True)
-kw = dict(seed=0, batch=4096, lr=3e-3, num_threads=1, class_power=0.25)
+kw = dict(seed=a.seed, batch=4096, lr=3e-3, num_threads=1, class_power=0.25)
 t0 = time.time()
 
 
@@ -91,11 +94,11 @@ for name in (HELD, "all")[:1 if ONLY_HELD else 2]:
     if name == HELD:
         meta = {"held_out": HELD, "families": others, "per_family": 20, "steps": 9000,
                 "recipe": {k: list(v) if isinstance(v, tuple) else v for k, v in RECIPE.items()},
-                "seed": 0, "generator": GENERATOR}
+                "seed": a.seed, "generator": GENERATOR}
         lofo_dir.mkdir(parents=True, exist_ok=True)
         fn = lofo_dir / f"lofo_{HELD}_20x9000.npz"
     else:
-        meta = _provenance(seed=0, steps=9000, steps2=3000, batch=4096, lr=0.003,
+        meta = _provenance(seed=a.seed, steps=9000, steps2=3000, batch=4096, lr=0.003,
                            class_power=0.25, copies=2, synthetic=0, procedural=20,
                            fams=list(FAMILIES), keep=30000, files=[], s3dis=None,
                            s3dis_areas="1,2,3,4,6", seconds=r1.seconds + r2.seconds, report=r1)

@@ -184,3 +184,52 @@ def test_tall_buildings_reach_a_halls_height_and_older_generators_stay_reachable
         assert make_building("rooms", over[0]).height == b3.height
     finally:
         procedural.GENERATOR = old
+
+
+def _fingerprint(b) -> str:
+    import hashlib
+
+    h = hashlib.sha256(np.round(b.vertices, 4).astype(np.float64).tobytes())
+    h.update(b.parts.tobytes())
+    h.update(b.triangles.astype(np.int64).tobytes())
+    return h.hexdigest()[:16]
+
+
+def test_generator_4_gives_big_rooms_a_halls_parts_and_leaves_generator_2_alone():
+    """Generator 4 (opt-in, issue 18): the big rooms of the other families (open areas, rooms of
+    40 m^2 and 5 m on) get pilasters and stairs / ledges about as often as a hall; the layout,
+    heights, the hall, apartments and corridors stay as in generator 2, whose buildings are
+    pinned (fingerprints of generator 2 as shipped, before generator 4 existed)."""
+    from tripod_processor.sim import procedural
+
+    assert procedural.GENERATOR == 2
+    pinned = {("open_plan", 0): "ddfc297e1c847a0c", ("U", 2): "d208ea8c6950174b",
+              ("hall", 0): "1fb1a7aa2dffdf21", ("apartment", 0): "54ebbcc762609cfc"}
+    for (fam, seed), want in pinned.items():
+        assert _fingerprint(make_building(fam, seed)) == want, (fam, seed)
+        assert _fingerprint(make_building(fam, seed, generator=2)) == want, (fam, seed)
+    # deterministic, and only the parts differ from generator 2's draw
+    a, b = make_building("U", 2, generator=4), make_building("U", 2, generator=4)
+    assert _fingerprint(a) == _fingerprint(b) != pinned[("U", 2)]
+    g2 = make_building("U", 2)
+    assert a.rooms == g2.rooms and a.room_types == g2.room_types and a.height == g2.height
+    assert a.counts["pilasters"] > g2.counts.get("pilasters", 0)
+    assert a.counts["stairs"] > g2.counts.get("stairs", 0)
+    for fam in ("hall", "apartment", "corridor"):  # no hall-like rooms there (or the hall itself)
+        for seed in range(3):
+            assert _fingerprint(make_building(fam, seed, generator=4)) == \
+                _fingerprint(make_building(fam, seed)), (fam, seed)
+    # over 20 train seeds, open plans and L/U buildings with pilasters / stairs: about doubled
+    seeds = split_seeds("train", 20)
+    for fam in ("open_plan", "L", "U"):
+        n = {g: {k: sum(make_building(fam, s, generator=g).counts.get(k, 0) > 0 for s in seeds)
+                 for k in ("pilasters", "stairs")} for g in (2, 4)}
+        assert n[4]["pilasters"] >= n[2]["pilasters"] + 4, (fam, n)
+        assert n[4]["stairs"] >= n[2]["stairs"] + 2, (fam, n)
+    # the module's version is read at call time (bench/scene.py --generator 4)
+    old = procedural.GENERATOR
+    try:
+        procedural.GENERATOR = 4
+        assert _fingerprint(make_building("U", 2)) == _fingerprint(a)
+    finally:
+        procedural.GENERATOR = old

@@ -818,14 +818,22 @@ def _wall_things(b: _Builder, pl: _Placer, runs, room_id, area, h, rng, types):
             b.pbox("clutter", (cx - 0.01, cy - 0.01, h - drop + 0.08), (cx + 0.01, cy + 0.01, h))
 
 
-def _structure(b: _Builder, pl: _Placer, family, types, free, h, rng) -> None:
-    """Columns, pilasters, beams, low partitions, stairs and ledges."""
+def _structure(b: _Builder, pl: _Placer, family, types, free, h, rng,
+               generator: int | None = None) -> None:
+    """Columns, pilasters, beams, low partitions, stairs and ledges. From generator 4 on, the
+    big rooms of the other families (:func:`_hall_like`) also get a hall's share of pilasters and
+    of stairs / ledges, and a column grid as often as a hall (generators 2-3: bit-identical)."""
+    parts = (GENERATOR if generator is None else int(generator)) >= 4
     for rid, areas in enumerate(free):
         kind = types[rid]
         for area in areas:
             x0, y0, x1, y1 = area
             aw, ad = x1 - x0, y1 - y0
             big = kind in ("hall", "open") or aw * ad > 60
+            # generator 4: a big room of another family gets the hall's parts; the extra draws
+            # below only happen when it is on, so older versions draw the same stream
+            hall_like = parts and kind != "hall" and _hall_like(kind, aw, ad)
+            big = big or hall_like
             if big and rng.random() < 0.75:  # a grid of columns
                 sp = rng.uniform(4.5, 8.0)
                 r = rng.uniform(0.15, 0.4)
@@ -846,7 +854,8 @@ def _structure(b: _Builder, pl: _Placer, family, types, free, h, rng) -> None:
                     b.pbox("column", (rect[0], rect[1], 0), (rect[2], rect[3], h))
                     pl.take(rect, pad=0.4)
                     b.count("columns")
-            if (kind == "hall" and rng.random() < 0.5) or rng.random() < 0.1:  # pilasters
+            if (kind == "hall" and rng.random() < 0.5) or rng.random() < 0.1 or \
+                    (hall_like and rng.random() < HALL_PARTS["pilasters"]):  # pilasters
                 sp = rng.uniform(3.0, 6.0)
                 wp, dp = rng.uniform(0.3, 0.7), rng.uniform(0.12, 0.4)
                 for s in np.arange(x0 + sp / 2, x1 - 0.5, sp):
@@ -880,8 +889,24 @@ def _structure(b: _Builder, pl: _Placer, family, types, free, h, rng) -> None:
                         pl.take(rect, pad=0.3)
                         b.count("low_partitions")
             if (kind == "hall" and rng.random() < 0.6) or (big and rng.random() < 0.2) or \
-                    rng.random() < 0.06:
+                    rng.random() < 0.06 or (hall_like and rng.random() < HALL_PARTS["stairs"]):
                 _stairs(b, pl, area, h, rng)
+
+
+#: generator 4: the extra chance, per big room of another family (:func:`_hall_like`), of pilasters
+#: and of stairs / ledges, drawn after the older versions' own chances (pilasters 0.1, stairs
+#: 0.2 + 0.06 for a big room) fail, so that in all a hall-like room gets them about as often as a
+#: hall (0.5 and 0.6); column grids: such a room counts as big (0.75, the hall's chance).
+HALL_PARTS = {"pilasters": 0.45, "stairs": 0.47}
+#: generator 4: a room is hall-like from this floor area [m^2] and narrower side [m] on
+HALL_LIKE_AREA_M2, HALL_LIKE_SIDE_M = 40.0, 5.0
+
+
+def _hall_like(kind: str, w: float, d: float) -> bool:
+    """Generator 4: whether a free area of a room of another family than the hall is big enough
+    to get a hall's parts (an open plan's open area, a big room, an L / U arm; not a corridor)."""
+    return kind != "corridor" and (kind == "open" or (w * d >= HALL_LIKE_AREA_M2
+                                                      and min(w, d) >= HALL_LIKE_SIDE_M))
 
 
 def _stairs(b: _Builder, pl: _Placer, area, h, rng) -> None:
@@ -920,8 +945,10 @@ def _stairs(b: _Builder, pl: _Placer, area, h, rng) -> None:
 #: version of the generator: rows and models trained on an older one are told apart by it
 #: (1: issue 18's first two rounds; 2: tall buildings in every family, :data:`TALL`; 3, opt-in:
 #: their tall range reaches a hall's 10 m — not the default: the weights trained on its rows
-#: were worse on 30 dev halls, shipped and held out). Set it (``bench/scene.py --generator 3``)
-#: to draw another version's buildings (2 and 3: only :data:`TALL_BY_GENERATOR` differs).
+#: were worse on 30 dev halls, shipped and held out; 4, opt-in: generator 2's heights, and the big
+#: rooms of the other families get a hall's pilasters, stairs / ledges and column grids,
+#: :data:`HALL_PARTS`). Set it (``bench/scene.py --generator 4``) to draw another version's
+#: buildings (2 and 3: only :data:`TALL_BY_GENERATOR` differs; 2 and 4: only :func:`_structure`).
 GENERATOR = 2
 #: generator version -> family -> (chance, lowest, highest [m]): some buildings of every family
 #: but the hall are tall (lobbies, atria, old buildings, workshops), so that a model never trained
@@ -935,6 +962,7 @@ TALL_BY_GENERATOR = {
     3: {"rooms": (0.3, 4.0, 10.0), "corridor": (0.2, 3.5, 6.0), "open_plan": (0.3, 4.0, 10.0),
         "L": (0.3, 4.0, 10.0), "U": (0.3, 4.0, 10.0), "apartment": (0.25, 3.0, 4.5)},
 }
+TALL_BY_GENERATOR[4] = TALL_BY_GENERATOR[2]  # generator 4 changes the parts, not the heights
 #: the current version's table (what :func:`make_building` draws with :data:`GENERATOR` unset)
 TALL = TALL_BY_GENERATOR[GENERATOR]
 
@@ -985,7 +1013,7 @@ def make_building(family: str, seed: int, generator: int | None = None) -> Build
                 mh = o["zb"] - 0.05
             p, q = run.P(o["o0"] - 0.1, c_lo, 0), run.P(o["o1"] + 0.1, c_hi, 0)
             pl.taken.append((min(p[0], q[0]), min(p[1], q[1]), max(p[0], q[0]), max(p[1], q[1]), mh))
-    _structure(b, pl, family, types, free, h, rng)
+    _structure(b, pl, family, types, free, h, rng, generator)
     for rid, areas in enumerate(free):
         for area in areas:
             _wall_things(b, pl, runs, rid, area, h, rng, types)
