@@ -235,8 +235,9 @@ class CalibrationConfig(StrictModel):
     side_points_per_station: int = Field(default=160_000, ge=1000)
     #: sample points a station in the surfaces' fit on a lidar less than ``side_mount_warn_deg``
     #: from the pan axis (with ``tilt_range_weight_exp``: dev 722's first fit 0.13-0.16° off at
-    #: 80,000 on four sample seeds, 0.005-0.014° at 100,000; i12-tiltbias, stop 39)
-    near_points_per_station: int = Field(default=80_000, ge=1000)
+    #: 80,000 on four sample seeds, 0.005-0.014° at 100,000; i12-tiltbias, stop 39; the default
+    #: since stop 40, 80,000 before)
+    near_points_per_station: int = Field(default=100_000, ge=1000)
     #: fit the IMU's heading drift [rad/s about the world's vertical] with the lever arm, time
     #: offset and mount in the surfaces' fit (a nuisance parameter, not applied elsewhere).
     #: Held at zero, a drift turns a pan's end against its start, which a lidar on its side's
@@ -302,8 +303,10 @@ class CalibrationConfig(StrictModel):
     #: a station, rarely fill the 0.25-m voxels' 10-point minimum: the fit then rests on the
     #: near ones and its tilt was biased toward the pan axis (722 0.78°, 1351 0.35°; 240,000
     #: points: 0.03 / 0.02°). 2: 722 0.12°, 1351 0.007° at the same cost (i12-tiltbias, stop 39).
-    #: 0: a uniform sample (the default)
-    tilt_range_weight_exp: float = Field(default=0.0, ge=0, le=6)
+    #: 0: a uniform sample (the default until stop 40; 2 since, with ``near_points_per_station``
+    #: 100,000, ``odometry.height_seed_gate_m`` and ``slam.loop_sigma_floor_deg``: the 20 dev
+    #: rigs of stop 40 19 -> 20 within 1 cm and 0.1°, lever arm 17 -> 19 within 5 mm)
+    tilt_range_weight_exp: float = Field(default=2.0, ge=0, le=6)
     #: Gauss-Newton iterations of each station's own fit for ``tilt_spread_max_deg`` (started
     #: from the joint result; the first ones on coarser voxels, as every surfaces' fit). Dev
     #: seeds 0, 2, 721, 722, 1042, 1465: 5 gives every accuracy field of 8 to the bit at ~3 CPU-s
@@ -427,8 +430,9 @@ class OdometryConfig(StrictModel):
     #: each fragment sees them), held through the last stages, and claims
     #: ``height_seed_sigma_m`` along up in the pose graph. 0: off. Dev seed 722's pair round a
     #: corridor's corner (near-vertical lidar): sigma_up 4.1 cm, the coarse GICP pulled the
-    #: seed's 0.3-cm height error to 6.9 cm (0.1 cm with this at 0.01)
-    height_seed_gate_m: float = Field(default=0.0, ge=0)
+    #: seed's 0.3-cm height error to 6.9 cm (0.1 cm with this at 0.01; the default since stop
+    #: 40, 0 before)
+    height_seed_gate_m: float = Field(default=0.01, ge=0)
     height_seed_sigma_m: float = Field(default=0.01, gt=0)
     #: finish every pair with point-to-plane ICP on oriented normals (6 cm voxels): surfaces
     #: seen from opposite sides (a wall between two rooms) are never paired
@@ -498,8 +502,11 @@ class SlamConfig(StrictModel):
     #: stations farther apart over a smaller overlap than an odometry pair: dev seed 722's loop
     #: 1->3 (round a corridor's corner, the overlap one corner 4-5 m from both) was 1.9 cm and
     #: 0.27° off in yaw at the odometry's 3 mm / 0.03°, where its odometry pairs were 0.02°
+    #: (0.1° is the default since stop 40: 722 0.72 cm / 0.100° -> 0.56 / 0.061° with the
+    #: height gate and the range-weighted tilt sample; 1 cm as well moved rooms, dev 2 0.125 ->
+    #: 0.147 cm, so the metres' floor stays the odometry's)
     loop_sigma_floor_m: float = Field(default=0.0, ge=0)
-    loop_sigma_floor_deg: float = Field(default=0.0, ge=0)
+    loop_sigma_floor_deg: float = Field(default=0.1, ge=0)
 
 
 class OutputConfig(StrictModel):
