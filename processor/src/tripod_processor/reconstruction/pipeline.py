@@ -706,6 +706,8 @@ def _rejoin_joint_with_widened_surfaces(cal, turn, cc) -> None:
     if not s_w > own[1]:
         return
     w = s_w**2 / (s_t**2 + s_w**2)  # the turns' weight
+    _log_join("joint rejoined", before_ms=cal.time_offset_ns * 1e-6, surf_sigma_ms=own[1],
+              surf_sigma_widened_ms=s_w, turns_weight=w)
     cal.time_offset_ns = int(round(float(turn.offset_ns) + (1 - w) * d_ms * 1e6))
     cal.time_offset_sigma_ms = float(1 / np.sqrt(1 / s_t**2 + 1 / s_w**2))
 
@@ -740,6 +742,8 @@ def _turns_after_surfaces(rec, seg, orient, ext, cfg, cal, surfaces, off_ns, not
     cc = cfg.calibration
     again = _turns_time_offset(rec, seg, orient, ext, cfg, sweeps)
     if not again.sigma_ms <= cc.max_turns_time_offset_sigma_ms:
+        _log_join("after", turns_ms=again.offset_ns * 1e-6, turns_sigma_ms=again.sigma_ms,
+                  fit_ms=off_ns * 1e-6, unsure=True, before_ms=off_ns * 1e-6)
         notes.append(f"turns' time offset after the surfaces' fit unsure (σ "
                      f"{again.sigma_ms:.1f} ms): kept {off_ns * 1e-6:.2f} ms")
         return off_ns
