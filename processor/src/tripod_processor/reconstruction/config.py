@@ -207,6 +207,18 @@ class CalibrationConfig(StrictModel):
     #: 1.72 (83 1.88 -> 0.69, 608 0.91 -> 0.10; 609 1.02 -> 1.72), lever arm and ATE unchanged.
     #: On by default (stop 37, i12-offset3; false: the joint fit's offset as before)
     turn_remeasure_after_surfaces: bool = True
+    #: the surfaces' own time offset (the joint fit's with the turns' prior taken out, or the
+    #: surfaces' alone) weighs in the joins with the turns with at least this sigma [ms]: their
+    #: sigma is the residuals' over the fit's information and counts no model error (a yaw
+    #: error hides in walls seen head-on). Whether it joins (``max_time_offset_sigma_ms``, the
+    #: 3-sigma agreement) is still judged with its own sigma. 0 (default): its own sigma
+    #: (stop 40, i12-offset7; opt-in)
+    surface_time_sigma_floor_ms: float = Field(default=0.0, ge=0)
+    #: ... and, when it disagrees with the turns' by d, its sigma widened to at least
+    #: sqrt(d² − σ_turns²) (the two then agree within one combined sigma: a Birge-ratio
+    #: inflation), so a sure but wrong surfaces' estimate cannot take ~95 % of the weight a few
+    #: milliseconds from the turns'. False (default): as before (opt-in)
+    surface_time_consistency: bool = False
     #: ... and then its component along the spin axis joins the surfaces' by inverse variance,
     #: the surfaces' sigma there times this (they see it only at vertical edges: 1-8 sigma off
     #: on seven dev rigs, the turns' 0.2-1.6 sigma)

@@ -7,6 +7,7 @@ pose graph → outputs (map, fragments, pose graph, TUM, Foxglove MCAP, config) 
 
 from __future__ import annotations
 
+import logging
 import os
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -29,6 +30,16 @@ from .placement import Extrinsic, ImuOrientation, fit_clock_map, pose_world_lida
 from .scaleout import blas_one_thread, build_fragments
 from .slam import SlamResult, inv, run_odometry, run_slam
 from .stations import Segmentation, segment_stations
+
+# the time offset's joins (turns and surfaces), at DEBUG with the numbers in ``record.offset_join``
+# (a dict): for diagnosis only, no output depends on it
+_join_log = logging.getLogger("tripod_processor.reconstruction.offset_joins")
+
+
+def _log_join(stage: str, **numbers) -> None:
+    if _join_log.isEnabledFor(logging.DEBUG):
+        d = {"stage": stage, **{k: (None if v is None else float(v)) for k, v in numbers.items()}}
+        _join_log.debug("offset join %s: %s", stage, d, extra={"offset_join": d})
 
 
 @dataclass
@@ -466,6 +477,16 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
     # the surfaces' own offset (without the turns' prior), for a re-measure of the turns below
     surfaces = (_surfaces_own_offset(cal, turn if prior else None)
                 if turn is not None and cc.turn_remeasure_after_surfaces else None)
+    if turn is not None and _join_log.isEnabledFor(logging.DEBUG):
+        own = _surfaces_own_offset(cal, turn if prior else None)
+        _log_join("first", turns_ms=turn.offset_ns * 1e-6, turns_sigma_ms=turn.sigma_ms,
+                  surf_ms=None if own is None else own[0] * 1e-6,
+                  surf_sigma_ms=None if own is None else own[1],
+                  fit_ms=cal.time_offset_ns * 1e-6, fit_sigma_ms=cal.time_offset_sigma_ms,
+                  joint=bool(prior))
+    widen = cc.surface_time_sigma_floor_ms > 0 or cc.surface_time_consistency
+    if turn is not None and prior and widen:
+        _rejoin_joint_with_widened_surfaces(cal, turn, cc)
     if turn is not None and prior:
         # the joint fit holds both: its offset and sigma are the result
         cal.time_offset_method = "turns and surfaces (joint)"
@@ -476,6 +497,9 @@ def _self_calibrate(rec, seg, orient, ext, cfg, fit_lever, fit_time, fit_rot, no
         s_t, s_s = turn.sigma_ms, cal.time_offset_sigma_ms
         d_ms = (cal.time_offset_ns - turn.offset_ns) * 1e-6
         if s_s <= cc.max_time_offset_sigma_ms and abs(d_ms) < 3 * np.hypot(s_t, s_s):
+            if widen:
+                s_s = _surface_sigma_for_join(d_ms, s_t, s_s, cc.surface_time_sigma_floor_ms,
+                                              cc.surface_time_consistency)
             w = s_s**2 / (s_t**2 + s_s**2)  # the turns' weight
             cal.time_offset_ns = int(round(turn.offset_ns + (1 - w) * d_ms * 1e6))
             cal.time_offset_sigma_ms = float(1 / np.sqrt(1 / s_t**2 + 1 / s_s**2))
@@ -656,10 +680,45 @@ def _surfaces_own_offset(cal, prior_turn):
     return m_own, float(1.0 / np.sqrt(info))
 
 
-def _join_with_surfaces(turn_ns, turn_sigma_ms, surfaces, max_surface_sigma_ms):
+def _surface_sigma_for_join(d_ms, turn_sigma_ms, surf_sigma_ms, floor_ms=0.0,
+                            consistency=False) -> float:
+    """The surfaces' own offset's sigma [ms] as weighed in a join with the turns': at least
+    ``floor_ms``, and with ``consistency`` at least sqrt(d² − σ_turns²) for a disagreement of
+    ``d_ms`` (the two then within one combined sigma)."""
+    s = max(float(surf_sigma_ms), float(floor_ms))
+    if consistency:
+        s = max(s, float(np.sqrt(max(d_ms**2 - float(turn_sigma_ms) ** 2, 0.0))))
+    return s
+
+
+def _rejoin_joint_with_widened_surfaces(cal, turn, cc) -> None:
+    """The joint fit's offset ``cal`` (the turns' ``turn`` as its prior) joined again with the
+    surfaces' own sigma widened (:func:`_surface_sigma_for_join` with ``cc``'s floor and
+    consistency): the Gaussian marginal of the offset, the turns' times the surfaces' own. As
+    it was when the surfaces' own is prior-dominated or its sigma is not widened."""
+    own = _surfaces_own_offset(cal, turn)
+    if own is None:
+        return
+    s_t = float(turn.sigma_ms)
+    d_ms = (own[0] - float(turn.offset_ns)) * 1e-6
+    s_w = _surface_sigma_for_join(d_ms, s_t, own[1], cc.surface_time_sigma_floor_ms,
+                                  cc.surface_time_consistency)
+    if not s_w > own[1]:
+        return
+    w = s_w**2 / (s_t**2 + s_w**2)  # the turns' weight
+    _log_join("joint rejoined", before_ms=cal.time_offset_ns * 1e-6, surf_sigma_ms=own[1],
+              surf_sigma_widened_ms=s_w, turns_weight=w)
+    cal.time_offset_ns = int(round(float(turn.offset_ns) + (1 - w) * d_ms * 1e6))
+    cal.time_offset_sigma_ms = float(1 / np.sqrt(1 / s_t**2 + 1 / s_w**2))
+
+
+def _join_with_surfaces(turn_ns, turn_sigma_ms, surfaces, max_surface_sigma_ms,
+                        surface_sigma_floor_ms=0.0, consistency=False):
     """(offset_ns, sigma_ms, joined): the turns' offset joined by inverse variance with the
     surfaces' own ``surfaces`` ((offset_ns, sigma_ms) or None) when that is within
-    ``max_surface_sigma_ms`` and agrees (within 3 sigma); else the turns' alone."""
+    ``max_surface_sigma_ms`` and agrees (within 3 sigma); else the turns' alone. The surfaces'
+    sigma it is weighed with: :func:`_surface_sigma_for_join` (``surface_sigma_floor_ms``,
+    ``consistency``; by default its own)."""
     m, s = float(turn_ns), float(turn_sigma_ms)
     if surfaces is None:
         return m, s, False
@@ -667,6 +726,8 @@ def _join_with_surfaces(turn_ns, turn_sigma_ms, surfaces, max_surface_sigma_ms):
     d_ms = (m_s - m) * 1e-6
     if not (s_s <= max_surface_sigma_ms and abs(d_ms) < 3 * np.hypot(s, s_s)):
         return m, s, False
+    if surface_sigma_floor_ms > 0 or consistency:
+        s_s = _surface_sigma_for_join(d_ms, s, s_s, surface_sigma_floor_ms, consistency)
     w = s_s**2 / (s**2 + s_s**2)  # the turns' weight
     return m + (1 - w) * d_ms * 1e6, float(1 / np.sqrt(1 / s**2 + 1 / s_s**2)), True
 
@@ -681,11 +742,19 @@ def _turns_after_surfaces(rec, seg, orient, ext, cfg, cal, surfaces, off_ns, not
     cc = cfg.calibration
     again = _turns_time_offset(rec, seg, orient, ext, cfg, sweeps)
     if not again.sigma_ms <= cc.max_turns_time_offset_sigma_ms:
+        _log_join("after", turns_ms=again.offset_ns * 1e-6, turns_sigma_ms=again.sigma_ms,
+                  fit_ms=off_ns * 1e-6, unsure=True, before_ms=off_ns * 1e-6)
         notes.append(f"turns' time offset after the surfaces' fit unsure (σ "
                      f"{again.sigma_ms:.1f} ms): kept {off_ns * 1e-6:.2f} ms")
         return off_ns
     m, s, joined = _join_with_surfaces(again.offset_ns, again.sigma_ms, surfaces,
-                                       cc.max_time_offset_sigma_ms)
+                                       cc.max_time_offset_sigma_ms,
+                                       cc.surface_time_sigma_floor_ms,
+                                       cc.surface_time_consistency)
+    _log_join("after", turns_ms=again.offset_ns * 1e-6, turns_sigma_ms=again.sigma_ms,
+              surf_ms=None if surfaces is None else surfaces[0] * 1e-6,
+              surf_sigma_ms=None if surfaces is None else surfaces[1],
+              fit_ms=m * 1e-6, fit_sigma_ms=s, joined=joined, before_ms=off_ns * 1e-6)
     how = "turns (after surfaces)" + (" and surfaces" if joined else "")
     notes.append(f"turns' time offset measured again with the surfaces' lever arm: "
                  f"{again.offset_ns * 1e-6:.2f} ± {again.sigma_ms:.2f} ms; "
