@@ -69,7 +69,8 @@ def test_weak_height_pair_takes_the_floors_height():
     src, tgt, d = _pair()
     guess = np.eye(4)
     guess[:3, 3] = d + [0.0, 0.0, 0.06]  # a start 6 cm off in height, right across
-    old = od.register_fragments(src, tgt, np.eye(3), np.eye(3), OdometryConfig(),
+    old = od.register_fragments(src, tgt, np.eye(3), np.eye(3),
+                                OdometryConfig(height_seed_gate_m=0.0),
                                 T_guess=guess)
     new = od.register_fragments(src, tgt, np.eye(3), np.eye(3),
                                 OdometryConfig(height_seed_gate_m=0.01), T_guess=guess)
@@ -95,6 +96,6 @@ def test_height_from_seed_leaves_a_held_height_alone():
     weak = od.PairResult(T, 0.9, 0.01, np.diag([1e6, 1e6, 1e2] + [1e8] * 3), True)
     r, reset = od.height_from_seed(weak, 0.1, up, cfg)
     assert reset and np.allclose(r.T_target_source[:3, 3], [1.0, 2.0, 0.1])
-    # off (the default), or no floors: untouched
-    assert not od.height_from_seed(weak, 0.1, up, OdometryConfig())[1]
+    # off (gate 0, the default before stop 40), or no floors: untouched
+    assert not od.height_from_seed(weak, 0.1, up, OdometryConfig(height_seed_gate_m=0.0))[1]
     assert not od.height_from_seed(weak, None, up, cfg)[1]

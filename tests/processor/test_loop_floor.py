@@ -30,7 +30,9 @@ def test_loop_capped_floors():
     ocfg = OdometryConfig()
     sure = np.diag([1 / 0.003**2] * 3 + [1 / np.radians(0.03) ** 2] * 3)
     r = _pair(sure)
-    assert slam.loop_capped(r, ocfg, SlamConfig()) is r  # off by default
+    off = SlamConfig(loop_sigma_floor_m=0.0, loop_sigma_floor_deg=0.0)
+    assert slam.loop_capped(r, ocfg, off) is r  # off at 0 (the default before stop 40)
+    assert SlamConfig().loop_sigma_floor_deg == 0.1  # on by default since stop 40
     capped = slam.loop_capped(r, ocfg, SlamConfig(loop_sigma_floor_m=0.01,
                                                   loop_sigma_floor_deg=0.1)).information
     s = _sigmas(capped)

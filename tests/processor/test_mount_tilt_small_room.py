@@ -49,9 +49,15 @@ def small_room(tmp_path_factory):
     return rec, seg, orient, ext, s_he, R_true, b, truth, ext_raw, s_raw
 
 
-def _calibrate(small_room, tilt_from_surfaces: bool, smoothed: bool = True):
+def _calibrate(small_room, tilt_from_surfaces: bool, smoothed: bool = True,
+               default_sample: bool = False):
     rec, seg, orient, ext, s_he, R_true, b, _, ext_raw, s_raw = small_room
-    cal_cfg = {"tilt_from_surfaces": tilt_from_surfaces}
+    # the surfaces' sample as when this test was written (uniform, 80,000 a station): the
+    # range-weighted default since stop 40 no longer leaves hand-eye's 0.4° kept here
+    cal_cfg = {"tilt_from_surfaces": tilt_from_surfaces, "tilt_range_weight_exp": 0.0,
+               "near_points_per_station": 80_000}
+    if default_sample:
+        cal_cfg = {"tilt_from_surfaces": tilt_from_surfaces}
     if not smoothed:
         cal_cfg["range_denoise_firings"] = 0
         ext, s_he = ext_raw, s_raw
@@ -96,6 +102,10 @@ def test_surfaces_weighed_against_hand_eye(small_room):
     assert _lever_err_mm(cal, truth) < 5.0
     assert err_s < 0.1, (err_s, notes_s)
     assert _lever_err_mm(cal_s, truth) < 5.0
+    # the default sample since stop 40 (range-weighted, 100,000 a station): as good
+    err_d, notes_d, cal_d = _calibrate(small_room, True, default_sample=True)
+    assert err_d < 0.1, (err_d, notes_d)
+    assert _lever_err_mm(cal_d, truth) < 5.0
 
 
 def test_axis_tilt_sigma_synthetic():

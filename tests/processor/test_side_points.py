@@ -54,8 +54,10 @@ def test_a_lidar_on_its_side_gets_the_side_count(monkeypatch, tilt_deg):
 
 
 @pytest.mark.parametrize("tilt_deg", [0.0, 20.0, 49.0])
-def test_an_upright_lidar_keeps_80000(monkeypatch, tilt_deg):
-    assert _points_asked(monkeypatch, tilt_deg, side_points_per_station=160_000) == 80_000
+def test_an_upright_lidar_keeps_the_near_count(monkeypatch, tilt_deg):
+    # calibration.near_points_per_station: 100,000 by default since stop 40 (80,000 before)
+    assert _points_asked(monkeypatch, tilt_deg, side_points_per_station=160_000) == 100_000
+    assert _points_asked(monkeypatch, tilt_deg, near_points_per_station=80_000) == 80_000
 
 
 def _side_cal(sigma_fit_m: float):
